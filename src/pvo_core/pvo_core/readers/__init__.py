@@ -1,0 +1,15 @@
+"""Dataset readers: KITTI odometry (+ sun CSVs) and the Devon Island rover navigation dataset."""
+
+from .devon import DevonDataset, SunSensorReading, read_devon_sun_sensor, read_devon_sun_sensor_sampled
+from .kitti import KittiSequence, read_kitti_calibration, read_kitti_sun_csv, read_kitti_times
+
+__all__ = [
+    "DevonDataset",
+    "KittiSequence",
+    "SunSensorReading",
+    "read_devon_sun_sensor",
+    "read_devon_sun_sensor_sampled",
+    "read_kitti_calibration",
+    "read_kitti_sun_csv",
+    "read_kitti_times",
+]

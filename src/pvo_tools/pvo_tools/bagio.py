@@ -1,0 +1,162 @@
+"""Reading and writing rosbag2 (MCAP or sqlite3) with rosbags, safely.
+
+- :class:`SafeBagWriter` writes into a hidden temporary directory beside the target and renames it
+  into place only when writing finished: an interrupted conversion leaves no half-written bag.
+- :func:`open_bag` turns every way a bag can be broken into one :class:`BagError` line.
+"""
+
+from __future__ import annotations
+
+import shutil
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+from rosbags.interfaces import Connection
+
+from .errors import BagError
+from .typesys import ensure_type, project_typestore
+
+STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+
+
+def check_output_path(path: Path, overwrite: bool) -> None:
+    """Refuse to replace an existing path unless ``overwrite``."""
+    if path.exists() and not overwrite:
+        raise BagError(f"{path}: output exists; pass --overwrite to replace it")
+
+
+class SafeBagWriter:
+    """A rosbag2 writer that only makes ``path`` appear once :meth:`close` succeeds.
+
+    Args:
+        path: the bag directory to create.
+        storage: ``mcap`` (zstd-compressed chunks) or ``sqlite3``.
+        overwrite: replace an existing ``path``.
+        compress: zstd chunk compression (MCAP) / per-storage compression.
+    """
+
+    def __init__(self, path: str | Path, storage: str = "mcap", overwrite: bool = False, compress: bool = True):
+        self.path = Path(path)
+        if storage not in STORAGES:
+            raise BagError(f"unknown storage '{storage}'; use one of {sorted(STORAGES)}")
+        check_output_path(self.path, overwrite)
+        self.overwrite = overwrite
+        self.typestore = project_typestore()
+        # The bag is written as <hidden dir>/<name> so its storage file gets its final name.
+        self._tmp_parent = self.path.parent / f".{self.path.name}.partial-{uuid.uuid4().hex[:8]}"
+        self._tmp_parent.mkdir(parents=True)
+        self._tmp = self._tmp_parent / self.path.name
+        self._writer = Writer(self._tmp, version=9, storage_plugin=STORAGES[storage])
+        if compress and storage == "mcap":
+            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        self._writer.open()
+        self._connections: dict[str, Connection] = {}
+        self.counts: dict[str, int] = {}
+        self._closed = False
+
+    def add_topic(self, topic: str, type_name: str) -> Connection:
+        """Register a topic; the type definition is embedded in the bag."""
+        if topic in self._connections:
+            return self._connections[topic]
+        ensure_type(self.typestore, type_name)
+        connection = self._writer.add_connection(topic, type_name, typestore=self.typestore)
+        self._connections[topic] = connection
+        self.counts[topic] = 0
+        return connection
+
+    def write(self, topic: str, stamp_ns: int, message: Any) -> None:
+        """Serialise a rosbags message object to CDR and write it."""
+        connection = self._connections[topic]
+        data = self.typestore.serialize_cdr(message, connection.msgtype)
+        self.write_raw(topic, stamp_ns, data)
+
+    def write_raw(self, topic: str, stamp_ns: int, data: bytes | memoryview) -> None:
+        self._writer.write(self._connections[topic], int(stamp_ns), data)
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        """Finish the bag and move it into place."""
+        if self._closed:
+            return
+        self._writer.close()
+        self._closed = True
+        if self.path.exists():
+            if not self.overwrite:
+                shutil.rmtree(self._tmp_parent, ignore_errors=True)
+                raise BagError(f"{self.path}: output appeared while writing; not replaced")
+            shutil.rmtree(self.path) if self.path.is_dir() else self.path.unlink()
+        self._tmp.rename(self.path)
+        shutil.rmtree(self._tmp_parent, ignore_errors=True)
+
+    def abort(self) -> None:
+        """Drop everything written so far."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._writer.close()
+        except Exception:  # noqa: BLE001 - the writer may be half-open; the directory goes anyway
+            pass
+        shutil.rmtree(self._tmp_parent, ignore_errors=True)
+
+    def __enter__(self) -> SafeBagWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+@dataclass
+class TopicInfo:
+    name: str
+    type_name: str
+    count: int
+
+
+@contextmanager
+def open_bag(path: str | Path) -> Iterator[Reader]:
+    """Open a rosbag2 directory for reading; every failure becomes one BagError line."""
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f"{path}: no such bag")
+    if path.is_file():
+        raise BagError(f"{path}: a rosbag2 bag is a directory with metadata.yaml; got a file")
+    if not (path / "metadata.yaml").is_file():
+        raise BagError(f"{path}: not a rosbag2 bag (no metadata.yaml)")
+    reader = Reader(path)
+    try:
+        reader.open()
+    except Exception as error:  # noqa: BLE001 - rosbags raises several types for broken bags
+        raise BagError(f"{path}: cannot open bag: {_one_line(error)}") from None
+    try:
+        yield reader
+    finally:
+        try:
+            reader.close()
+        except Exception:  # noqa: BLE001
+            pass
+
+
+def iter_messages(reader: Reader, connections: list[Connection] | None = None, start_ns: int | None = None):
+    """Messages in time order, turning storage errors part-way into a BagError."""
+    try:
+        for item in reader.messages(connections=connections or (), start=start_ns):
+            yield item
+    except BagError:
+        raise
+    except Exception as error:  # noqa: BLE001
+        raise BagError(f"{reader.path}: corrupt or truncated bag: {_one_line(error)}") from None
+
+
+def _one_line(error: BaseException) -> str:
+    text = str(error).strip().splitlines()
+    return text[0] if text else type(error).__name__

@@ -1,0 +1,125 @@
+"""`pvo bag play`: publish a bag's stored CDR bytes unchanged, with the recorded timing and /clock."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+
+from .bagio import iter_messages, open_bag
+from .errors import BagError
+from .typesys import message_class
+
+#: Reliable publishers reach both reliable and best-effort subscribers.
+PLAYER_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE
+)
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
+
+
+@dataclass
+class PlayOptions:
+    rate: float = 1.0
+    start_offset: float = 0.0
+    topics: list[str] | None = None
+    loop: bool = False
+    clock: bool = True
+    wait_for_subscribers: int = 0
+    wait_timeout: float = 10.0
+    delay: float = 0.0
+
+
+@dataclass
+class PlayStats:
+    messages: int = 0
+    seconds: float = 0.0
+    per_topic: dict[str, int] = field(default_factory=dict)
+
+
+class BagPlayer:
+    """Publishes a bag from a node; usable in-process (tests) or from `pvo bag play`."""
+
+    def __init__(self, node: Node, bag: Path, options: PlayOptions) -> None:
+        if options.rate <= 0:
+            raise BagError(f"--rate must be positive, got {options.rate}")
+        if options.start_offset < 0:
+            raise BagError(f"--start-offset must be non-negative, got {options.start_offset}")
+        self.node = node
+        self.bag = Path(bag)
+        self.options = options
+        self.publishers: dict[str, object] = {}
+        self.clock_publisher = node.create_publisher(Clock, "/clock", CLOCK_QOS) if options.clock else None
+
+    def _prepare(self, reader) -> list:
+        connections = list(reader.connections)
+        if self.options.topics:
+            wanted = set(self.options.topics)
+            unknown = wanted - {c.topic for c in connections}
+            if unknown:
+                raise BagError(f"{self.bag}: no topic {sorted(unknown)} in the bag (it has {sorted({c.topic for c in connections})})")
+            connections = [c for c in connections if c.topic in wanted]
+        for connection in connections:
+            if connection.topic not in self.publishers:
+                cls = message_class(connection.msgtype)
+                self.publishers[connection.topic] = self.node.create_publisher(cls, connection.topic, PLAYER_QOS)
+        return connections
+
+    def _wait_for_subscribers(self) -> None:
+        wanted = self.options.wait_for_subscribers
+        if wanted <= 0:
+            return
+        deadline = time.monotonic() + self.options.wait_timeout
+        while time.monotonic() < deadline:
+            if all(p.get_subscription_count() >= wanted for p in self.publishers.values()):
+                return
+            time.sleep(0.02)
+        self.node.get_logger().warning(f"not every topic reached {wanted} subscriber(s) in {self.options.wait_timeout} s; playing anyway")
+
+    def play(self) -> PlayStats:
+        stats = PlayStats()
+        wall_start = time.monotonic()
+        with open_bag(self.bag) as reader:
+            connections = self._prepare(reader)
+            self._wait_for_subscribers()
+            if self.options.delay > 0:
+                time.sleep(self.options.delay)
+            bag_start = reader.start_time
+            first_ns = bag_start + int(self.options.start_offset * 1e9)
+            while True:
+                t0_wall = time.monotonic()
+                t0_bag: int | None = None
+                for connection, stamp_ns, raw in iter_messages(reader, connections, first_ns):
+                    if t0_bag is None:
+                        t0_bag = stamp_ns
+                    target = t0_wall + (stamp_ns - t0_bag) / 1e9 / self.options.rate
+                    delay = target - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                    if self.clock_publisher is not None:
+                        clock = Clock()
+                        clock.clock.sec, clock.clock.nanosec = divmod(stamp_ns, 1_000_000_000)
+                        self.clock_publisher.publish(clock)
+                    self.publishers[connection.topic].publish(bytes(raw))
+                    stats.messages += 1
+                    stats.per_topic[connection.topic] = stats.per_topic.get(connection.topic, 0) + 1
+                if not self.options.loop or t0_bag is None:
+                    break
+        stats.seconds = time.monotonic() - wall_start
+        return stats
+
+
+def play(bag: Path, options: PlayOptions, args: list[str] | None = None) -> PlayStats:
+    """Run a player node until the bag ends (or forever with ``loop``)."""
+    rclpy.init(args=args)
+    node = Node("pvo_bag_player")
+    try:
+        return BagPlayer(node, bag, options).play()
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()

@@ -1,0 +1,110 @@
+"""Builders of rosbags message objects (for writing bags) from plain numpy data."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pvo_core.lie import rotation_to_quaternion
+from pvo_core.sun import vector_to_zenith_azimuth
+
+from .typesys import project_typestore
+
+#: Frames (ARCHITECTURE.md "Frames and time").
+LEFT_FRAME = "camera_left_optical"
+RIGHT_FRAME = "camera_right_optical"
+
+
+def _t(name: str) -> Any:
+    return project_typestore().types[name]
+
+
+def stamp(stamp_ns: int) -> Any:
+    return _t("builtin_interfaces/msg/Time")(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
+
+
+def header(stamp_ns: int, frame_id: str) -> Any:
+    return _t("std_msgs/msg/Header")(stamp=stamp(stamp_ns), frame_id=frame_id)
+
+
+def image(stamp_ns: int, frame_id: str, pixels: NDArray[np.uint8]) -> Any:
+    """sensor_msgs/Image: mono8 for (H, W), rgb8 for (H, W, 3)."""
+    if pixels.ndim == 2:
+        encoding, step = "mono8", pixels.shape[1]
+    else:
+        encoding, step = "rgb8", pixels.shape[1] * 3
+    return _t("sensor_msgs/msg/Image")(
+        header=header(stamp_ns, frame_id),
+        height=pixels.shape[0],
+        width=pixels.shape[1],
+        encoding=encoding,
+        is_bigendian=0,
+        step=step,
+        data=np.ascontiguousarray(pixels).reshape(-1),
+    )
+
+
+def camera_info(stamp_ns: int, frame_id: str, projection: NDArray[np.float64], width: int, height: int) -> Any:
+    """sensor_msgs/CameraInfo of a rectified camera with its true 3x4 projection matrix."""
+    p = np.asarray(projection, dtype=float).reshape(3, 4)
+    k = p[:, :3].copy()
+    types = project_typestore().types
+    roi = types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    return types["sensor_msgs/msg/CameraInfo"](
+        header=header(stamp_ns, frame_id),
+        height=int(height),
+        width=int(width),
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=k.reshape(-1),
+        r=np.eye(3).reshape(-1),
+        p=p.reshape(-1),
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
+    )
+
+
+def pose(transform: NDArray[np.float64]) -> Any:
+    types = project_typestore().types
+    w, x, y, z = rotation_to_quaternion(transform[:3, :3])
+    tx, ty, tz = transform[:3, 3]
+    return types["geometry_msgs/msg/Pose"](
+        position=types["geometry_msgs/msg/Point"](x=float(tx), y=float(ty), z=float(tz)),
+        orientation=types["geometry_msgs/msg/Quaternion"](x=float(x), y=float(y), z=float(z), w=float(w)),
+    )
+
+
+def odometry(
+    stamp_ns: int,
+    frame_id: str,
+    child_frame_id: str,
+    transform: NDArray[np.float64],
+    pose_covariance: NDArray[np.float64],
+    twist_covariance: NDArray[np.float64],
+) -> Any:
+    types = project_typestore().types
+    vector3 = types["geometry_msgs/msg/Vector3"]
+    twist = types["geometry_msgs/msg/Twist"](linear=vector3(x=0.0, y=0.0, z=0.0), angular=vector3(x=0.0, y=0.0, z=0.0))
+    return types["nav_msgs/msg/Odometry"](
+        header=header(stamp_ns, frame_id),
+        child_frame_id=child_frame_id,
+        pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose(transform), covariance=pose_covariance.reshape(-1)),
+        twist=types["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=twist_covariance.reshape(-1)),
+    )
+
+
+def sun_direction(stamp_ns: int, frame_id: str, direction: NDArray[np.float64], covariance: NDArray[np.float64] | None = None) -> Any:
+    """pvo_msgs/SunDirection; zenith/azimuth from thesis eq. 5.7; covariance zeros = unknown."""
+    types = project_typestore().types
+    zenith, azimuth = vector_to_zenith_azimuth(direction)
+    d = direction / np.linalg.norm(direction)
+    return types["pvo_msgs/msg/SunDirection"](
+        header=header(stamp_ns, frame_id),
+        direction=types["geometry_msgs/msg/Vector3"](x=float(d[0]), y=float(d[1]), z=float(d[2])),
+        zenith=float(zenith),
+        azimuth=float(azimuth),
+        covariance=np.zeros(4) if covariance is None else np.asarray(covariance, dtype=float).reshape(4),
+    )
