@@ -23,7 +23,7 @@ Array = NDArray[np.float64]
 #: Below this rotation angle (rad) series expansions replace the closed forms.
 SMALL_ANGLE = 1e-6
 #: Within this distance of pi the logarithm extracts the axis from the symmetric part.
-NEAR_PI = 1e-4
+NEAR_PI = 1e-2
 
 
 def hat(phi: ArrayLike) -> Array:
@@ -54,25 +54,22 @@ def so3_log(rotation: ArrayLike) -> Array:
     """Axis-angle vector ``phi`` (rad, ``|phi| <= pi``) with ``so3_exp(phi) == rotation``.
 
     Three branches: the series near the identity, the closed form in general, and near pi the
-    axis from the symmetric part ``(R + R^T)/2 = cos(theta) I + (1 - cos(theta)) a a^T`` (where the
-    closed form divides by ``sin(theta) ~ 0``), its sign taken from the antisymmetric part.
+    unit quaternion's vector part (where the closed form divides by ``sin(theta) ~ 0``).
     """
     rot = np.asarray(rotation, dtype=float)
     cos_theta = np.clip(0.5 * (np.trace(rot) - 1.0), -1.0, 1.0)
-    theta = float(np.arccos(cos_theta))
     axis_sin = vee(rot)  # = sin(theta) * axis
+    theta = float(np.arctan2(np.linalg.norm(axis_sin), cos_theta))  # accurate where arccos is not
     if theta < SMALL_ANGLE:
         return axis_sin * (1.0 + theta**2 / 6.0)
     if np.pi - theta < NEAR_PI:
-        sym = 0.5 * (rot + rot.T) - cos_theta * np.eye(3)
-        sym /= 1.0 - cos_theta  # = a a^T
-        k = int(np.argmax(np.diag(sym)))
-        axis = sym[:, k] / np.sqrt(sym[k, k])
-        if axis @ axis_sin < 0.0:
-            axis = -axis
-        # Refine theta from both parts: atan2 is accurate where arccos is not.
-        theta = float(np.arctan2(np.linalg.norm(axis_sin), cos_theta))
-        return theta * axis / np.linalg.norm(axis)
+        # The closed form divides by sin(theta) ~ 0 here. The quaternion (Shepperd's method) takes
+        # the axis from the symmetric part and the small scalar w from the antisymmetric part, both
+        # to machine precision, so theta = 2 atan2(|v|, w) keeps full accuracy up to pi.
+        q = rotation_to_quaternion(rot)
+        v = q[1:]
+        norm_v = float(np.linalg.norm(v))
+        return 2.0 * np.arctan2(norm_v, q[0]) * v / norm_v
     return theta / np.sin(theta) * axis_sin
 
 
