@@ -98,7 +98,7 @@ def _add_graph(sub: argparse._SubParsersAction) -> None:
     verbs = topic.add_subparsers(dest="verb", required=True, metavar="VERB")
     lst = verbs.add_parser("list", help="list topics")
     lst.add_argument("--show-types", "-t", action="store_true")
-    lst.add_argument("--wait", type=float, default=1.0, help="discovery time (s)")
+    lst.add_argument("--wait", type=float, default=2.5, help="discovery time (s)")
     info = verbs.add_parser("info", help="type and publisher/subscription counts")
     info.add_argument("topic")
     info.add_argument("--wait", type=float, default=2.0)
@@ -119,7 +119,7 @@ def _add_graph(sub: argparse._SubParsersAction) -> None:
     node = sub.add_parser("node", help="inspect nodes on the live graph")
     nverbs = node.add_subparsers(dest="verb", required=True, metavar="VERB")
     nlist = nverbs.add_parser("list", help="list nodes")
-    nlist.add_argument("--wait", type=float, default=1.0)
+    nlist.add_argument("--wait", type=float, default=2.5, help="discovery time (s)")
 
     iface = sub.add_parser("interface", help="show message definitions")
     iverbs = iface.add_subparsers(dest="verb", required=True, metavar="VERB")
