@@ -40,11 +40,11 @@ $(BUILD_STAMP): $(VENV_STAMP) $(SOURCES)
 	  | { grep -v "doesn't contain any 'local_setup" || true; }
 	@touch $@
 
-test: build
+test: build lint
 	$(ENV) && python -m pytest $(PYTEST_ARGS)
 
 lint: $(VENV_STAMP)
-	$(VENV)/bin/ruff check src test benchmarks
+	$(VENV)/bin/ruff check src test benchmarks conftest.py && $(VENV)/bin/ruff format --check src test benchmarks conftest.py
 
 demo: build
 	$(ENV) && bash scripts/demo.sh

@@ -7,6 +7,7 @@ bytes and stamps and /clock advancing; play -> record -> the recorded bag equals
 
 from __future__ import annotations
 
+import itertools
 import subprocess
 import threading
 import time
@@ -14,7 +15,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import rclpy
+from pvo_core.readers import KittiSequence
+from pvo_tools.convert import convert_kitti
+from pvo_tools.player import BagPlayer, PlayOptions
+from pvo_tools.recorder import BagRecorder, RecordOptions
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -22,11 +26,6 @@ from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
-
-from pvo_core.readers import KittiSequence
-from pvo_tools.convert import convert_kitti
-from pvo_tools.player import BagPlayer, PlayOptions
-from pvo_tools.recorder import BagRecorder, RecordOptions
 
 pytestmark = pytest.mark.ros
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
@@ -37,7 +36,9 @@ IMAGE_TOPICS = ("/stereo/left/image_rect", "/stereo/right/image_rect")
 def kitti06_bag(pvo_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = pvo_data / "kitti/sequences/06"
     out = tmp_path_factory.mktemp("kitti06") / "bag"
-    sequence = KittiSequence(root, rate_hz=10.0, poses_file=root / "poses_frames000-050.txt", sun_file=pvo_data / "kitti/sun/kitti_sun_test_06.csv")
+    sequence = KittiSequence(
+        root, rate_hz=10.0, poses_file=root / "poses_frames000-050.txt", sun_file=pvo_data / "kitti/sun/kitti_sun_test_06.csv"
+    )
     convert_kitti(sequence, out, epoch=1317384506.0, show_progress=False)
     return out
 
@@ -102,13 +103,19 @@ def test_play_delivers_every_stereo_pair_unchanged(ros_context, nodes, kitti06_b
     for topic in IMAGE_TOPICS:
         assert len(received[topic]) == 51, topic
         assert received[topic] == [raw for _, raw in expected[topic]]  # identical bytes, hence stamps
-    assert len(clock) >= 51 and all(b >= a for a, b in zip(clock, clock[1:], strict=False))
+    assert len(clock) >= 51 and all(b >= a for a, b in itertools.pairwise(clock))
     assert clock[-1] - clock[0] == pytest.approx(5.0e9, rel=0.05)
     assert clock[0] == expected[IMAGE_TOPICS[0]][0][0]
 
 
 def test_play_then_record_reproduces_the_bag(ros_context, nodes, kitti06_bag: Path, tmp_path: Path) -> None:
-    topics = [*IMAGE_TOPICS, "/stereo/left/camera_info", "/stereo/right/camera_info", "/ground_truth/odometry", "/ground_truth/sun_direction"]
+    topics = [
+        *IMAGE_TOPICS,
+        "/stereo/left/camera_info",
+        "/stereo/right/camera_info",
+        "/ground_truth/odometry",
+        "/ground_truth/sun_direction",
+    ]
     recorder_node = Node("recorder", context=ros_context)
     player_node = Node("player", context=ros_context)
     nodes += [recorder_node, player_node]
@@ -139,8 +146,22 @@ def test_cli_play_reaches_a_subscriber(ros_context, nodes, ros_env, sample_bag: 
     listener.create_subscription(Image, "/stereo/left/image_rect", received.append, RELIABLE, raw=True)
     with Spinner(ros_context, listener):
         result = subprocess.run(
-            ["pvo", "bag", "play", str(sample_bag), "--rate", "5", "--topics", "/stereo/left/image_rect", "--wait-for-subscribers", "1"],
-            env=ros_env, capture_output=True, text=True, timeout=60,
+            [
+                "pvo",
+                "bag",
+                "play",
+                str(sample_bag),
+                "--rate",
+                "5",
+                "--topics",
+                "/stereo/left/image_rect",
+                "--wait-for-subscribers",
+                "1",
+            ],
+            env=ros_env,
+            capture_output=True,
+            text=True,
+            timeout=60,
         )
         deadline = time.monotonic() + 5
         while time.monotonic() < deadline and len(received) < 51:
@@ -162,12 +183,20 @@ def test_cli_against_a_live_publisher(ros_context, nodes, ros_env) -> None:
 
     talker.create_timer(0.1, tick)
     with Spinner(ros_context, talker):
-        echo = subprocess.run(["pvo", "topic", "echo", "/chatter", "--count", "2"], env=ros_env, capture_output=True, text=True, timeout=60)
-        hz = subprocess.run(["pvo", "topic", "hz", "/chatter", "--duration", "3.5"], env=ros_env, capture_output=True, text=True, timeout=60)
+        echo = subprocess.run(
+            ["pvo", "topic", "echo", "/chatter", "--count", "2"], env=ros_env, capture_output=True, text=True, timeout=60
+        )
+        hz = subprocess.run(
+            ["pvo", "topic", "hz", "/chatter", "--duration", "3.5"], env=ros_env, capture_output=True, text=True, timeout=60
+        )
         listing = subprocess.run(["pvo", "topic", "list", "-t"], env=ros_env, capture_output=True, text=True, timeout=60)
         info = subprocess.run(["pvo", "topic", "info", "/chatter"], env=ros_env, capture_output=True, text=True, timeout=60)
-        node_list = subprocess.run(["pvo", "node", "list", "--wait", "4"], env=ros_env, capture_output=True, text=True, timeout=60)
-        missing = subprocess.run(["pvo", "topic", "echo", "/nothing", "--wait", "0.5"], env=ros_env, capture_output=True, text=True, timeout=60)
+        node_list = subprocess.run(
+            ["pvo", "node", "list", "--wait", "4"], env=ros_env, capture_output=True, text=True, timeout=60
+        )
+        missing = subprocess.run(
+            ["pvo", "topic", "echo", "/nothing", "--wait", "0.5"], env=ros_env, capture_output=True, text=True, timeout=60
+        )
     assert echo.returncode == 0, echo.stderr
     blocks = [b.strip() for b in echo.stdout.split("---") if b.strip()]
     assert len(blocks) == 2 and all(b.startswith("data: 'hello ") for b in blocks)

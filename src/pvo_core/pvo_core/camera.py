@@ -46,9 +46,7 @@ class StereoCamera:
             raise ValueError(f"stereo camera baseline must be positive, got {self.baseline} m")
 
     @classmethod
-    def from_projection_matrices(
-        cls, p_left: ArrayLike, p_right: ArrayLike, width: int = 0, height: int = 0
-    ) -> StereoCamera:
+    def from_projection_matrices(cls, p_left: ArrayLike, p_right: ArrayLike, width: int = 0, height: int = 0) -> StereoCamera:
         """Build from the 3x4 rectified projection matrices (KITTI ``P0``/``P1``, ROS ``P``).
 
         The right matrix carries ``P[0, 3] = -f * baseline``.
@@ -91,7 +89,7 @@ class StereoCamera:
         f, fb = self.f, self.f * self.baseline
         inv_z = 1.0 / z
         inv_z2 = inv_z * inv_z
-        jac = np.zeros(p.shape[:-1] + (3, 3))
+        jac = np.zeros((*p.shape[:-1], 3, 3))
         jac[..., 0, 0] = f * inv_z
         jac[..., 0, 2] = -f * x * inv_z2
         jac[..., 1, 1] = f * inv_z
@@ -104,7 +102,7 @@ class StereoCamera:
         y = np.asarray(observations, dtype=float)
         u, v, d = y[..., 0], y[..., 1], y[..., 2]
         b = self.baseline
-        jac = np.zeros(y.shape[:-1] + (3, 3))
+        jac = np.zeros((*y.shape[:-1], 3, 3))
         jac[..., 0, 0] = b / d
         jac[..., 0, 2] = -b * (u - self.cu) / d**2
         jac[..., 1, 1] = b / d

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from pvo_core.camera import StereoCamera
 
 KITTI_P0 = np.array([[707.0912, 0, 601.8873, 0], [0, 707.0912, 183.1104, 0], [0, 0, 1, 0]])
@@ -40,7 +39,9 @@ def test_jacobians_against_finite_differences() -> None:
         numeric = np.column_stack([(CAMERA.project(p + eps * e) - CAMERA.project(p - eps * e)) / (2 * eps) for e in np.eye(3)])
         np.testing.assert_allclose(CAMERA.project_jacobian(p), numeric, rtol=1e-6, atol=1e-7)
         y = CAMERA.project(p)
-        numeric = np.column_stack([(CAMERA.triangulate(y + eps * e) - CAMERA.triangulate(y - eps * e)) / (2 * eps) for e in np.eye(3)])
+        numeric = np.column_stack(
+            [(CAMERA.triangulate(y + eps * e) - CAMERA.triangulate(y - eps * e)) / (2 * eps) for e in np.eye(3)]
+        )
         np.testing.assert_allclose(CAMERA.triangulate_jacobian(y), numeric, rtol=1e-6, atol=1e-9)
     batch = random_points(5)
     np.testing.assert_allclose(CAMERA.project_jacobian(batch), np.stack([CAMERA.project_jacobian(p) for p in batch]))

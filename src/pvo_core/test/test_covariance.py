@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-
 from pvo_core.covariance import gtsam_to_ros_covariance, is_positive_definite, ros_to_gtsam_covariance
 from pvo_core.lie import se3_exp, se3_inverse
 

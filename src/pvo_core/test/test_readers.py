@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from pvo_core.errors import DataFormatError
 from pvo_core.imageio import read_image
 from pvo_core.readers import (

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
-
 from pvo_core.lie import quaternion_to_rotation
 from pvo_core.trajectory import Trajectory
 
@@ -33,7 +32,7 @@ class BagInfo:
 
     def lines(self) -> list[str]:
         def fmt_time(ns: int) -> str:
-            when = datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).strftime("%b %d %Y %H:%M:%S.%f")[:-3]
+            when = datetime.fromtimestamp(ns / 1e9, tz=UTC).strftime("%b %d %Y %H:%M:%S.%f")[:-3]
             return f"{when} UTC ({ns / 1e9:.9f})"
 
         out = [
@@ -59,9 +58,7 @@ def bag_info(path: str | Path) -> BagInfo:
         counts: dict[str, int] = {}
         for connection in reader.connections:
             counts[connection.topic] = counts.get(connection.topic, 0) + connection.msgcount
-        topics = sorted(
-            {(c.topic, c.msgtype, counts[c.topic], c.ext.serialization_format) for c in reader.connections}
-        )
+        topics = sorted({(c.topic, c.msgtype, counts[c.topic], c.ext.serialization_format) for c in reader.connections})
         storage = _storage_identifier(path)
         compression = reader.compression_format or ""
         if compression:

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
-from rosbags.interfaces import Connection
 
 from .errors import BagError
 from .typesys import ensure_type, project_typestore
@@ -149,8 +149,7 @@ def open_bag(path: str | Path) -> Iterator[Reader]:
 def iter_messages(reader: Reader, connections: list[Connection] | None = None, start_ns: int | None = None):
     """Messages in time order, turning storage errors part-way into a BagError."""
     try:
-        for item in reader.messages(connections=connections or (), start=start_ns):
-            yield item
+        yield from reader.messages(connections=connections or (), start=start_ns)
     except BagError:
         raise
     except Exception as error:  # noqa: BLE001

@@ -35,13 +35,19 @@ def _add_convert(sub: argparse._SubParsersAction) -> None:
     devon.add_argument("dataset_dir", type=Path, help="directory with <type>-sNN image folders and logs/")
     devon.add_argument("--out", "-o", type=Path, required=True, help="bag directory to write")
     devon.add_argument("--mono", action="store_true", help="write the left camera only (when right images are absent)")
-    devon.add_argument("--image-type", default="grey-rectified-512x384", choices=["grey-rectified-512x384", "color-rectified-1280x960"])
+    devon.add_argument(
+        "--image-type", default="grey-rectified-512x384", choices=["grey-rectified-512x384", "color-rectified-1280x960"]
+    )
     devon.add_argument("--rate", type=float, help="frame rate (Hz) to stamp images when logs/image-times.txt is absent")
     devon.add_argument("--start-time", type=float, default=0.0, help="UNIX time of the first image with --rate")
-    devon.add_argument("--image-time-zone", type=float, default=-5.0, help="UTC offset (h) of image-times.txt entries without a zone")
+    devon.add_argument(
+        "--image-time-zone", type=float, default=-5.0, help="UTC offset (h) of image-times.txt entries without a zone"
+    )
     devon.add_argument("--start", type=int, default=0, help="first image (position among the images)")
     devon.add_argument("--count", type=int, help="number of images (default: all)")
-    devon.add_argument("--sun-azimuth-sign", type=float, default=1.0, choices=[1.0, -1.0], help="sign applied to the logged azimuth")
+    devon.add_argument(
+        "--sun-azimuth-sign", type=float, default=1.0, choices=[1.0, -1.0], help="sign applied to the logged azimuth"
+    )
     devon.add_argument("--sun-azimuth-offset-deg", type=float, default=0.0, help="added to the signed azimuth (deg)")
     devon.add_argument(
         "--sun-sensor-extrinsic",
@@ -51,7 +57,9 @@ def _add_convert(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_storage(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap", help="rosbag2 storage (default mcap, zstd chunks)")
+    parser.add_argument(
+        "--storage", choices=["mcap", "sqlite3"], default="mcap", help="rosbag2 storage (default mcap, zstd chunks)"
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
 
@@ -69,7 +77,9 @@ def _add_bag(sub: argparse._SubParsersAction) -> None:
     play.add_argument("--topics", nargs="+", help="play only these topics")
     play.add_argument("--loop", "-l", action="store_true", help="play again and again")
     play.add_argument("--no-clock", action="store_true", help="do not publish /clock")
-    play.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N", help="wait (up to 10 s) for N subscribers per topic")
+    play.add_argument(
+        "--wait-for-subscribers", type=int, default=0, metavar="N", help="wait (up to 10 s) for N subscribers per topic"
+    )
     play.add_argument("--delay", type=float, default=0.0, help="seconds to wait before playing (discovery)")
 
     rec = verbs.add_parser("record", help="record topics to a bag (raw bytes, definitions preserved)")
@@ -154,9 +164,13 @@ def _cmd_convert(args: argparse.Namespace) -> int:
             start=args.start,
             count=args.count,
         )
-        summary = convert_kitti(sequence, args.out, storage=args.storage, overwrite=args.overwrite, epoch=args.epoch, show_progress=not args.quiet)
+        summary = convert_kitti(
+            sequence, args.out, storage=args.storage, overwrite=args.overwrite, epoch=args.epoch, show_progress=not args.quiet
+        )
     else:
-        dataset = DevonDataset(args.dataset_dir, image_type=args.image_type, image_time_offset=devon_time_offset(args.image_time_zone))
+        dataset = DevonDataset(
+            args.dataset_dir, image_type=args.image_type, image_time_offset=devon_time_offset(args.image_time_zone)
+        )
         convention = SunSensorConvention(
             azimuth_sign=args.sun_azimuth_sign,
             azimuth_offset_deg=args.sun_azimuth_offset_deg,
@@ -205,7 +219,14 @@ def _cmd_bag(args: argparse.Namespace) -> int:
             raise PvoError("bag record needs topics or --all")
         counts = record(
             args.output,
-            RecordOptions(topics=args.topics, record_all=args.all, duration=args.duration, stamp=args.stamp, storage=args.storage, overwrite=args.overwrite),
+            RecordOptions(
+                topics=args.topics,
+                record_all=args.all,
+                duration=args.duration,
+                stamp=args.stamp,
+                storage=args.storage,
+                overwrite=args.overwrite,
+            ),
         )
         print(f"recorded {sum(counts.values())} messages on {len(counts)} topics to {args.output}", file=sys.stderr)
     elif args.verb == "trajectory":

@@ -13,7 +13,6 @@ from datetime import timedelta
 from pathlib import Path
 
 import numpy as np
-
 from pvo_core.errors import DataFormatError
 from pvo_core.imageio import read_image
 from pvo_core.lie import quaternion_to_rotation
@@ -61,11 +60,16 @@ def _bag_size(path: Path) -> int:
 
 
 def _ns(seconds: float) -> int:
-    return int(round(seconds * 1e9))
+    return round(seconds * 1e9)
 
 
 def convert_kitti(
-    sequence: KittiSequence, out: Path, storage: str = "mcap", overwrite: bool = False, epoch: float = 0.0, show_progress: bool = True
+    sequence: KittiSequence,
+    out: Path,
+    storage: str = "mcap",
+    overwrite: bool = False,
+    epoch: float = 0.0,
+    show_progress: bool = True,
 ) -> ConversionSummary:
     """Write a KITTI sequence as a bag. ``epoch`` (UNIX s) is added to the sequence's times."""
     start = time.monotonic()
@@ -88,17 +92,24 @@ def convert_kitti(
             if i == 0:
                 height, width = left.shape[:2]
             elif left.shape[:2] != (height, width):
-                raise DataFormatError(sequence.left_paths[i], f"image size {left.shape[1]}x{left.shape[0]} differs from the first frame's {width}x{height}")
+                raise DataFormatError(
+                    sequence.left_paths[i],
+                    f"image size {left.shape[1]}x{left.shape[0]} differs from the first frame's {width}x{height}",
+                )
             t = _ns(epoch + sequence.stamps[i])
             writer.write(TOPIC_LEFT_INFO, t, rosmsgs.camera_info(t, rosmsgs.LEFT_FRAME, sequence.projection_left, width, height))
-            writer.write(TOPIC_RIGHT_INFO, t, rosmsgs.camera_info(t, rosmsgs.RIGHT_FRAME, sequence.projection_right, width, height))
+            writer.write(
+                TOPIC_RIGHT_INFO, t, rosmsgs.camera_info(t, rosmsgs.RIGHT_FRAME, sequence.projection_right, width, height)
+            )
             writer.write(TOPIC_LEFT_IMAGE, t, rosmsgs.image(t, rosmsgs.LEFT_FRAME, left))
             writer.write(TOPIC_RIGHT_IMAGE, t, rosmsgs.image(t, rosmsgs.RIGHT_FRAME, right))
             if sequence.poses is not None:
                 writer.write(
                     TOPIC_GT_ODOMETRY,
                     t,
-                    rosmsgs.odometry(t, GT_FRAME, rosmsgs.LEFT_FRAME, sequence.poses[i], GT_POSE_COVARIANCE, UNKNOWN_TWIST_COVARIANCE),
+                    rosmsgs.odometry(
+                        t, GT_FRAME, rosmsgs.LEFT_FRAME, sequence.poses[i], GT_POSE_COVARIANCE, UNKNOWN_TWIST_COVARIANCE
+                    ),
                 )
             if sequence.sun_vectors is not None:
                 # KITTI's rectified cameras share one orientation: the image_02 vector holds for image_00.
@@ -154,7 +165,9 @@ def convert_devon(
     stamped with the image time plus its offset) or, with image times, from ``sun-sensor.txt``.
     """
     if not dataset.has_right_images and not mono:
-        raise DataFormatError(dataset.root, "no right images in the dataset: stereo needs them (pass --mono to write the left camera only)")
+        raise DataFormatError(
+            dataset.root, "no right images in the dataset: stereo needs them (pass --mono to write the left camera only)"
+        )
     start_clock = time.monotonic()
     indices = dataset.indices[start : None if count is None else start + count]
     if not indices:
@@ -167,7 +180,9 @@ def convert_devon(
         stamps = {i: times[i] for i in indices}
     else:
         if rate_hz is None or rate_hz <= 0:
-            raise DataFormatError(dataset.logs / "image-times.txt", "not found; give --rate HZ (and --start-time) to stamp the images")
+            raise DataFormatError(
+                dataset.logs / "image-times.txt", "not found; give --rate HZ (and --start-time) to stamp the images"
+            )
         stamps = {index: start_time + k / rate_hz for k, index in enumerate(indices)}
     camera = dataset.camera()
     fb = camera.f * camera.baseline
@@ -196,7 +211,9 @@ def convert_devon(
                     raise DataFormatError(dataset.left_images[index], "has no matching right image")
                 right = read_image(right_path)
                 if right.shape != left.shape:
-                    raise DataFormatError(right_path, f"size {right.shape[1]}x{right.shape[0]} differs from the left image's {width}x{height}")
+                    raise DataFormatError(
+                        right_path, f"size {right.shape[1]}x{right.shape[0]} differs from the left image's {width}x{height}"
+                    )
                 writer.write(TOPIC_RIGHT_INFO, t, rosmsgs.camera_info(t, rosmsgs.RIGHT_FRAME, p_right, width, height))
                 writer.write(TOPIC_RIGHT_IMAGE, t, rosmsgs.image(t, rosmsgs.RIGHT_FRAME, right))
             if gps is not None and index in gps:
@@ -204,7 +221,11 @@ def convert_devon(
                 transform[:3, 3] = gps[index]
                 # GPS gives position only: the orientation's covariance marks it unknown.
                 covariance = np.diag([1e-4, 1e-4, 1e-4, 1e6, 1e6, 1e6])
-                writer.write(TOPIC_GT_ODOMETRY, t, rosmsgs.odometry(t, "map", "gps_antenna", transform, covariance, UNKNOWN_TWIST_COVARIANCE))
+                writer.write(
+                    TOPIC_GT_ODOMETRY,
+                    t,
+                    rosmsgs.odometry(t, "map", "gps_antenna", transform, covariance, UNKNOWN_TWIST_COVARIANCE),
+                )
             if progress:
                 progress.update()
         if progress:

@@ -26,7 +26,9 @@ def find_executable(package: str, executable: str) -> Path:
     try:
         prefix = Path(get_package_prefix(package))
     except (PackageNotFoundError, KeyError, LookupError):
-        raise PvoError(f"package '{package}' not found in the ament index (AMENT_PREFIX_PATH); is install/setup.bash sourced?") from None
+        raise PvoError(
+            f"package '{package}' not found in the ament index (AMENT_PREFIX_PATH); is install/setup.bash sourced?"
+        ) from None
     lib = prefix / "lib" / package
     candidate = lib / executable
     if candidate.is_file() and os.access(candidate, os.X_OK):

@@ -61,7 +61,9 @@ class BagPlayer:
             wanted = set(self.options.topics)
             unknown = wanted - {c.topic for c in connections}
             if unknown:
-                raise BagError(f"{self.bag}: no topic {sorted(unknown)} in the bag (it has {sorted({c.topic for c in connections})})")
+                raise BagError(
+                    f"{self.bag}: no topic {sorted(unknown)} in the bag (it has {sorted({c.topic for c in connections})})"
+                )
             connections = [c for c in connections if c.topic in wanted]
         for connection in connections:
             if connection.topic not in self.publishers:
@@ -78,7 +80,9 @@ class BagPlayer:
             if all(p.get_subscription_count() >= wanted for p in self.publishers.values()):
                 return
             time.sleep(0.02)
-        self.node.get_logger().warning(f"not every topic reached {wanted} subscriber(s) in {self.options.wait_timeout} s; playing anyway")
+        self.node.get_logger().warning(
+            f"not every topic reached {wanted} subscriber(s) in {self.options.wait_timeout} s; playing anyway"
+        )
 
     def play(self) -> PlayStats:
         stats = PlayStats()
@@ -109,8 +113,19 @@ class BagPlayer:
                     stats.per_topic[connection.topic] = stats.per_topic.get(connection.topic, 0) + 1
                 if not self.options.loop or t0_bag is None:
                     break
+            self._wait_for_acknowledgements()
         stats.seconds = time.monotonic() - wall_start
         return stats
+
+    def _wait_for_acknowledgements(self, timeout_s: float = 10.0) -> None:
+        """Reliable delivery needs the publishers alive until every subscriber has acknowledged."""
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + timeout_s
+        for topic, publisher in self.publishers.items():
+            remaining = max(deadline - time.monotonic(), 0.0)
+            if not publisher.wait_for_all_acked(Duration(nanoseconds=int(remaining * 1e9))):
+                self.node.get_logger().warning(f"not every subscriber of {topic} acknowledged all messages within {timeout_s} s")
 
 
 def play(bag: Path, options: PlayOptions, args: list[str] | None = None) -> PlayStats:

@@ -6,7 +6,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-
 from pvo_core.lie import rotation_to_quaternion
 from pvo_core.sun import vector_to_zenith_azimuth
 
@@ -96,7 +95,9 @@ def odometry(
     )
 
 
-def sun_direction(stamp_ns: int, frame_id: str, direction: NDArray[np.float64], covariance: NDArray[np.float64] | None = None) -> Any:
+def sun_direction(
+    stamp_ns: int, frame_id: str, direction: NDArray[np.float64], covariance: NDArray[np.float64] | None = None
+) -> Any:
     """pvo_msgs/SunDirection; zenith/azimuth from thesis eq. 5.7; covariance zeros = unknown."""
     types = project_typestore().types
     zenith, azimuth = vector_to_zenith_azimuth(direction)

@@ -9,8 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rosbags.rosbag2 import Reader
-
 from pvo_core.errors import DataFormatError
 from pvo_core.imageio import read_image
 from pvo_core.readers import DevonDataset, KittiSequence
@@ -19,6 +17,7 @@ from pvo_tools.bagio import SafeBagWriter, iter_messages, open_bag
 from pvo_tools.convert import SunSensorConvention, convert_devon, convert_kitti
 from pvo_tools.errors import BagError, UnknownMessageType
 from pvo_tools.typesys import project_typestore
+from rosbags.rosbag2 import Reader
 
 
 def pvo(*args: str, env: dict[str, str] | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -38,13 +37,17 @@ def read_all(bag: Path) -> dict[str, list]:
 def test_kitti_conversion_decodes_back(pvo_data: Path, tmp_path: Path, storage: str) -> None:
     root = pvo_data / "kitti/sequences/06"
     sequence = KittiSequence(
-        root, rate_hz=10.0, poses_file=root / "poses_frames000-050.txt", sun_file=pvo_data / "kitti/sun/kitti_sun_test_06.csv", count=4
+        root,
+        rate_hz=10.0,
+        poses_file=root / "poses_frames000-050.txt",
+        sun_file=pvo_data / "kitti/sun/kitti_sun_test_06.csv",
+        count=4,
     )
     summary = convert_kitti(sequence, tmp_path / "bag", storage=storage, epoch=1.3e9, show_progress=False)
     assert summary.frames == 4 and all(count == 4 for count in summary.counts.values()) and len(summary.counts) == 6
     messages = read_all(tmp_path / "bag")
     for i, (stamp, image) in enumerate(messages["/stereo/right/image_rect"]):
-        assert stamp == int(round((1.3e9 + 0.1 * i) * 1e9))
+        assert stamp == round((1.3e9 + 0.1 * i) * 1e9)
         assert image.header.stamp.sec * 10**9 + image.header.stamp.nanosec == stamp
         assert (image.encoding, image.width, image.height, image.step) == ("mono8", 1226, 370, 1226)
         np.testing.assert_array_equal(image.data.reshape(370, 1226), read_image(root / f"image_1/{i:06d}.png"))
@@ -79,7 +82,9 @@ def test_existing_output_and_interrupted_conversion(pvo_data: Path, tmp_path: Pa
     # The CLI says the same in one line and exits 2.
     result = pvo("convert", "kitti", str(clip), "--out", str(tmp_path / "out"), "--rate", "10")
     assert result.returncode == 2
-    assert result.stderr.strip().splitlines() == [f"pvo: error: {tmp_path / 'out'}: output exists; pass --overwrite to replace it"]
+    assert result.stderr.strip().splitlines() == [
+        f"pvo: error: {tmp_path / 'out'}: output exists; pass --overwrite to replace it"
+    ]
     result = pvo("convert", "kitti", str(clip), "--out", str(tmp_path / "out2"), "--rate", "10", "-q")
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert result.stderr.strip().endswith("000002.png: unreadable or truncated image")

@@ -201,9 +201,7 @@ class KittiSequence:
     def _index_by_frame(self, values: np.ndarray, path: Path, what: str) -> np.ndarray:
         last = int(self.frames.max())
         if len(values) <= last:
-            raise DataFormatError(
-                path, f"{len(values)} {what} but the images go up to frame {last} ({len(self.frames)} images)"
-            )
+            raise DataFormatError(path, f"{len(values)} {what} but the images go up to frame {last} ({len(self.frames)} images)")
         return values[self.frames]
 
     def _read_stamps(self) -> Array:
@@ -237,7 +235,7 @@ class KittiSequence:
         right = read_image(self.right_paths[index])
         if left.shape != right.shape:
             raise DataFormatError(
-                self.right_paths[index], f"size {right.shape[1]}x{right.shape[0]} differs from the left "
-                f"image's {left.shape[1]}x{left.shape[0]}"
+                self.right_paths[index],
+                f"size {right.shape[1]}x{right.shape[0]} differs from the left image's {left.shape[1]}x{left.shape[0]}",
             )
         return left, right
