@@ -15,15 +15,14 @@ import time
 from pathlib import Path
 
 import rclpy
+from pvo_core.readers import KittiSequence
+from pvo_tools.convert import convert_kitti
+from pvo_tools.player import BagPlayer, PlayOptions
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
-
-from pvo_core.readers import KittiSequence
-from pvo_tools.convert import convert_kitti
-from pvo_tools.player import BagPlayer, PlayOptions
 
 REPO = Path(__file__).resolve().parents[1]
 TOPICS = ("/stereo/left/image_rect", "/stereo/right/image_rect")
