@@ -11,7 +11,6 @@ import shutil
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -113,13 +112,6 @@ class SafeBagWriter:
             self.close()
         else:
             self.abort()
-
-
-@dataclass
-class TopicInfo:
-    name: str
-    type_name: str
-    count: int
 
 
 @contextmanager

@@ -230,12 +230,9 @@ def convert_devon(
                 progress.update()
         if progress:
             progress.close()
-        sun_count = _write_devon_sun(writer, dataset, indices, stamps, times is not None, convention)
+        _write_devon_sun(writer, dataset, indices, stamps, times is not None, convention)
         counts = dict(writer.counts)
-    summary = ConversionSummary(out, len(indices), counts, time.monotonic() - start_clock, _bag_size(out))
-    if sun_count == 0:
-        summary.counts.setdefault(TOPIC_SUN_SENSOR, 0)
-    return summary
+    return ConversionSummary(out, len(indices), counts, time.monotonic() - start_clock, _bag_size(out))
 
 
 def _write_devon_sun(

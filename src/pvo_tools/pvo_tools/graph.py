@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import sys
 import time
 from collections import deque
 from pathlib import Path
@@ -210,7 +209,3 @@ def shutdown(node: Node) -> None:
     node.destroy_node()
     if rclpy.ok():
         rclpy.shutdown()
-
-
-def stdout_isatty() -> bool:
-    return sys.stdout.isatty()
