@@ -66,7 +66,7 @@ class Trajectory:
         }
 
 
-def _read_rows(path: Path, columns: int, what: str) -> Array:
+def _read_rows(path: Path, columns: int | tuple[int, ...], what: str) -> Array:
     path = Path(path)
     if not path.is_file():
         raise DataFormatError(path, f"{what} file not found")
@@ -77,8 +77,10 @@ def _read_rows(path: Path, columns: int, what: str) -> Array:
             if not text or text.startswith("#"):
                 continue
             parts = text.replace(",", " ").split()
-            if len(parts) != columns:
-                raise DataFormatError(path, f"expected {columns} numbers per {what} line, got {len(parts)}", number)
+            accepted = (columns,) if isinstance(columns, int) else columns
+            if len(parts) not in accepted or (rows and len(parts) != len(rows[0])):
+                expected = " or ".join(str(c) for c in accepted)
+                raise DataFormatError(path, f"expected {expected} numbers per {what} line, got {len(parts)}", number)
             try:
                 values = [float(p) for p in parts]
             except ValueError:
@@ -93,7 +95,22 @@ def _read_rows(path: Path, columns: int, what: str) -> Array:
 
 def read_kitti_poses(path: str | Path) -> Array:
     """Poses (N, 4, 4) from a KITTI pose file: 12 numbers per line, row-major 3x4 ``T_w_c``."""
-    rows = _read_rows(Path(path), 12, "KITTI pose")
+    return _poses_from_rows(Path(path), _read_rows(Path(path), 12, "KITTI pose"))
+
+
+def read_kitti_poses_indexed(path: str | Path) -> tuple[NDArray[np.int64], Array]:
+    """Frame numbers (N,) and poses (N, 4, 4) from a KITTI pose file with or without a leading frame
+    number per line (13 or 12 numbers; the KITTI evaluation toolbox accepts both)."""
+    rows = _read_rows(Path(path), (12, 13), "KITTI pose")
+    if rows.shape[1] == 12:
+        return np.arange(len(rows), dtype=np.int64), _poses_from_rows(Path(path), rows)
+    frames = rows[:, 0]
+    if np.any(frames != np.round(frames)) or np.any(np.diff(frames) <= 0):
+        raise DataFormatError(path, "frame numbers in the first column must be increasing integers")
+    return frames.astype(np.int64), _poses_from_rows(Path(path), rows[:, 1:])
+
+
+def _poses_from_rows(path: Path, rows: Array) -> Array:
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     poses[:, :3, :] = rows.reshape(-1, 3, 4)
     for i, pose in enumerate(poses):

@@ -137,12 +137,52 @@ def _add_graph(sub: argparse._SubParsersAction) -> None:
     show.add_argument("type", help="e.g. pvo_msgs/msg/RelativePose")
 
 
+def _add_sequence_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("sequence_dir", type=Path, help="KITTI odometry sequence directory (image_0/1, calib.txt)")
+    parser.add_argument("--poses", type=Path, help="ground-truth poses for the summary (default SEQUENCE_DIR/poses.txt)")
+    parser.add_argument("--rate", type=float, help="frame rate (Hz) when there is no times.txt (default 10)")
+
+
+def _add_vo(sub: argparse._SubParsersAction) -> None:
+    vo = sub.add_parser("vo", help="run the stereo VO on a KITTI sequence directory (no ROS)")
+    _add_sequence_args(vo)
+    vo.add_argument("--out", "-o", type=Path, required=True, help="trajectory file to write (KITTI pose format)")
+    vo.add_argument("--times", type=Path, help="frame times file (default SEQUENCE_DIR/times.txt)")
+    vo.add_argument("--colour", action="store_true", help="use image_2/image_3 and P2/P3")
+    vo.add_argument("--start", type=int, default=0, help="first frame (position in the sequence)")
+    vo.add_argument("--count", type=int, help="number of frames (default: all)")
+    vo.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter, e.g. -p solver.loss=huber (repeatable)")
+    vo.add_argument("--params-file", type=Path, help="ROS-style YAML with stereo_vo parameters (e.g. config/stereo_vo.yaml)")
+    vo.add_argument("--relative", type=Path, help="also write per-frame motions and covariances (.npz) for `pvo eval --relative`")
+    vo.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+
+    ev = sub.add_parser("eval", help="evaluate a trajectory against ground truth (table, plots, metrics.json)")
+    ev.add_argument("--gt", type=Path, required=True, help="ground-truth poses (KITTI format)")
+    ev.add_argument("--est", type=Path, required=True, help="estimated poses (KITTI format, optionally with a frame-number column)")
+    ev.add_argument("--align", choices=["none", "se3", "sim3"], default="none", help="align the estimate first (Umeyama on positions)")
+    ev.add_argument("--gt-start", type=int, default=0, help="ground-truth frame of the estimate's first pose (default 0)")
+    ev.add_argument("--relative", type=Path, help="per-frame motions and covariances from `pvo vo --relative` -> NEES/ANEES")
+    ev.add_argument("--out", "-o", type=Path, help="directory for metrics.json and the PNG plots")
+
+    bench = sub.add_parser("bench", help="benchmarks")
+    kinds = bench.add_subparsers(dest="bench", required=True, metavar="WHAT")
+    bvo = kinds.add_parser("vo", help="stereo VO per-stage timings and accuracy on a KITTI clip")
+    _add_sequence_args(bvo)
+    bvo.add_argument("--count", type=int, help="number of frames (default: all)")
+    bvo.add_argument("--repeat", type=int, default=3, help="runs per variant; the fastest is reported (default 3)")
+    bvo.add_argument("--threads", type=int, default=1, help="OpenCV threads (default 1: one core)")
+    bvo.add_argument("--compare", action="store_true", help="also run the alternative detector/tracker/solver variants")
+    bvo.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter for every variant")
+    bvo.add_argument("--json", type=Path, help="write the figures as YAML/JSON to this file")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pvo", description="pvo: pseudo-sensor visual odometry tools.", epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_convert(sub)
     _add_bag(sub)
     _add_graph(sub)
+    _add_vo(sub)
     return parser
 
 
@@ -289,6 +329,19 @@ def main(argv: list[str] | None = None) -> int:
             return _cmd_convert(args)
         if args.command == "bag":
             return _cmd_bag(args)
+        if args.command == "vo":
+            from .vo_offline import cmd_vo
+
+            return cmd_vo(args)
+        if args.command == "eval":
+            from .evaluation import run_eval
+
+            run_eval(args.gt, args.est, args.align, args.out, args.gt_start, args.relative)
+            return 0
+        if args.command == "bench":
+            from .vo_offline import cmd_bench_vo
+
+            return cmd_bench_vo(args)
         return _cmd_graph(args)
     except (PvoError, DataFormatError, ValueError) as error:
         print(f"pvo: error: {error}", file=sys.stderr)

@@ -1,0 +1,297 @@
+"""The stereo VO pipeline object: ``StereoVO(camera, config).process(left, right, stamp)``.
+
+Frames: estimates are of the left camera optical frame (x right, y down, z forward). ``odom`` is the
+first camera frame. Each processed frame yields ``T_cur,prev`` (maps coordinates in the previous
+camera frame to the current one, thesis T_t = T_c1,w T_c0,w^-1) with a 6x6 covariance over
+[rho; phi] of a left perturbation (= ROS order x, y, z, rotX, rotY, rotZ), and the integrated pose
+``T_odom,cur = T_odom,prev T_cur,prev^-1``.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from pvo_core.camera import StereoCamera
+from pvo_core.lie import se3_exp, se3_inverse, se3_log
+
+from .config import VOConfig
+from .features import Pyramid, StereoFeatures, StereoMatcher
+from .ransac import ransac_motion
+from .solver import RobustLoss, feature_information, quadratic_form, solve_motion
+
+Array = NDArray[np.float64]
+
+
+class FrameStatus(enum.Enum):
+    FIRST = "first"  # first frame: features initialised, no motion yet
+    TRACKING = "tracking"  # motion estimated
+    LOST = "lost"  # motion could not be estimated; a huge covariance is reported
+    REJECTED = "rejected"  # input refused (bad images, stamp not increasing); state unchanged
+
+
+@dataclass
+class FrameResult:
+    """Result of one :meth:`StereoVO.process` call.
+
+    stamp: image time (s). status / message: what happened, in words for ``REJECTED``/``LOST``.
+    transform: T_cur,prev (4, 4), None for FIRST and REJECTED. covariance: (6, 6) over [rho; phi]
+    (m^2, rad^2), lost_covariance * I when LOST. pose: T_odom,cur (4, 4) after this frame.
+    reference_stamp: the previous frame's stamp. Counts: features tracked around the circle,
+    RANSAC/GN inliers, features alive after replenishment. timings: seconds per stage.
+    """
+
+    stamp: float
+    status: FrameStatus
+    message: str = ""
+    transform: Array | None = None
+    covariance: Array | None = None
+    pose: Array = field(default_factory=lambda: np.eye(4))
+    reference_stamp: float | None = None
+    tracked: int = 0
+    inliers: int = 0
+    features: int = 0
+    ransac_iterations: int = 0
+    gn_iterations: int = 0
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status is FrameStatus.TRACKING
+
+
+@dataclass
+class _Frame:
+    stamp: float
+    left: Pyramid
+    right: Pyramid
+    features: StereoFeatures
+
+
+def as_grey(image: NDArray, what: str) -> NDArray[np.uint8]:
+    """A contiguous 2-D uint8 image from mono8 / rgb8 arrays; ``ValueError`` naming ``what`` otherwise."""
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+    elif img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim != 2:
+        raise ValueError(f"{what} image must be HxW or HxWx3, got shape {img.shape}")
+    if img.dtype != np.uint8:
+        raise ValueError(f"{what} image must be 8-bit, got {img.dtype}")
+    return np.ascontiguousarray(img)
+
+
+class StereoVO:
+    """Frame-to-frame stereo VO on rectified images (thesis ch. 3, app. B).
+
+    ``pixel_covariance`` may be given per call to :meth:`process` through ``feature_noise``
+    (a callable from the current features to (N, 3, 3) covariances and optional per-feature loss
+    scales) - the hook PROBE uses; the default is ``solver.pixel_sigma`` for every feature.
+    """
+
+    def __init__(self, camera: StereoCamera, config: VOConfig | None = None) -> None:
+        self.camera = camera
+        self.config = config or VOConfig()
+        self.matcher = StereoMatcher(self.config.detector, self.config.tracker)
+        self._rng = np.random.default_rng(self.config.ransac.seed)
+        sigma = np.asarray(self.config.solver.pixel_sigma, dtype=float)
+        self._default_cov = np.diag(sigma**2)
+        self._previous: _Frame | None = None
+        self._motion = np.eye(4)  # last good T_cur,prev, for the KLT prediction
+        self._velocity_dt = 0.0
+        self.pose = np.eye(4)
+        self.frames = 0
+
+    def reset(self) -> None:
+        """Forget the tracked features and the pose (the next frame starts a new odom frame)."""
+        self.__init__(self.camera, self.config)  # type: ignore[misc]
+
+    def process(self, left: NDArray, right: NDArray, stamp: float) -> FrameResult:
+        """Process one rectified stereo pair taken at ``stamp`` (s)."""
+        t_start = time.perf_counter()
+        timings: dict[str, float] = {}
+        try:
+            left_img = as_grey(left, "left")
+            right_img = as_grey(right, "right")
+        except ValueError as exc:
+            return FrameResult(stamp, FrameStatus.REJECTED, str(exc), pose=self.pose.copy())
+        if left_img.shape != right_img.shape:
+            return FrameResult(
+                stamp,
+                FrameStatus.REJECTED,
+                f"stereo images differ in size: left {left_img.shape[1]}x{left_img.shape[0]}, right {right_img.shape[1]}x{right_img.shape[0]}",
+                pose=self.pose.copy(),
+            )
+        if not np.isfinite(stamp):
+            return FrameResult(stamp, FrameStatus.REJECTED, "stamp is not finite", pose=self.pose.copy())
+        prev = self._previous
+        if prev is not None:
+            if stamp == prev.stamp:
+                return FrameResult(stamp, FrameStatus.REJECTED, f"repeated frame: stamp {stamp:.9f} s already processed", pose=self.pose.copy())
+            if stamp < prev.stamp:
+                return FrameResult(
+                    stamp,
+                    FrameStatus.REJECTED,
+                    f"stamp goes backwards: {stamp:.9f} s after {prev.stamp:.9f} s",
+                    pose=self.pose.copy(),
+                )
+            if (prev.left.shape[0], prev.left.shape[1]) != left_img.shape:
+                return FrameResult(
+                    stamp,
+                    FrameStatus.REJECTED,
+                    f"image size changed from {prev.left.shape[1]}x{prev.left.shape[0]} to {left_img.shape[1]}x{left_img.shape[0]}",
+                    pose=self.pose.copy(),
+                )
+
+        tic = time.perf_counter()
+        pyr_l = self.matcher.pyramid(left_img)
+        pyr_r = self.matcher.pyramid(right_img)
+        timings["pyramids"] = time.perf_counter() - tic
+        shape = left_img.shape
+
+        result: FrameResult
+        if prev is None:
+            result = FrameResult(stamp, FrameStatus.FIRST, "first frame", pose=self.pose.copy())
+            tracked = StereoFeatures.empty()
+        else:
+            result, tracked = self._estimate(prev, pyr_l, pyr_r, shape, stamp, timings)
+
+        tic = time.perf_counter()
+        fresh_points = self.matcher.detect(left_img, tracked.left)
+        timings["detection"] = time.perf_counter() - tic
+        tic = time.perf_counter()
+        fallback = float(np.median(tracked.observations()[:, 2])) if len(tracked) else 10.0
+        prior = self.matcher.disparity_prior(left_img, right_img) if fresh_points.shape[0] else np.zeros((1, 1))
+        fresh = self.matcher.match_stereo(pyr_l, pyr_r, fresh_points, shape, prior, fallback)
+        timings["stereo_matching"] = time.perf_counter() - tic
+        features = StereoFeatures.concatenate(tracked, fresh)
+        self._previous = _Frame(stamp, pyr_l, pyr_r, features)
+        self.frames += 1
+        result.features = len(features)
+        timings["total"] = time.perf_counter() - t_start
+        result.timings = timings
+        return result
+
+    def _estimate(
+        self,
+        prev: _Frame,
+        pyr_l: Pyramid,
+        pyr_r: Pyramid,
+        shape: tuple[int, int],
+        stamp: float,
+        timings: dict[str, float],
+    ) -> tuple[FrameResult, StereoFeatures]:
+        cfg = self.config
+        cam = self.camera
+        dt = stamp - prev.stamp
+        prediction = self._predicted_motion(dt)
+        tic = time.perf_counter()
+        flow = self._predicted_flow(prev.features, prediction)
+        before, after = self.matcher.track(prev.features, prev.left, prev.right, pyr_l, pyr_r, shape, flow)
+        timings["tracking"] = time.perf_counter() - tic
+        n = len(after)
+        base = FrameResult(stamp, FrameStatus.TRACKING, reference_stamp=prev.stamp, tracked=n)
+        if n < cfg.tracking.min_inliers:
+            return self._lost(base, f"only {n} features tracked (need {cfg.tracking.min_inliers})", prediction), after
+
+        obs_ref = before.observations()
+        obs_cur = after.observations()
+        points_ref = cam.triangulate(obs_ref)
+        points_cur = cam.triangulate(obs_cur)
+        cov = np.broadcast_to(self._default_cov, (n, 3, 3))
+        cov_ref = cov if cfg.solver.propagate_reference_noise else None
+
+        tic = time.perf_counter()
+        information = feature_information(cam, prediction, obs_ref, cov, cov_ref)
+        ransac = ransac_motion(
+            cam,
+            points_ref,
+            points_cur,
+            obs_cur,
+            information,
+            cfg.ransac.inlier_threshold,
+            self._rng,
+            cfg.ransac.confidence,
+            cfg.ransac.min_iterations,
+            cfg.ransac.max_iterations,
+            cfg.ransac.batch,
+        )
+        timings["ransac"] = time.perf_counter() - tic
+        base.ransac_iterations = ransac.iterations
+        inliers = ransac.inliers
+        n_in = int(inliers.sum())
+        if n_in < max(cfg.tracking.min_inliers, cfg.tracking.min_inlier_ratio * n):
+            return self._lost(base, f"only {n_in} RANSAC inliers of {n} tracked features", prediction), after
+
+        tic = time.perf_counter()
+        loss = RobustLoss(cfg.solver.loss, cfg.solver.loss_scale)
+        transform = ransac.transform
+        iterations = 0
+        for _ in range(2):  # solve on the RANSAC inliers, re-decide inliers at the solution, solve again
+            information = feature_information(cam, transform, obs_ref, cov, cov_ref)
+            if _ == 1:
+                residual = cam.project(points_ref @ transform[:3, :3].T + transform[:3, 3]) - obs_cur
+                inliers = quadratic_form(residual, information) < cfg.ransac.inlier_threshold
+                if int(inliers.sum()) < cfg.tracking.min_inliers:
+                    break
+            solve = solve_motion(
+                cam,
+                points_ref[inliers],
+                obs_cur[inliers],
+                information[inliers],
+                loss,
+                transform,
+                cfg.solver.max_iterations,
+                cfg.solver.relative_cost_tolerance,
+                cfg.solver.min_update_norm,
+            )
+            transform = solve.transform
+            iterations += solve.iterations
+        n_in = int(inliers.sum())
+        timings["gauss_newton"] = time.perf_counter() - tic
+        base.gn_iterations = iterations
+        base.inliers = n_in
+        if not (np.all(np.isfinite(solve.transform)) and np.all(np.isfinite(solve.covariance))) or solve.condition > cfg.tracking.max_condition:
+            return self._lost(base, f"degenerate geometry (normal-matrix condition {solve.condition:.3g})", prediction), after
+
+        base.transform = solve.transform
+        base.covariance = solve.covariance
+        self.pose = self.pose @ se3_inverse(solve.transform)
+        base.pose = self.pose.copy()
+        self._motion = solve.transform
+        self._velocity_dt = dt
+        # keep only the features that agreed with the motion as tracks for the next frame
+        return base, after.subset(inliers)
+
+    def _lost(self, result: FrameResult, why: str, prediction: Array) -> FrameResult:
+        """Report a lost frame: constant-velocity guess, huge covariance, pose carried on by the guess."""
+        result.status = FrameStatus.LOST
+        result.message = why
+        result.transform = prediction
+        result.covariance = self.config.tracking.lost_covariance * np.eye(6)
+        self.pose = self.pose @ se3_inverse(prediction)
+        result.pose = self.pose.copy()
+        return result
+
+    def _predicted_motion(self, dt: float) -> Array:
+        """Constant-velocity T_cur,prev over ``dt`` from the last good motion (identity at start)."""
+        if self._velocity_dt <= 0.0:
+            return np.eye(4)
+        ratio = min(dt / self._velocity_dt, 5.0)
+        return se3_exp(ratio * se3_log(self._motion))
+
+    def _predicted_flow(self, features: StereoFeatures, prediction: Array) -> Array | None:
+        """Image motion (N, 2) of the left features under the predicted motion, None when unknown."""
+        if len(features) == 0 or np.allclose(prediction, np.eye(4)):
+            return None
+        obs = features.observations()
+        q = self.camera.triangulate(obs) @ prediction[:3, :3].T + prediction[:3, 3]
+        ok = q[:, 2] > 0.1
+        flow = np.zeros((len(features), 2))
+        flow[ok] = self.camera.project(q[ok])[:, :2] - obs[ok, :2]
+        return flow
