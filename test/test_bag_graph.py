@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import itertools
 import subprocess
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,7 +18,7 @@ from pvo_core.readers import KittiSequence
 from pvo_tools.convert import convert_kitti
 from pvo_tools.player import BagPlayer, PlayOptions
 from pvo_tools.recorder import BagRecorder, RecordOptions
-from rclpy.executors import SingleThreadedExecutor
+from pvo_tools.testing import Spinner
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader
@@ -50,30 +49,6 @@ def bag_messages(bag: Path, topics: set[str]) -> dict[str, list[tuple[int, bytes
             if connection.topic in topics:
                 out[connection.topic].append((stamp, bytes(raw)))
     return out
-
-
-class Spinner:
-    """Spins nodes in a background thread for the duration of a with-block."""
-
-    def __init__(self, context, *nodes: Node) -> None:
-        self.executor = SingleThreadedExecutor(context=context)
-        for node in nodes:
-            self.executor.add_node(node)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.02)
-
-    def __enter__(self) -> Spinner:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-        self.executor.shutdown()
 
 
 @pytest.fixture

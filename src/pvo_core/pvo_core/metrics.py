@@ -131,7 +131,9 @@ def kitti_odom_eval(gt: ArrayLike, frames: ArrayLike, est: ArrayLike, alignment:
     idx = np.asarray(frames, dtype=np.int64)
     e = np.asarray(est, dtype=float)
     if e.shape != (idx.size, 4, 4) or idx.size == 0 or idx.min() < 0 or idx.max() >= len(g):
-        raise ValueError(f"result of {e.shape} at frames [{idx.min() if idx.size else ''}..] does not fit {len(g)} ground-truth poses")
+        raise ValueError(
+            f"result of {e.shape} at frames [{idx.min() if idx.size else ''}..] does not fit {len(g)} ground-truth poses"
+        )
     rebased_gt = g.copy()
     rebased_gt[idx] = np.linalg.inv(g[idx[0]]) @ g[idx]
     rebased_est = np.linalg.inv(e[0]) @ e
@@ -194,7 +196,9 @@ def thesis_segment_errors(gt: ArrayLike, est: ArrayLike, lengths: tuple[float, .
         t_means.append(float(np.mean(np.linalg.norm(err[:, :3, 3], axis=1) / length)))
         r_means.append(float(np.mean(rotation_angle(err[:, :3, :3]) / length)))
         counts.append(int(s.size))
-    return ThesisSegmentErrors(np.asarray(lengths, dtype=float), np.asarray(t_means), np.asarray(r_means), np.asarray(counts, dtype=np.int64))
+    return ThesisSegmentErrors(
+        np.asarray(lengths, dtype=float), np.asarray(t_means), np.asarray(r_means), np.asarray(counts, dtype=np.int64)
+    )
 
 
 def se3_inverse_batch(poses: Array) -> Array:

@@ -25,10 +25,11 @@ from nav_msgs.msg import Odometry, Path
 from pvo_core.camera import StereoCamera
 from pvo_core.lie import se3_adjoint
 from pvo_core.msgconv import fill_pose, image_to_array, stamp_to_nanoseconds
-from pvo_msgs.msg import RelativePose
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
+
+from pvo_msgs.msg import RelativePose
 
 from .vo import FrameResult, FrameStatus, StereoVO, VOConfig, flatten, from_flat
 
@@ -80,12 +81,15 @@ class StereoVONode(Node):
 
         self.vo: StereoVO | None = None
         self.camera_info: dict[str, CameraInfo] = {}
-        self.sync = StereoPairSynchroniser(int(self.get_parameter("max_pending_frames").value))
+        self.max_pending = int(self.get_parameter("max_pending_frames").value)
+        self.sync = StereoPairSynchroniser(self.max_pending)
+        self._waiting: list[tuple[int, Image, Image]] = []  # pairs that arrived before camera_info
         self.pose_covariance = np.zeros((6, 6))
         self.path = Path()
         self.path.header.frame_id = self.odom_frame
         self.counts = {"processed": 0, "lost": 0, "rejected": 0, "waiting_for_camera_info": 0}
         self._last_problem = ""
+        self._previous_stamp_ns: int | None = None  # exact stamp of the last frame the VO accepted
 
         qos = QoSProfile(depth=int(self.get_parameter("max_pending_frames").value), reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(Image, "/stereo/left/image_rect", lambda m: self._on_image("left", m), qos)
@@ -100,7 +104,9 @@ class StereoVONode(Node):
     def _refuse_runtime_changes(self, params: list) -> Any:
         from rcl_interfaces.msg import SetParametersResult
 
-        return SetParametersResult(successful=False, reason="stereo_vo parameters are read at start-up; restart the node to change them")
+        return SetParametersResult(
+            successful=False, reason="stereo_vo parameters are read at start-up; restart the node to change them"
+        )
 
     # --- inputs ---------------------------------------------------------------------------------
     def _on_info(self, side: str, msg: CameraInfo) -> None:
@@ -112,8 +118,12 @@ class StereoVONode(Node):
                 self._problem(f"camera_info rejected: {exc}")
                 return
             self.vo = StereoVO(camera, self.config)
+            waiting, self._waiting = self._waiting, []
+            for pair in waiting:
+                self._process(*pair)
             self.get_logger().info(
-                f"stereo camera: f={camera.f:.2f} px, c=({camera.cu:.1f}, {camera.cv:.1f}) px, baseline={camera.baseline:.4f} m, {camera.width}x{camera.height}"
+                f"stereo camera: f={camera.f:.2f} px, c=({camera.cu:.1f}, {camera.cv:.1f}) px, "
+                f"baseline={camera.baseline:.4f} m, {camera.width}x{camera.height}"
             )
 
     def _on_image(self, side: str, msg: Image) -> None:
@@ -124,11 +134,16 @@ class StereoVONode(Node):
     # --- processing -----------------------------------------------------------------------------
     def _process(self, stamp_ns: int, left_msg: Image, right_msg: Image) -> None:
         if self.vo is None:
-            missing = [s for s in ("left", "right") if s not in self.camera_info]
+            # keep the pair until camera_info arrives (it may come just after the first images)
+            self._waiting.append((stamp_ns, left_msg, right_msg))
+            if len(self._waiting) <= self.max_pending:
+                return
+            dropped_ns = self._waiting.pop(0)[0]
+            missing = [f"/stereo/{s}/camera_info" for s in ("left", "right") if s not in self.camera_info]
+            what = f"no camera_info on {' and '.join(missing)}" if missing else "camera_info was rejected"
             self.counts["waiting_for_camera_info"] += 1
-            what = f"no camera_info on /stereo/{'/'.join(missing)}/camera_info" if missing else "camera_info was rejected"
-            self._problem(f"frame at {stamp_ns * 1e-9:.3f} s skipped: {what}")
-            self._publish_status(None, stamp_ns, f"waiting: {what}")
+            self._problem(f"frame at {dropped_ns * 1e-9:.3f} s dropped: {what}")
+            self._publish_status(None, dropped_ns, f"frame dropped: {what}")
             return
         try:
             left = image_to_array(left_msg)
@@ -153,17 +168,18 @@ class StereoVONode(Node):
         elif result.status is FrameStatus.LOST:
             self.counts["lost"] += 1
             self._problem(f"tracking lost at {stamp_ns * 1e-9:.9f} s: {result.message}")
-        if result.transform is not None and result.covariance is not None and result.reference_stamp is not None:
-            self._publish_estimate(stamp_ns, result)
+        if result.transform is not None and result.covariance is not None and self._previous_stamp_ns is not None:
+            self._publish_estimate(stamp_ns, self._previous_stamp_ns, result)
+        if result.status is not FrameStatus.REJECTED:
+            self._previous_stamp_ns = stamp_ns
         self._publish_status(result, stamp_ns, result.message or result.status.value)
 
-    def _publish_estimate(self, stamp_ns: int, result: FrameResult) -> None:
-        assert result.transform is not None and result.covariance is not None and result.reference_stamp is not None
+    def _publish_estimate(self, stamp_ns: int, reference_ns: int, result: FrameResult) -> None:
+        assert result.transform is not None and result.covariance is not None
         rel = RelativePose()
         rel.header.stamp.sec, rel.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         rel.header.frame_id = self.camera_frame
-        ref_ns = int(round(result.reference_stamp * 1e9))
-        rel.reference_stamp.sec, rel.reference_stamp.nanosec = divmod(ref_ns, 1_000_000_000)
+        rel.reference_stamp.sec, rel.reference_stamp.nanosec = divmod(reference_ns, 1_000_000_000)
         fill_pose(rel.pose.pose, result.transform)
         rel.pose.covariance = [float(v) for v in result.covariance.reshape(-1)]
         rel.rotation_only = False

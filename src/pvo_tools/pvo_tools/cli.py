@@ -151,15 +151,21 @@ def _add_vo(sub: argparse._SubParsersAction) -> None:
     vo.add_argument("--colour", action="store_true", help="use image_2/image_3 and P2/P3")
     vo.add_argument("--start", type=int, default=0, help="first frame (position in the sequence)")
     vo.add_argument("--count", type=int, help="number of frames (default: all)")
-    vo.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter, e.g. -p solver.loss=huber (repeatable)")
+    vo.add_argument(
+        "--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter, e.g. -p solver.loss=huber (repeatable)"
+    )
     vo.add_argument("--params-file", type=Path, help="ROS-style YAML with stereo_vo parameters (e.g. config/stereo_vo.yaml)")
     vo.add_argument("--relative", type=Path, help="also write per-frame motions and covariances (.npz) for `pvo eval --relative`")
     vo.add_argument("--quiet", "-q", action="store_true", help="no progress output")
 
     ev = sub.add_parser("eval", help="evaluate a trajectory against ground truth (table, plots, metrics.json)")
     ev.add_argument("--gt", type=Path, required=True, help="ground-truth poses (KITTI format)")
-    ev.add_argument("--est", type=Path, required=True, help="estimated poses (KITTI format, optionally with a frame-number column)")
-    ev.add_argument("--align", choices=["none", "se3", "sim3"], default="none", help="align the estimate first (Umeyama on positions)")
+    ev.add_argument(
+        "--est", type=Path, required=True, help="estimated poses (KITTI format, optionally with a frame-number column)"
+    )
+    ev.add_argument(
+        "--align", choices=["none", "se3", "sim3"], default="none", help="align the estimate first (Umeyama on positions)"
+    )
     ev.add_argument("--gt-start", type=int, default=0, help="ground-truth frame of the estimate's first pose (default 0)")
     ev.add_argument("--relative", type=Path, help="per-frame motions and covariances from `pvo vo --relative` -> NEES/ANEES")
     ev.add_argument("--out", "-o", type=Path, help="directory for metrics.json and the PNG plots")

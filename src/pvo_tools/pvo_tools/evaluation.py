@@ -9,8 +9,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pvo_core import metrics as M
 from pvo_core.trajectory import read_kitti_poses, read_kitti_poses_indexed
+
+from pvo_core import metrics
 
 from .errors import PvoError
 
@@ -23,8 +24,8 @@ class Evaluation:
 
     figures: dict[str, Any] = field(default_factory=dict)
     per_frame: dict[str, Array] = field(default_factory=dict)
-    segments: M.SegmentErrors | None = None
-    thesis: M.ThesisSegmentErrors | None = None
+    segments: metrics.SegmentErrors | None = None
+    thesis: metrics.ThesisSegmentErrors | None = None
 
 
 def load_pair(gt_path: Path, est_path: Path, gt_start: int = 0) -> tuple[Array, Array, NDArray[np.int64]]:
@@ -44,7 +45,9 @@ def load_pair(gt_path: Path, est_path: Path, gt_start: int = 0) -> tuple[Array, 
     return gt, est, frames
 
 
-def evaluate(gt_full: Array, est: Array, frames: NDArray[np.int64], align: str = "none", relative: dict[str, Array] | None = None) -> Evaluation:
+def evaluate(
+    gt_full: Array, est: Array, frames: NDArray[np.int64], align: str = "none", relative: dict[str, Array] | None = None
+) -> Evaluation:
     """All metrics of the estimate at ``frames`` against ``gt_full``.
 
     ``relative`` (optional): ``transforms`` (K, 4, 4) T_k,k-1, ``covariances`` (K, 6, 6) and ``ok``
@@ -53,35 +56,35 @@ def evaluate(gt_full: Array, est: Array, frames: NDArray[np.int64], align: str =
     gt = gt_full[frames]
     rebased_est = np.linalg.inv(est[0]) @ est
     rebased_gt = np.linalg.inv(gt[0]) @ gt
-    aligned = M.align_trajectory(rebased_gt, rebased_est, align)
+    aligned = metrics.align_trajectory(rebased_gt, rebased_est, align)
     ev = Evaluation()
     f = ev.figures
-    dist = M.path_distances(rebased_gt)
-    f["frames"] = int(len(frames))
+    dist = metrics.path_distances(rebased_gt)
+    f["frames"] = len(frames)
     f["path_length_m"] = float(dist[-1])
     f["alignment"] = align
     end_error = float(np.linalg.norm(aligned[-1, :3, 3] - rebased_gt[-1, :3, 3]))
     f["end_point_error_m"] = end_error
     f["end_drift_percent"] = 100.0 * end_error / dist[-1] if dist[-1] > 0 else float("nan")
-    ate = M.absolute_trajectory_error(rebased_gt, aligned)
+    ate = metrics.absolute_trajectory_error(rebased_gt, aligned)
     f["ate_rmse_m"] = float(np.sqrt(np.mean(ate**2)))
     f["ate_mean_m"] = float(ate.mean())
-    traj = M.mean_trajectory_errors(rebased_gt, aligned)
+    traj = metrics.mean_trajectory_errors(rebased_gt, aligned)
     f["m_ate_translation_m"] = traj.mean_translation
     f["m_ate_rotation_deg"] = float(np.degrees(traj.mean_rotation))
     f["c_ate_translation_m"] = float(traj.cumulative_translation[-1])
     f["c_ate_rotation_deg"] = float(np.degrees(traj.cumulative_rotation[-1]))
-    rpe_t, rpe_r = M.relative_pose_errors(rebased_gt, aligned)
+    rpe_t, rpe_r = metrics.relative_pose_errors(rebased_gt, aligned)
     f["rpe_translation_mean_m"] = float(rpe_t.mean())
     f["rpe_translation_rmse_m"] = float(np.sqrt(np.mean(rpe_t**2)))
     f["rpe_rotation_mean_deg"] = float(np.degrees(rpe_r.mean()))
     f["rpe_rotation_rmse_deg"] = float(np.degrees(np.sqrt(np.mean(rpe_r**2))))
-    ev.segments = M.kitti_odom_eval(gt_full, frames, est, align)
-    t, r = M.devkit_score(ev.segments)
+    ev.segments = metrics.kitti_odom_eval(gt_full, frames, est, align)
+    t, r = metrics.devkit_score(ev.segments)
     f["devkit_segments"] = len(ev.segments)
     f["devkit_translation_percent"] = t
     f["devkit_rotation_deg_per_100m"] = 100.0 * r
-    ev.thesis = M.thesis_segment_errors(rebased_gt, aligned)
+    ev.thesis = metrics.thesis_segment_errors(rebased_gt, aligned)
     f["thesis_translation_percent"] = ev.thesis.translation_percent
     f["thesis_rotation_deg_per_m"] = ev.thesis.rotation_deg_per_m
     ev.per_frame = {"ate_m": ate, "rotation_error_deg": np.degrees(traj.rotation), "distance_m": dist}
@@ -89,13 +92,13 @@ def evaluate(gt_full: Array, est: Array, frames: NDArray[np.int64], align: str =
         transforms, covariances, ok = relative["transforms"], relative["covariances"], relative["ok"].astype(bool)
         if len(transforms) != len(frames) - 1:
             raise PvoError(f"relative motions: {len(transforms)} for {len(frames)} poses (need one per frame after the first)")
-        errors = M.relative_motion_errors(gt, transforms)
-        n = M.nees(errors[ok], covariances[ok])
+        errors = metrics.relative_motion_errors(gt, transforms)
+        n = metrics.nees(errors[ok], covariances[ok])
         f["nees_frames"] = int(ok.sum())
         f["anees"] = float(n.mean() / 6.0)
         f["nees_median_per_dof"] = float(np.median(n) / 6.0)
-        f["anees_translation"] = float(M.nees(errors[ok][:, :3], covariances[ok][:, :3, :3]).mean() / 3.0)
-        f["anees_rotation"] = float(M.nees(errors[ok][:, 3:], covariances[ok][:, 3:, 3:]).mean() / 3.0)
+        f["anees_translation"] = float(metrics.nees(errors[ok][:, :3], covariances[ok][:, :3, :3]).mean() / 3.0)
+        f["anees_rotation"] = float(metrics.nees(errors[ok][:, 3:], covariances[ok][:, 3:, 3:]).mean() / 3.0)
     return ev
 
 
@@ -114,17 +117,24 @@ def format_table(ev: Evaluation) -> str:
         rows.append(
             (
                 "KITTI devkit segments",
-                f"{f['devkit_translation_percent']:.4f} % / {f['devkit_rotation_deg_per_100m']:.4f} deg/100m ({f['devkit_segments']} segments)",
+                f"{f['devkit_translation_percent']:.4f} % / {f['devkit_rotation_deg_per_100m']:.4f} deg/100m "
+                f"({f['devkit_segments']} segments)",
             )
         )
-        rows.append(("thesis segments (mean of lengths)", f"{f['thesis_translation_percent']:.4f} % / {f['thesis_rotation_deg_per_m']:.6f} deg/m"))
+        rows.append(
+            (
+                "thesis segments (mean of lengths)",
+                f"{f['thesis_translation_percent']:.4f} % / {f['thesis_rotation_deg_per_m']:.6f} deg/m",
+            )
+        )
     else:
         rows.append(("segment errors", "n/a: path shorter than 100 m"))
     if "anees" in f:
         rows.append(
             (
                 "ANEES (6 / trans / rot)",
-                f"{f['anees']:.2f} / {f['anees_translation']:.2f} / {f['anees_rotation']:.2f} (median {f['nees_median_per_dof']:.2f}, {f['nees_frames']} frames)",
+                f"{f['anees']:.2f} / {f['anees_translation']:.2f} / {f['anees_rotation']:.2f} "
+                f"(median {f['nees_median_per_dof']:.2f}, {f['nees_frames']} frames)",
             )
         )
     width = max(len(r[0]) for r in rows)
@@ -145,7 +155,9 @@ def write_report(ev: Evaluation, gt: Array, est_aligned: Array, out_dir: Path) -
     if ev.thesis is not None:
         figures["thesis_per_length"] = {
             str(int(length)): {"translation_percent": 100 * t, "rotation_deg_per_m": float(np.degrees(r)), "count": int(c)}
-            for length, t, r, c in zip(ev.thesis.lengths, ev.thesis.translation, ev.thesis.rotation, ev.thesis.counts, strict=True)
+            for length, t, r, c in zip(
+                ev.thesis.lengths, ev.thesis.translation, ev.thesis.rotation, ev.thesis.counts, strict=True
+            )
             if c > 0
         }
     metrics_path.write_text(json.dumps(figures, indent=2) + "\n")
@@ -198,7 +210,9 @@ def write_report(ev: Evaluation, gt: Array, est_aligned: Array, out_dir: Path) -
     return written
 
 
-def run_eval(gt_path: Path, est_path: Path, align: str, out_dir: Path | None, gt_start: int = 0, relative_path: Path | None = None) -> Evaluation:
+def run_eval(
+    gt_path: Path, est_path: Path, align: str, out_dir: Path | None, gt_start: int = 0, relative_path: Path | None = None
+) -> Evaluation:
     gt_full, est, frames = load_pair(gt_path, est_path, gt_start)
     relative = None
     if relative_path is not None:
@@ -210,7 +224,7 @@ def run_eval(gt_path: Path, est_path: Path, align: str, out_dir: Path | None, gt
     print(format_table(ev))
     if out_dir is not None:
         gt = np.linalg.inv(gt_full[frames[0]]) @ gt_full[frames]
-        aligned = M.align_trajectory(gt, np.linalg.inv(est[0]) @ est, align)
+        aligned = metrics.align_trajectory(gt, np.linalg.inv(est[0]) @ est, align)
         for path in write_report(ev, gt, aligned, out_dir):
             print(f"wrote {path}")
     return ev

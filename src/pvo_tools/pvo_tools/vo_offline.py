@@ -10,10 +10,11 @@ from typing import Any
 import numpy as np
 import yaml
 from numpy.typing import NDArray
-from pvo_core import metrics as M
 from pvo_core.readers import KittiSequence
 from pvo_core.trajectory import write_kitti_poses
 from pvo_frontend.vo import FrameResult, FrameStatus, StereoVO, VOConfig, from_flat
+
+from pvo_core import metrics
 
 from .errors import PvoError
 from .progress import Progress
@@ -82,9 +83,19 @@ def run_sequence(sequence: KittiSequence, config: VOConfig, progress: bool = Tru
     return VORun(results, np.array(poses), np.array(seconds))
 
 
-def open_sequence(sequence_dir: Path, rate: float | None, times: Path | None, colour: bool, start: int, count: int | None, poses: Path | None = None) -> KittiSequence:
+def open_sequence(
+    sequence_dir: Path,
+    rate: float | None,
+    times: Path | None,
+    colour: bool,
+    start: int,
+    count: int | None,
+    poses: Path | None = None,
+) -> KittiSequence:
     rate_hz = rate if (rate is not None or times is not None or (sequence_dir / "times.txt").is_file()) else 10.0
-    return KittiSequence(sequence_dir, colour=colour, times_file=times, rate_hz=rate_hz, poses_file=poses, start=start, count=count)
+    return KittiSequence(
+        sequence_dir, colour=colour, times_file=times, rate_hz=rate_hz, poses_file=poses, start=start, count=count
+    )
 
 
 def summarise(run: VORun, gt: Array | None) -> dict[str, Any]:
@@ -100,16 +111,16 @@ def summarise(run: VORun, gt: Array | None) -> dict[str, Any]:
     }
     if gt is not None:
         g = np.linalg.inv(gt[0]) @ gt
-        dist = M.path_distances(g)
-        err = M.absolute_trajectory_error(g, run.poses)
+        dist = metrics.path_distances(g)
+        err = metrics.absolute_trajectory_error(g, run.poses)
         out["path_m"] = float(dist[-1])
         out["end_drift_percent"] = 100.0 * float(err[-1]) / float(dist[-1])
         out["ate_mean_m"] = float(err.mean())
         out["ate_rmse_m"] = float(np.sqrt(np.mean(err**2)))
         rel = run.relative()
         ok = rel["ok"]
-        e = M.relative_motion_errors(g, rel["transforms"])
-        nees = M.nees(e[ok], rel["covariances"][ok]) / 6.0
+        e = metrics.relative_motion_errors(g, rel["transforms"])
+        nees = metrics.nees(e[ok], rel["covariances"][ok]) / 6.0
         out["anees"] = float(nees.mean())
         out["nees_median"] = float(np.median(nees))
     return out
@@ -154,8 +165,15 @@ def cmd_bench_vo(args: Any) -> int:
     images = [sequence.load_pair(i) for i in range(len(sequence))]
     base = parse_overrides(args.param, None)
     variants = BENCH_VARIANTS if args.compare else {"default": {}}
-    print(f"pvo bench vo: {sequence.root} frames {len(sequence)}, {images[0][0].shape[1]}x{images[0][0].shape[0]}, OpenCV threads {args.threads}")
-    header = f"{'variant':<34} {'median':>7} {'p95':>7} " + " ".join(f"{s[:8]:>8}" for s in STAGES[:-1]) + f" {'drift%':>7} {'ATE m':>6} {'ANEES':>6} {'inl':>5} lost"
+    print(
+        f"pvo bench vo: {sequence.root} frames {len(sequence)}, "
+        f"{images[0][0].shape[1]}x{images[0][0].shape[0]}, OpenCV threads {args.threads}"
+    )
+    header = (
+        f"{'variant':<34} {'median':>7} {'p95':>7} "
+        + " ".join(f"{s[:8]:>8}" for s in STAGES[:-1])
+        + f" {'drift%':>7} {'ATE m':>6} {'ANEES':>6} {'inl':>5} lost"
+    )
     print(header)
     summaries = {}
     for name, overrides in variants.items():

@@ -88,6 +88,7 @@ class SolverConfig:
     triangulated from noisy pixels too); off gives eq. 3.11 exactly.
     loss / loss_scale: robust loss on the whitened norm eps_i and its constant (nu for student_t).
     relative_cost_tolerance: stop when the relative cost change falls below it (thesis: 1 %).
+    inlier_rounds: GN solves at most, re-deciding the inliers at each solution until they settle.
     """
 
     pixel_sigma: tuple[float, float, float] = (1.0, 1.0, 2.0)
@@ -97,6 +98,7 @@ class SolverConfig:
     max_iterations: int = 20
     relative_cost_tolerance: float = 0.01
     min_update_norm: float = 1e-10
+    inlier_rounds: int = 4
 
 
 @dataclass(frozen=True)
@@ -131,7 +133,10 @@ def validate(config: VOConfig) -> None:
     checks: list[tuple[bool, str]] = [
         (config.detector.method in ("fast", "gftt"), "detector.method must be fast or gftt"),
         (config.detector.fast_threshold >= 1, "detector.fast_threshold must be >= 1"),
-        (config.tracker.stereo_window >= 5 and config.tracker.stereo_window % 2 == 1, "tracker.stereo_window must be odd and >= 5"),
+        (
+            config.tracker.stereo_window >= 5 and config.tracker.stereo_window % 2 == 1,
+            "tracker.stereo_window must be odd and >= 5",
+        ),
         (0 <= config.tracker.stereo_levels <= 8, "tracker.stereo_levels must be in [0, 8]"),
         (config.detector.bucket_size >= 8, "detector.bucket_size must be >= 8 px"),
         (config.detector.features_per_bucket >= 1, "detector.features_per_bucket must be >= 1"),
@@ -145,10 +150,14 @@ def validate(config: VOConfig) -> None:
         (0.0 < config.ransac.confidence < 1.0, "ransac.confidence must be in (0, 1)"),
         (1 <= config.ransac.min_iterations <= config.ransac.max_iterations, "ransac.min/max_iterations out of order"),
         (config.ransac.batch >= 1, "ransac.batch must be >= 1"),
-        (len(config.solver.pixel_sigma) == 3 and min(config.solver.pixel_sigma) > 0.0, "solver.pixel_sigma needs 3 positive values"),
+        (
+            len(config.solver.pixel_sigma) == 3 and min(config.solver.pixel_sigma) > 0.0,
+            "solver.pixel_sigma needs 3 positive values",
+        ),
         (config.solver.loss in LOSSES, f"solver.loss must be one of {', '.join(LOSSES)}"),
         (config.solver.loss_scale > 0.0, "solver.loss_scale must be positive"),
         (config.solver.max_iterations >= 1, "solver.max_iterations must be >= 1"),
+        (config.solver.inlier_rounds >= 1, "solver.inlier_rounds must be >= 1"),
         (config.solver.relative_cost_tolerance >= 0.0, "solver.relative_cost_tolerance must be >= 0"),
         (config.tracking.min_inliers >= 3, "tracking.min_inliers must be >= 3"),
         (config.tracking.lost_covariance > 0.0, "tracking.lost_covariance must be positive"),

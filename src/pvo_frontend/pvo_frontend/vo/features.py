@@ -66,7 +66,11 @@ class StereoMatcher:
         self.tracker = tracker
         criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, tracker.iterations, tracker.epsilon)
         self._lk = {"winSize": (tracker.window, tracker.window), "maxLevel": tracker.levels, "criteria": criteria}
-        self._lk_stereo = {"winSize": (tracker.stereo_window, tracker.stereo_window), "maxLevel": tracker.stereo_levels, "criteria": criteria}
+        self._lk_stereo = {
+            "winSize": (tracker.stereo_window, tracker.stereo_window),
+            "maxLevel": tracker.stereo_levels,
+            "criteria": criteria,
+        }
         self._fast = cv2.FastFeatureDetector_create(threshold=detector.fast_threshold, nonmaxSuppression=True)
         self._block_matcher = cv2.StereoBM_create(numDisparities=32, blockSize=9)
         self._next_id = 0
@@ -144,13 +148,18 @@ class StereoMatcher:
         per_bucket = cfg.features_per_bucket
         occupancy = np.zeros(nbx * nby, dtype=np.int64)
         if existing.shape[0]:
-            bucket = np.clip((existing[:, 1] // bs).astype(int), 0, nby - 1) * nbx + np.clip((existing[:, 0] // bs).astype(int), 0, nbx - 1)
+            bucket = np.clip((existing[:, 1] // bs).astype(int), 0, nby - 1) * nbx + np.clip(
+                (existing[:, 0] // bs).astype(int), 0, nbx - 1
+            )
             np.add.at(occupancy, bucket, 1)
         if occupancy.min() >= per_bucket:
             return np.zeros((0, 2))
         corners, response = self._candidates(image)
         inside = (
-            (corners[:, 0] >= cfg.border) & (corners[:, 0] < w - cfg.border) & (corners[:, 1] >= cfg.border) & (corners[:, 1] < h - cfg.border)
+            (corners[:, 0] >= cfg.border)
+            & (corners[:, 0] < w - cfg.border)
+            & (corners[:, 1] >= cfg.border)
+            & (corners[:, 1] < h - cfg.border)
         )
         corners, response = corners[inside], response[inside]
         if existing.shape[0] and corners.shape[0]:
@@ -203,7 +212,9 @@ class StereoMatcher:
         raw[raw <= 0.0] = np.nan
         return 4.0 * raw
 
-    def match_stereo(self, left: Pyramid, right: Pyramid, points: Array, shape: tuple[int, int], prior: Array, fallback: float) -> StereoFeatures:
+    def match_stereo(
+        self, left: Pyramid, right: Pyramid, points: Array, shape: tuple[int, int], prior: Array, fallback: float
+    ) -> StereoFeatures:
         """Right-image matches of new left points: KLT seeded by the coarse disparity, checked right -> left."""
         if points.shape[0] == 0:
             return StereoFeatures.empty()

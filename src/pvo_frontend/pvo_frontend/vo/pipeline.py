@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import enum
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
@@ -22,9 +23,10 @@ from pvo_core.lie import se3_exp, se3_inverse, se3_log
 from .config import VOConfig
 from .features import Pyramid, StereoFeatures, StereoMatcher
 from .ransac import ransac_motion
-from .solver import RobustLoss, feature_information, quadratic_form, solve_motion
+from .solver import RobustLoss, SolveResult, feature_information, quadratic_form, solve_motion
 
 Array = NDArray[np.float64]
+FeatureNoise = Callable[[StereoFeatures, StereoFeatures], tuple[Array, Array | None]]
 
 
 class FrameStatus(enum.Enum):
@@ -72,6 +74,115 @@ class _Frame:
     features: StereoFeatures
 
 
+@dataclass
+class MotionEstimate:
+    """Outcome of :func:`estimate_motion`: the GN solution (None on failure), inlier mask, counts,
+    per-stage times and, on failure, why."""
+
+    solve: SolveResult | None
+    inliers: NDArray[np.bool_]
+    ransac_iterations: int = 0
+    gn_iterations: int = 0
+    failure: str = ""
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def estimate_motion(
+    camera: StereoCamera,
+    obs_ref: Array,
+    obs_cur: Array,
+    covariances: Array,
+    config: VOConfig,
+    rng: np.random.Generator,
+    prediction: Array | None = None,
+    loss_scale: Array | None = None,
+) -> MotionEstimate:
+    """T_cur,ref from matched stereo observations [u, v, d] (N, 3) in both frames.
+
+    ``covariances`` (N, 3, 3) are per-feature pixel covariances (the same for both frames; PROBE
+    predicts them), ``loss_scale`` optional per-feature robust-loss constants. Steps: 3-point RANSAC
+    on the whitened reprojection error, robust GN on its inliers, inliers re-decided at that solution
+    and GN again until they settle (``solver.inlier_rounds`` at most); fails (``failure`` set) with
+    too few inliers or degenerate geometry.
+    """
+    cfg = config
+    n = obs_ref.shape[0]
+    prediction = np.eye(4) if prediction is None else prediction
+    out = MotionEstimate(None, np.zeros(n, dtype=bool))
+    if n < max(3, cfg.tracking.min_inliers):
+        out.failure = f"only {n} features tracked (need {cfg.tracking.min_inliers})"
+        return out
+    points_ref = camera.triangulate(obs_ref)
+    points_cur = camera.triangulate(obs_cur)
+    cov_ref = covariances if cfg.solver.propagate_reference_noise else None
+
+    tic = time.perf_counter()
+    information = feature_information(camera, prediction, obs_ref, covariances, cov_ref)
+    ransac = ransac_motion(
+        camera,
+        points_ref,
+        points_cur,
+        obs_cur,
+        information,
+        cfg.ransac.inlier_threshold,
+        rng,
+        cfg.ransac.confidence,
+        cfg.ransac.min_iterations,
+        cfg.ransac.max_iterations,
+        cfg.ransac.batch,
+    )
+    out.timings["ransac"] = time.perf_counter() - tic
+    out.ransac_iterations = ransac.iterations
+    inliers = ransac.inliers
+    out.inliers = inliers
+    n_in = int(inliers.sum())
+    if n_in < max(cfg.tracking.min_inliers, cfg.tracking.min_inlier_ratio * n):
+        out.failure = f"only {n_in} RANSAC inliers of {n} tracked features"
+        return out
+
+    tic = time.perf_counter()
+    loss = RobustLoss(cfg.solver.loss, cfg.solver.loss_scale if loss_scale is None else loss_scale)
+    transform = ransac.transform
+    solve: SolveResult | None = None
+    # solve on the RANSAC inliers, re-decide the inliers at the solution, and repeat until they settle
+    for _ in range(cfg.solver.inlier_rounds):
+        information = feature_information(camera, transform, obs_ref, covariances, cov_ref)
+        if solve is not None:
+            residual = camera.project(points_ref @ transform[:3, :3].T + transform[:3, 3]) - obs_cur
+            refined = quadratic_form(residual, information) < cfg.ransac.inlier_threshold
+            if np.array_equal(refined, inliers) or int(refined.sum()) < cfg.tracking.min_inliers:
+                break
+            inliers = refined
+        loss_in = loss if loss.scale.ndim == 0 else RobustLoss(loss.name, loss.scale[inliers])
+        solve = solve_motion(
+            camera,
+            points_ref[inliers],
+            obs_cur[inliers],
+            information[inliers],
+            loss_in,
+            transform,
+            cfg.solver.max_iterations,
+            cfg.solver.relative_cost_tolerance,
+            cfg.solver.min_update_norm,
+        )
+        transform = solve.transform
+        out.gn_iterations += solve.iterations
+    out.timings["gauss_newton"] = time.perf_counter() - tic
+    out.inliers = inliers
+    out.solve = solve
+    assert solve is not None
+    if (
+        not (np.all(np.isfinite(solve.transform)) and np.all(np.isfinite(solve.covariance)))
+        or solve.condition > cfg.tracking.max_condition
+    ):
+        out.failure = f"degenerate geometry (normal-matrix condition {solve.condition:.3g})"
+    return out
+
+
+def _size(image: NDArray) -> str:
+    return f"{image.shape[1]}x{image.shape[0]}"
+
+
 def as_grey(image: NDArray, what: str) -> NDArray[np.uint8]:
     """A contiguous 2-D uint8 image from mono8 / rgb8 arrays; ``ValueError`` naming ``what`` otherwise."""
     img = np.asarray(image)
@@ -89,14 +200,15 @@ def as_grey(image: NDArray, what: str) -> NDArray[np.uint8]:
 class StereoVO:
     """Frame-to-frame stereo VO on rectified images (thesis ch. 3, app. B).
 
-    ``pixel_covariance`` may be given per call to :meth:`process` through ``feature_noise``
-    (a callable from the current features to (N, 3, 3) covariances and optional per-feature loss
-    scales) - the hook PROBE uses; the default is ``solver.pixel_sigma`` for every feature.
+    ``feature_noise`` (optional) maps the matched features (reference, current) to per-feature pixel
+    covariances (N, 3, 3) and optional robust-loss constants (N,) or None - the hook PROBE uses;
+    without it every feature gets R = diag(solver.pixel_sigma^2).
     """
 
-    def __init__(self, camera: StereoCamera, config: VOConfig | None = None) -> None:
+    def __init__(self, camera: StereoCamera, config: VOConfig | None = None, feature_noise: FeatureNoise | None = None) -> None:
         self.camera = camera
         self.config = config or VOConfig()
+        self.feature_noise = feature_noise
         self.matcher = StereoMatcher(self.config.detector, self.config.tracker)
         self._rng = np.random.default_rng(self.config.ransac.seed)
         sigma = np.asarray(self.config.solver.pixel_sigma, dtype=float)
@@ -109,7 +221,7 @@ class StereoVO:
 
     def reset(self) -> None:
         """Forget the tracked features and the pose (the next frame starts a new odom frame)."""
-        self.__init__(self.camera, self.config)  # type: ignore[misc]
+        self.__init__(self.camera, self.config, self.feature_noise)  # type: ignore[misc]
 
     def process(self, left: NDArray, right: NDArray, stamp: float) -> FrameResult:
         """Process one rectified stereo pair taken at ``stamp`` (s)."""
@@ -124,7 +236,7 @@ class StereoVO:
             return FrameResult(
                 stamp,
                 FrameStatus.REJECTED,
-                f"stereo images differ in size: left {left_img.shape[1]}x{left_img.shape[0]}, right {right_img.shape[1]}x{right_img.shape[0]}",
+                f"stereo images differ in size: left {_size(left_img)}, right {_size(right_img)}",
                 pose=self.pose.copy(),
             )
         if not np.isfinite(stamp):
@@ -132,7 +244,9 @@ class StereoVO:
         prev = self._previous
         if prev is not None:
             if stamp == prev.stamp:
-                return FrameResult(stamp, FrameStatus.REJECTED, f"repeated frame: stamp {stamp:.9f} s already processed", pose=self.pose.copy())
+                return FrameResult(
+                    stamp, FrameStatus.REJECTED, f"repeated frame: stamp {stamp:.9f} s already processed", pose=self.pose.copy()
+                )
             if stamp < prev.stamp:
                 return FrameResult(
                     stamp,
@@ -144,7 +258,7 @@ class StereoVO:
                 return FrameResult(
                     stamp,
                     FrameStatus.REJECTED,
-                    f"image size changed from {prev.left.shape[1]}x{prev.left.shape[0]} to {left_img.shape[1]}x{left_img.shape[0]}",
+                    f"image size changed from {_size(prev.left)} to {_size(left_img)}",
                     pose=self.pose.copy(),
                 )
 
@@ -199,66 +313,21 @@ class StereoVO:
         if n < cfg.tracking.min_inliers:
             return self._lost(base, f"only {n} features tracked (need {cfg.tracking.min_inliers})", prediction), after
 
-        obs_ref = before.observations()
-        obs_cur = after.observations()
-        points_ref = cam.triangulate(obs_ref)
-        points_cur = cam.triangulate(obs_cur)
         cov = np.broadcast_to(self._default_cov, (n, 3, 3))
-        cov_ref = cov if cfg.solver.propagate_reference_noise else None
-
-        tic = time.perf_counter()
-        information = feature_information(cam, prediction, obs_ref, cov, cov_ref)
-        ransac = ransac_motion(
-            cam,
-            points_ref,
-            points_cur,
-            obs_cur,
-            information,
-            cfg.ransac.inlier_threshold,
-            self._rng,
-            cfg.ransac.confidence,
-            cfg.ransac.min_iterations,
-            cfg.ransac.max_iterations,
-            cfg.ransac.batch,
-        )
-        timings["ransac"] = time.perf_counter() - tic
-        base.ransac_iterations = ransac.iterations
-        inliers = ransac.inliers
-        n_in = int(inliers.sum())
-        if n_in < max(cfg.tracking.min_inliers, cfg.tracking.min_inlier_ratio * n):
-            return self._lost(base, f"only {n_in} RANSAC inliers of {n} tracked features", prediction), after
-
-        tic = time.perf_counter()
-        loss = RobustLoss(cfg.solver.loss, cfg.solver.loss_scale)
-        transform = ransac.transform
-        iterations = 0
-        for _ in range(2):  # solve on the RANSAC inliers, re-decide inliers at the solution, solve again
-            information = feature_information(cam, transform, obs_ref, cov, cov_ref)
-            if _ == 1:
-                residual = cam.project(points_ref @ transform[:3, :3].T + transform[:3, 3]) - obs_cur
-                inliers = quadratic_form(residual, information) < cfg.ransac.inlier_threshold
-                if int(inliers.sum()) < cfg.tracking.min_inliers:
-                    break
-            solve = solve_motion(
-                cam,
-                points_ref[inliers],
-                obs_cur[inliers],
-                information[inliers],
-                loss,
-                transform,
-                cfg.solver.max_iterations,
-                cfg.solver.relative_cost_tolerance,
-                cfg.solver.min_update_norm,
-            )
-            transform = solve.transform
-            iterations += solve.iterations
-        n_in = int(inliers.sum())
-        timings["gauss_newton"] = time.perf_counter() - tic
-        base.gn_iterations = iterations
-        base.inliers = n_in
-        if not (np.all(np.isfinite(solve.transform)) and np.all(np.isfinite(solve.covariance))) or solve.condition > cfg.tracking.max_condition:
-            return self._lost(base, f"degenerate geometry (normal-matrix condition {solve.condition:.3g})", prediction), after
-
+        if self.feature_noise is not None:
+            cov, loss_scale = self.feature_noise(before, after)
+        else:
+            loss_scale = None
+        motion = estimate_motion(cam, before.observations(), after.observations(), cov, cfg, self._rng, prediction, loss_scale)
+        timings.update(motion.timings)
+        base.ransac_iterations = motion.ransac_iterations
+        base.gn_iterations = motion.gn_iterations
+        base.inliers = int(motion.inliers.sum())
+        if motion.failure:
+            return self._lost(base, motion.failure, prediction), after
+        solve = motion.solve
+        assert solve is not None
+        inliers = motion.inliers
         base.transform = solve.transform
         base.covariance = solve.covariance
         self.pose = self.pose @ se3_inverse(solve.transform)

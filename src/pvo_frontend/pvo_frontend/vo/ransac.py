@@ -88,23 +88,34 @@ def ransac_motion(
         # three distinct indices per hypothesis
         samples = np.argsort(rng.random((size, n)), axis=1)[:, :3] if n <= 64 else _distinct_triples(rng, n, size)
         hyp = align_points(points_ref[samples], points_cur[samples])
-        q = np.einsum("bij,nj->bni", hyp[:, :3, :3], points_ref) + hyp[:, None, :3, 3]
-        valid_depth = q[..., 2] > 1e-3
-        q[..., 2] = np.where(valid_depth, q[..., 2], 1.0)
-        residual = camera.project(q) - obs_cur[None]
-        eps2 = quadratic_form(residual, information)
-        eps2 = np.where(valid_depth, eps2, np.inf)
-        inliers = eps2 < threshold
-        counts = inliers.sum(axis=1)
-        truncated = np.minimum(eps2, threshold).sum(axis=1)
-        order = np.lexsort((truncated, -counts))
-        k = int(order[0])
+        counts, truncated, inliers = _score(camera, hyp, points_ref, obs_cur, information, threshold)
+        k = int(np.lexsort((truncated, -counts))[0])
         score = (int(counts[k]), -float(truncated[k]))
         if score > best_score:
             best_score, best_t, best_inliers = score, hyp[k], inliers[k]
+            # local optimisation (LO-RANSAC): refit on all inliers of the new best and keep it if better
+            while best_inliers.sum() >= 3:
+                refit = align_points(points_ref[None, best_inliers], points_cur[None, best_inliers])
+                c, tr, inl = _score(camera, refit, points_ref, obs_cur, information, threshold)
+                if (int(c[0]), -float(tr[0])) <= best_score:
+                    break
+                best_score, best_t, best_inliers = (int(c[0]), -float(tr[0])), refit[0], inl[0]
             needed = required_iterations(best_score[0] / n, confidence)
         done += size
     return RansacResult(best_t, best_inliers, done)
+
+
+def _score(
+    camera: StereoCamera, hyp: Array, points_ref: Array, obs_cur: Array, information: Array, threshold: float
+) -> tuple[NDArray[np.int64], Array, NDArray[np.bool_]]:
+    """Inlier counts (B,), truncated whitened costs (B,) and inlier masks (B, N) of hypotheses (B, 4, 4)."""
+    q = np.einsum("bij,nj->bni", hyp[:, :3, :3], points_ref) + hyp[:, None, :3, 3]
+    valid_depth = q[..., 2] > 1e-3
+    q[..., 2] = np.where(valid_depth, q[..., 2], 1.0)
+    residual = camera.project(q) - obs_cur[None]
+    eps2 = np.where(valid_depth, quadratic_form(residual, information), np.inf)
+    inliers = eps2 < threshold
+    return inliers.sum(axis=1), np.minimum(eps2, threshold).sum(axis=1), inliers
 
 
 def _distinct_triples(rng: np.random.Generator, n: int, size: int) -> NDArray[np.int64]:
