@@ -335,3 +335,19 @@ def rotation_errors_axis_angle(gt_rotations: ArrayLike, est_rotations: ArrayLike
     g = np.asarray(gt_rotations, dtype=float)
     e = np.asarray(est_rotations, dtype=float)
     return np.array([so3_log(a.T @ b) for a, b in zip(g, e, strict=True)])
+
+
+def shared_error_covariance(errors_a: ArrayLike, errors_b: ArrayLike) -> Array:
+    """Covariance of the error component two estimators share, E[e_a e_b^T] symmetrised and clipped PSD.
+
+    Errors of two *independent* estimators measured against the same ground truth share only the
+    ground truth's own error, so this estimates the reference's noise covariance (per sample).
+    """
+    a = np.asarray(errors_a, dtype=float)
+    b = np.asarray(errors_b, dtype=float)
+    if a.shape != b.shape or a.ndim != 2:
+        raise ValueError(f"need two (N, d) error arrays of the same shape, got {a.shape} and {b.shape}")
+    cross = a.T @ b / a.shape[0]
+    sym = 0.5 * (cross + cross.T)
+    w, v = np.linalg.eigh(sym)
+    return (v * np.maximum(w, 0.0)) @ v.T

@@ -105,3 +105,12 @@ def test_bad_trajectories_are_refused() -> None:
     bad[2, 0, 3] = np.nan
     with pytest.raises(ValueError, match="NaN"):
         metrics.mean_trajectory_errors(gt, bad)
+
+
+def test_shared_error_covariance_recovers_the_common_noise() -> None:
+    rng = np.random.default_rng(3)
+    common_cov = np.diag([4.0, 1.0, 0.25])
+    common = rng.multivariate_normal(np.zeros(3), common_cov, 20000)
+    a = common + rng.normal(size=(20000, 3)) * 2.0
+    b = common + rng.normal(size=(20000, 3)) * 3.0
+    assert np.allclose(metrics.shared_error_covariance(a, b), common_cov, atol=0.15)

@@ -99,3 +99,14 @@ def test_config_yaml_mirrors_dataclass() -> None:
     data = yaml.safe_load((PACKAGE / "config/stereo_vo.yaml").read_text())["stereo_vo"]["ros__parameters"]
     dotted = {k: v for k, v in data.items() if "." in k}
     assert dotted == flatten(VOConfig())
+
+
+def test_dropped_frame_is_bridged(clip) -> None:
+    """A missing frame (0.2 s gap) is tracked through: the motion is about twice a normal step."""
+    sequence, images = clip
+    vo = StereoVO(sequence.camera())
+    steps = [vo.process(*images[i], float(sequence.stamps[i])) for i in (0, 1, 2, 4)]
+    assert [s.status for s in steps] == [FrameStatus.FIRST, FrameStatus.TRACKING, FrameStatus.TRACKING, FrameStatus.TRACKING]
+    single = np.linalg.norm(steps[2].transform[:3, 3])
+    double = np.linalg.norm(steps[3].transform[:3, 3])
+    assert 1.7 < double / single < 2.3
