@@ -182,6 +182,28 @@ def _add_vo(sub: argparse._SubParsersAction) -> None:
     bvo.add_argument("--json", type=Path, help="write the figures as YAML/JSON to this file")
 
 
+def _add_experiment(sub: argparse._SubParsersAction, bench_kinds: argparse._SubParsersAction) -> None:
+    exp = sub.add_parser("experiment", help="thesis experiments on real data")
+    kinds = exp.add_subparsers(dest="experiment", required=True, metavar="WHICH")
+    sim = kinds.add_parser("sun-sim", help="Table 5.2: viso2-s VO on KITTI 00-10 fused with simulated sun (GT-Sun-0/10/20/30)")
+    sim.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
+    sim.add_argument("--sequences", nargs="+", default=None, help="sequences (default: 00 01 02 04 05 06 07 08 09 10)")
+    sim.add_argument("--levels", nargs="+", type=float, default=None, help="mean sun errors in degrees (default 0 10 20 30)")
+    sim.add_argument("--seed", type=int, default=0, help="seed of the simulated sun noise (default 0)")
+    sim.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="fusion parameter, e.g. -p window.lag=20")
+    sim.add_argument("--no-anees", action="store_true", help="skip the marginal covariances (faster)")
+    sim.add_argument("--out", "-o", type=Path, default=Path("runs/sun-sim"), help="output directory (default runs/sun-sim)")
+    sim.add_argument("--quiet", "-q", action="store_true", help="no per-run lines")
+
+    bf = bench_kinds.add_parser(
+        "fusion", help="FusionGraph over a whole KITTI sequence (viso2-s VO + GT-Sun-10): time and memory"
+    )
+    bf.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
+    bf.add_argument("--sequence", default="00", help="KITTI sequence (default 00: 4541 frames)")
+    bf.add_argument("--repeat", type=int, default=3, help="runs; the fastest is reported (default 3)")
+    bf.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="fusion parameter")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pvo", description="pvo: pseudo-sensor visual odometry tools.", epilog=EPILOG)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -189,6 +211,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_bag(sub)
     _add_graph(sub)
     _add_vo(sub)
+    bench_kinds = next(a for a in sub.choices["bench"]._actions if isinstance(a, argparse._SubParsersAction))
+    _add_experiment(sub, bench_kinds)
     return parser
 
 
@@ -344,10 +368,18 @@ def main(argv: list[str] | None = None) -> int:
 
             run_eval(args.gt, args.est, args.align, args.out, args.gt_start, args.relative)
             return 0
+        if args.command == "bench" and args.bench == "fusion":
+            from .fusion_tools import cmd_bench_fusion
+
+            return cmd_bench_fusion(args)
         if args.command == "bench":
             from .vo_offline import cmd_bench_vo
 
             return cmd_bench_vo(args)
+        if args.command == "experiment":
+            from .fusion_tools import cmd_sun_sim
+
+            return cmd_sun_sim(args)
         return _cmd_graph(args)
     except (PvoError, DataFormatError, ValueError) as error:
         print(f"pvo: error: {error}", file=sys.stderr)

@@ -1,0 +1,159 @@
+"""Typed configuration of the fusion graph; the ``fusion`` node's parameters are its dotted fields.
+
+``config/fusion.yaml`` holds the same defaults (a test checks they agree).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from pvo_core.config import flatten as _flatten
+from pvo_core.config import from_flat as _from_flat
+
+LAG_UNITS = ("frames", "seconds")
+LINEAR_SOLVERS = ("qr", "cholesky")
+SMOOTHERS = ("incremental", "batch")
+PRIOR_SOURCES = ("identity", "given")
+SUN_REFERENCES = ("ephemeris", "fixed", "table")
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """Fixed-lag window: states older than ``lag`` (frames or seconds) behind the newest are marginalised."""
+
+    lag: float = 10.0
+    lag_unit: str = "frames"
+
+
+@dataclass(frozen=True)
+class SolverConfig:
+    """The smoother: ``incremental`` (iSAM2, ``iterations`` Gauss-Newton passes per update) or ``batch``
+    (Levenberg-Marquardt over the window, at most ``iterations`` iterations). QR keeps long drifting chains
+    solvable (see the module notes in :mod:`pvo_fusion.graph`)."""
+
+    smoother: str = "incremental"
+    linear_solver: str = "qr"
+    iterations: int = 2
+    relative_error_tol: float = 1e-9
+    absolute_error_tol: float = 1e-12
+
+
+@dataclass(frozen=True)
+class PriorConfig:
+    """Prior on the first state: the identity, or a pose given by the caller (ground truth, GPS/heading)."""
+
+    source: str = "identity"
+    sigma_rotation: float = 1e-4
+    sigma_translation: float = 1e-3
+
+
+@dataclass(frozen=True)
+class VOInputConfig:
+    """``/pvo/vo/relative``. ``covariance_scale`` multiplies each ROS-order variance (x y z rotX rotY rotZ)."""
+
+    enabled: bool = True
+    covariance_scale: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+    lost_variance: float = 1000.0
+    gate_probability: float = 0.0
+
+
+@dataclass(frozen=True)
+class SunInputConfig:
+    """``/pvo/sun/direction``: zenith/azimuth factor with a Huber loss (k on the whitened residual)."""
+
+    enabled: bool = True
+    huber_k: float = 1.345
+    gate_probability: float = 0.9999
+    reference: str = "ephemeris"
+    reference_direction: tuple[float, ...] = (0.0, 0.0, 1.0)
+    reference_table: str = ""
+    ephemeris_time_offset: float = 0.0
+
+
+@dataclass(frozen=True)
+class CorrectionInputConfig:
+    """``/pvo/dpc/correction``: a between factor over the Δp frames it spans."""
+
+    enabled: bool = True
+    gate_probability: float = 0.9999
+
+
+@dataclass(frozen=True)
+class RotationInputConfig:
+    """``/pvo/hydranet/rotation``: rotation-only factor; skipped when det(Σ_rot) exceeds ``max_covariance_det``."""
+
+    enabled: bool = True
+    gate_probability: float = 0.9999
+    max_covariance_det: float = 1e-4
+
+
+@dataclass(frozen=True)
+class InputsConfig:
+    vo: VOInputConfig = field(default_factory=VOInputConfig)
+    sun: SunInputConfig = field(default_factory=SunInputConfig)
+    correction: CorrectionInputConfig = field(default_factory=CorrectionInputConfig)
+    rotation: RotationInputConfig = field(default_factory=RotationInputConfig)
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    window: WindowConfig = field(default_factory=WindowConfig)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    prior: PriorConfig = field(default_factory=PriorConfig)
+    inputs: InputsConfig = field(default_factory=InputsConfig)
+    #: Measurements attach to the state whose stamp is within this many seconds.
+    stamp_tolerance: float = 0.001
+    #: Measurements ahead of the newest VO state wait in a buffer of at most this many.
+    max_pending: int = 1000
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
+def validate(config: FusionConfig) -> None:
+    """Raise ``ValueError`` naming the parameter for any out-of-range value."""
+    gates = {
+        "inputs.vo.gate_probability": config.inputs.vo.gate_probability,
+        "inputs.sun.gate_probability": config.inputs.sun.gate_probability,
+        "inputs.correction.gate_probability": config.inputs.correction.gate_probability,
+        "inputs.rotation.gate_probability": config.inputs.rotation.gate_probability,
+    }
+    checks: list[tuple[bool, str]] = [
+        (config.window.lag > 0.0, "window.lag must be positive"),
+        (config.window.lag_unit in LAG_UNITS, f"window.lag_unit must be one of {', '.join(LAG_UNITS)}"),
+        (config.solver.linear_solver in LINEAR_SOLVERS, f"solver.linear_solver must be one of {', '.join(LINEAR_SOLVERS)}"),
+        (config.solver.smoother in SMOOTHERS, f"solver.smoother must be one of {', '.join(SMOOTHERS)}"),
+        (config.solver.iterations >= 1, "solver.iterations must be >= 1"),
+        (config.solver.relative_error_tol >= 0.0, "solver.relative_error_tol must be >= 0"),
+        (config.solver.absolute_error_tol >= 0.0, "solver.absolute_error_tol must be >= 0"),
+        (config.prior.source in PRIOR_SOURCES, f"prior.source must be one of {', '.join(PRIOR_SOURCES)}"),
+        (config.prior.sigma_rotation > 0.0, "prior.sigma_rotation must be positive"),
+        (config.prior.sigma_translation > 0.0, "prior.sigma_translation must be positive"),
+        (
+            len(config.inputs.vo.covariance_scale) == 6 and min(config.inputs.vo.covariance_scale) > 0.0,
+            "inputs.vo.covariance_scale needs 6 positive values",
+        ),
+        (config.inputs.vo.lost_variance > 0.0, "inputs.vo.lost_variance must be positive"),
+        (config.inputs.sun.huber_k >= 0.0, "inputs.sun.huber_k must be >= 0 (0 = no Huber loss)"),
+        (config.inputs.sun.reference in SUN_REFERENCES, f"inputs.sun.reference must be one of {', '.join(SUN_REFERENCES)}"),
+        (len(config.inputs.sun.reference_direction) == 3, "inputs.sun.reference_direction needs 3 values"),
+        (config.inputs.rotation.max_covariance_det > 0.0, "inputs.rotation.max_covariance_det must be positive"),
+        (config.stamp_tolerance >= 0.0, "stamp_tolerance must be >= 0"),
+        (config.max_pending >= 0, "max_pending must be >= 0"),
+    ]
+    checks += [(0.0 <= p < 1.0, f"{name} must be in [0, 1) (0 disables the gate)") for name, p in gates.items()]
+    for ok, message in checks:
+        if not ok:
+            raise ValueError(f"invalid fusion configuration: {message}")
+
+
+def flatten(config: FusionConfig) -> dict[str, Any]:
+    """``{"window.lag": 10.0, "inputs.sun.huber_k": 1.345, ...}``."""
+    return _flatten(config)
+
+
+def from_flat(values: Mapping[str, Any], base: FusionConfig | None = None) -> FusionConfig:
+    """A :class:`FusionConfig` from dotted names over ``base`` (defaults); unknown names are an error."""
+    return _from_flat(values, base or FusionConfig(), what="fusion")

@@ -1,0 +1,450 @@
+"""FusionGraph: the sliding-window GTSAM smoother that fuses VO with the pseudo-sensors.
+
+One ``Pose3`` state ``x_i = T_map,cam_i`` per VO frame, keyed by the frame's stamp, in GTSAM's
+``IncrementalFixedLagSmoother`` (iSAM2; or ``BatchFixedLagSmoother``, ``solver.smoother``): states
+older than the lag are marginalised and their information stays as a Gaussian prior on the oldest
+remaining states (thesis §5.4.2). The factors (see :mod:`.factors`):
+
+    prior      x_0 ~ N(T_map,cam_0, Σ_prior)                          PriorFactorPose3
+    VO         x_{k-1}^-1 x_k ~ T_{k-1,k} (RelativePose, Σ_vo)          BetweenFactorPose3
+    sun        f(C_map,k^T s_map(t_k)) ~ f(s_k) (SunDirection, R_s)     sun_factor (Huber)
+    correction x_{k-Δp}^-1 x_k ~ T_{k-Δp,k} (DPC-Net, Σ_c)             BetweenFactorPose3
+    rotation   C_{j}^T C_k ~ C_{j,k} (HydraNet, Σ_hn)                   rotation_factor
+
+Measurements attach to the state with the same stamp (within ``stamp_tolerance``); those ahead of
+the newest VO frame wait in a buffer, those older than the window are dropped; every outcome is
+counted in :attr:`FusionGraph.counts` under ``"<input>.<outcome>"``.
+
+The linear systems use QR: with a prior on the first pose only, the absolute uncertainty grows
+without bound along a long trajectory and Cholesky declares the window indeterminate after a few
+thousand frames (KITTI 05 near frame 1726); the square-root (QR) solution keeps it solvable.
+"""
+
+from __future__ import annotations
+
+import bisect
+import time
+from collections import Counter, deque
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import X
+from numpy.typing import ArrayLike, NDArray
+from pvo_core.covariance import gtsam_to_ros_covariance, is_positive_definite, ros_to_gtsam_covariance
+from scipy.stats import chi2
+
+from .config import FusionConfig
+from .factors import between_measurement, rotation_error, rotation_factor, sun_error, sun_factor, zenith_azimuth
+from .measurements import RelativeMeasurement, SunMeasurement, relative_problem, sun_problem
+from .sun_reference import SunReference
+
+Array = NDArray[np.float64]
+
+ACCEPTED = "accepted"
+BUFFERED = "buffered"
+
+
+@dataclass(frozen=True)
+class FusedPose:
+    """A fused state: ``pose`` = T_map,cam (4x4) at ``stamp`` (ns); ``covariance`` ROS order, left perturbation."""
+
+    stamp: int
+    pose: Array
+    covariance: Array | None = None
+
+
+@dataclass
+class _Pending:
+    kind: str
+    measurement: RelativeMeasurement | SunMeasurement
+
+
+class FusionGraph:
+    """Fixed-lag fusion of VO relative poses with sun directions, pose corrections and relative rotations."""
+
+    def __init__(self, config: FusionConfig | None = None, sun_reference: SunReference | None = None) -> None:
+        self.config = config or FusionConfig()
+        self.sun_reference = sun_reference
+        self.counts: Counter[str] = Counter()
+        self.factor_counts: Counter[str] = Counter()
+        self.last_update_seconds = 0.0
+        self.last_rejection = ""
+        self._initial_pose: Array | None = None
+        self._initial_covariance: Array | None = None
+        self._tolerance_ns = round(self.config.stamp_tolerance * 1e9)
+        scale = np.sqrt(np.asarray(self.config.inputs.vo.covariance_scale, dtype=float))
+        self._vo_scale = np.outer(scale, scale)
+        self._gates = {
+            name: (chi2.ppf(p, dof) if p > 0.0 else np.inf)
+            for name, p, dof in (
+                ("vo", self.config.inputs.vo.gate_probability, 6),
+                ("sun", self.config.inputs.sun.gate_probability, 2),
+                ("correction", self.config.inputs.correction.gate_probability, 6),
+                ("rotation", self.config.inputs.rotation.gate_probability, 3),
+            )
+        }
+        self._reset_smoother()
+
+    # ------------------------------------------------------------------ set-up
+    def _reset_smoother(self) -> None:
+        solver = self.config.solver
+        self._smoother: gtsam.IncrementalFixedLagSmoother | gtsam.BatchFixedLagSmoother
+        if solver.smoother == "incremental":
+            isam = gtsam.ISAM2Params()
+            isam.setFactorization("QR" if solver.linear_solver == "qr" else "CHOLESKY")
+            # Relinearise every variable on every pass: the window is small and exactness matters more.
+            isam.relinearizeSkip = 1
+            isam.setRelinearizeThreshold(0.0)
+            self._smoother = gtsam.IncrementalFixedLagSmoother(self.config.window.lag, isam)
+        else:
+            params = gtsam.LevenbergMarquardtParams()
+            params.setLinearSolverType("MULTIFRONTAL_QR" if solver.linear_solver == "qr" else "MULTIFRONTAL_CHOLESKY")
+            params.setMaxIterations(solver.iterations)
+            params.setRelativeErrorTol(solver.relative_error_tol)
+            params.setAbsoluteErrorTol(solver.absolute_error_tol)
+            self._smoother = gtsam.BatchFixedLagSmoother(self.config.window.lag, params)
+        self._stamps: list[int] = []  # live states, increasing
+        self._keys: dict[int, int] = {}  # stamp -> key
+        self._estimates: dict[int, gtsam.Pose3] = {}  # key -> latest estimate
+        self._pending: deque[_Pending] = deque()
+        self._finished: list[FusedPose] = []
+        self._next_index = 0
+        self._first_stamp: int | None = None
+
+    def set_initial_pose(self, pose: ArrayLike, covariance: ArrayLike | None = None) -> None:
+        """Prior of the first state (T_map,cam, 4x4; optional ROS-order left covariance). Before the first VO."""
+        pose = np.asarray(pose, dtype=float)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+            raise ValueError("initial pose must be a finite 4x4 transform")
+        if covariance is not None and not is_positive_definite(np.asarray(covariance, dtype=float).reshape(6, 6)):
+            raise ValueError("initial pose covariance must be positive definite")
+        if self._stamps:
+            raise ValueError("the initial pose must be set before the first VO measurement")
+        self._initial_pose = pose
+        self._initial_covariance = None if covariance is None else np.asarray(covariance, dtype=float).reshape(6, 6)
+
+    # ------------------------------------------------------------------ state look-up
+    @property
+    def started(self) -> bool:
+        return bool(self._stamps)
+
+    @property
+    def window_size(self) -> int:
+        return len(self._stamps)
+
+    @property
+    def newest_stamp(self) -> int | None:
+        return self._stamps[-1] if self._stamps else None
+
+    def _find(self, stamp: int) -> int | None:
+        """Key of the live state within tolerance of ``stamp``."""
+        stamps = self._stamps
+        i = bisect.bisect_left(stamps, stamp - self._tolerance_ns)
+        if i < len(stamps) and abs(stamps[i] - stamp) <= self._tolerance_ns:
+            return self._keys[stamps[i]]
+        return None
+
+    def _timestamp(self, stamp: int, index: int) -> float:
+        if self.config.window.lag_unit == "frames":
+            return float(index)
+        assert self._first_stamp is not None
+        return (stamp - self._first_stamp) * 1e-9
+
+    def _count(self, name: str, outcome: str) -> str:
+        self.counts[f"{name}.{outcome}"] += 1
+        if outcome not in (ACCEPTED, BUFFERED):
+            self.last_rejection = f"{name}: {outcome}"
+        return outcome
+
+    # ------------------------------------------------------------------ inputs
+    def add_vo(self, m: RelativeMeasurement) -> str:
+        """A VO relative pose T_k,k-1: creates the state at ``m.stamp`` and updates the window."""
+        if not self.config.inputs.vo.enabled:
+            return self._count("vo", "disabled")
+        problem = relative_problem(m)
+        if problem is not None or m.rotation_only:
+            return self._count("vo", f"rejected.{problem or 'rotation_only'}")
+        if not self._stamps:
+            self._start(m.reference_stamp)
+        newest = self._stamps[-1]
+        if m.stamp <= newest + self._tolerance_ns:
+            if self._find(m.stamp) is not None:
+                return self._count("vo", "rejected.duplicate_stamp")
+            return self._count("vo", "rejected.out_of_order")
+        covariance = np.asarray(m.covariance, dtype=float) * self._vo_scale
+        reference_key = self._find(m.reference_stamp)
+        if reference_key is None or reference_key != self._keys[newest]:
+            # A gap (frames missing, or a reference outside the window): bridge from the newest state
+            # with the motion given but no information, so the chain stays connected and honest.
+            self._count("vo", "gap")
+            reference_key = self._keys[newest]
+            covariance = np.eye(6) * self.config.inputs.vo.lost_variance
+        elif float(np.max(np.diag(covariance))) >= self.config.inputs.vo.lost_variance:
+            self._count("vo", "lost")
+        measured, cov = between_measurement(m.transform, covariance)
+        key = X(self._next_index)
+        factors = gtsam.NonlinearFactorGraph()
+        factors.add(gtsam.BetweenFactorPose3(reference_key, key, measured, gtsam.noiseModel.Gaussian.Covariance(cov)))
+        self.factor_counts["vo"] += 1
+        values = gtsam.Values()
+        values.insert(key, self._estimates[reference_key].compose(measured))
+        timestamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        timestamps.insert((key, self._timestamp(m.stamp, self._next_index)))
+        self._stamps.append(m.stamp)
+        self._keys[m.stamp] = key
+        self._next_index += 1
+        self._update(factors, values, timestamps)
+        # Buffered measurements for this frame are gated against the updated window, then added.
+        late = gtsam.NonlinearFactorGraph()
+        self._attach_pending(m.stamp, late)
+        if late.size() > 0:
+            self._update(late, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+        return self._count("vo", ACCEPTED)
+
+    def add_sun(self, m: SunMeasurement) -> str:
+        """A sun direction in the camera frame at ``m.stamp``."""
+        if not self.config.inputs.sun.enabled:
+            return self._count("sun", "disabled")
+        problem = sun_problem(m)
+        if problem is not None:
+            return self._count("sun", f"rejected.{problem}")
+        return self._route("sun", m, m.stamp)
+
+    def add_correction(self, m: RelativeMeasurement) -> str:
+        """A pose correction T_k,k-Δp (DPC-Net) between two states of the window."""
+        if not self.config.inputs.correction.enabled:
+            return self._count("correction", "disabled")
+        problem = relative_problem(m)
+        if problem is not None:
+            return self._count("correction", f"rejected.{problem}")
+        return self._route("correction", m, m.stamp)
+
+    def add_rotation(self, m: RelativeMeasurement) -> str:
+        """A relative rotation C_k,j (HydraNet, ``rotation_only``) between two states of the window."""
+        if not self.config.inputs.rotation.enabled:
+            return self._count("rotation", "disabled")
+        problem = relative_problem(m)
+        if problem is not None:
+            return self._count("rotation", f"rejected.{problem}")
+        if float(np.linalg.det(np.asarray(m.covariance, dtype=float)[3:, 3:])) > self.config.inputs.rotation.max_covariance_det:
+            return self._count("rotation", "rejected.covariance_too_large")
+        return self._route("rotation", m, m.stamp)
+
+    def _route(self, kind: str, m: RelativeMeasurement | SunMeasurement, stamp: int) -> str:
+        if not self._stamps or stamp > self._stamps[-1] + self._tolerance_ns:
+            if len(self._pending) >= self.config.max_pending:
+                dropped = self._pending.popleft()
+                self._count(dropped.kind, "dropped.buffer_full")
+            self._pending.append(_Pending(kind, m))
+            return self._count(kind, BUFFERED)
+        if stamp < self._stamps[0] - self._tolerance_ns:
+            return self._count(kind, "dropped.older_than_window")
+        factors = gtsam.NonlinearFactorGraph()
+        outcome = self._make_factor(kind, m, factors)
+        if outcome == ACCEPTED:
+            self._update(factors, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+        return self._count(kind, outcome)
+
+    def _attach_pending(self, stamp: int, factors: gtsam.NonlinearFactorGraph) -> None:
+        """Move buffered measurements that now have their state into ``factors``."""
+        keep: deque[_Pending] = deque()
+        for item in self._pending:
+            m_stamp = item.measurement.stamp
+            if m_stamp > stamp + self._tolerance_ns:
+                keep.append(item)
+                continue
+            self.counts[f"{item.kind}.{BUFFERED}"] -= 1
+            self._count(item.kind, self._make_factor(item.kind, item.measurement, factors))
+        self._pending = keep
+
+    # ------------------------------------------------------------------ factor construction
+    def _make_factor(self, kind: str, m: RelativeMeasurement | SunMeasurement, factors: gtsam.NonlinearFactorGraph) -> str:
+        key = self._find(m.stamp)
+        if key is None:
+            return "dropped.no_state_at_stamp"
+        if kind == "sun":
+            assert isinstance(m, SunMeasurement)
+            return self._make_sun(key, m, factors)
+        assert isinstance(m, RelativeMeasurement)
+        reference_key = self._find(m.reference_stamp)
+        if reference_key is None:
+            return "dropped.reference_not_in_window"
+        if kind == "rotation":
+            factor = rotation_factor(reference_key, key, m.transform, m.covariance)
+            e, j_from, j_to = rotation_error(
+                self._estimates[reference_key].rotation().matrix(),
+                self._estimates[key].rotation().matrix(),
+                np.asarray(m.transform, dtype=float)[:3, :3].T,
+            )
+            if not self._gate("rotation", e, [reference_key, key], np.hstack([j_from, j_to]), np.asarray(m.covariance)[3:, 3:]):
+                return "gated"
+        else:
+            measured, cov = between_measurement(m.transform, m.covariance)
+            factor = gtsam.BetweenFactorPose3(reference_key, key, measured, gtsam.noiseModel.Gaussian.Covariance(cov))
+            predicted = self._estimates[reference_key].between(self._estimates[key])
+            e = gtsam.Pose3.Logmap(measured.between(predicted))
+            # First-order Jacobians of the between error at the current estimate.
+            j_to = np.eye(6)
+            j_from = -predicted.inverse().AdjointMap()
+            if not self._gate("correction", e, [reference_key, key], np.hstack([j_from, j_to]), cov):
+                return "gated"
+        factors.add(factor)
+        self.factor_counts[kind] += 1
+        return ACCEPTED
+
+    def _make_sun(self, key: int, m: SunMeasurement, factors: gtsam.NonlinearFactorGraph) -> str:
+        if self.sun_reference is None:
+            return "rejected.no_reference" if self.config.inputs.sun.reference != "ephemeris" else "rejected.no_gps_origin"
+        sun_map = self.sun_reference.direction(m.stamp)
+        if sun_map is None:
+            return "rejected.no_reference_at_stamp"
+        covariance = np.asarray(m.covariance, dtype=float)
+        e, jacobian = sun_error(self._estimates[key].rotation().matrix(), sun_map, zenith_azimuth(np.asarray(m.direction)))
+        if not self._gate("sun", e, [key], jacobian, covariance):
+            return "gated"
+        factors.add(sun_factor(key, sun_map, m.direction, covariance, self.config.inputs.sun.huber_k))
+        self.factor_counts["sun"] += 1
+        return ACCEPTED
+
+    def _gate(self, kind: str, error: Array, keys: list[int], jacobian: Array, covariance: Array) -> bool:
+        """Mahalanobis test of the innovation e against S = J P J^T + R at the current estimate."""
+        threshold = self._gates[kind]
+        if not np.isfinite(threshold):
+            return True
+        joint = self._joint_covariance(keys)
+        innovation = jacobian @ joint @ jacobian.T + covariance
+        try:
+            d2 = float(error @ np.linalg.solve(innovation, error))
+        except np.linalg.LinAlgError:
+            return False
+        return d2 <= threshold
+
+    # ------------------------------------------------------------------ solving
+    def _start(self, stamp: int) -> None:
+        self._first_stamp = stamp
+        pose = gtsam.Pose3(self._initial_pose) if self._initial_pose is not None else gtsam.Pose3()
+        if self._initial_covariance is not None:
+            noise = gtsam.noiseModel.Gaussian.Covariance(ros_to_gtsam_covariance(self._initial_covariance, pose.matrix()))
+        else:
+            p = self.config.prior
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([p.sigma_rotation] * 3 + [p.sigma_translation] * 3))
+        key = X(self._next_index)
+        factors = gtsam.NonlinearFactorGraph()
+        factors.add(gtsam.PriorFactorPose3(key, pose, noise))
+        self.factor_counts["prior"] += 1
+        values = gtsam.Values()
+        values.insert(key, pose)
+        timestamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        timestamps.insert((key, self._timestamp(stamp, self._next_index)))
+        self._stamps.append(stamp)
+        self._keys[stamp] = key
+        self._next_index += 1
+        self._update(factors, values, timestamps)
+
+    def _update(
+        self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, timestamps: gtsam.FixedLagSmootherKeyTimestampMap
+    ) -> None:
+        start = time.perf_counter()
+        try:
+            self._smoother.update(factors, values, timestamps)
+            if self.config.solver.smoother == "incremental":
+                for _ in range(self.config.solver.iterations - 1):
+                    self._smoother.update()
+        except RuntimeError as exc:
+            # Keep running: restart the window at the last estimate with no information (a lost state).
+            self.counts["solver.failure"] += 1
+            self.last_rejection = f"solver: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+            self._restart_lost()
+            self.last_update_seconds = time.perf_counter() - start
+            return
+        estimate = self._smoother.calculateEstimate()
+        for stamp in self._stamps:
+            key = self._keys[stamp]
+            if estimate.exists(key):
+                self._estimates[key] = estimate.atPose3(key)
+        while self._stamps and not estimate.exists(self._keys[self._stamps[0]]):
+            stamp = self._stamps.pop(0)
+            key = self._keys.pop(stamp)
+            self._finished.append(FusedPose(stamp, self._estimates.pop(key).matrix()))
+        self.last_update_seconds = time.perf_counter() - start
+
+    def _restart_lost(self) -> None:
+        stamp = self._stamps[-1]
+        last = self._estimates[self._keys[stamp]]
+        for s in self._stamps:
+            self._finished.append(FusedPose(s, self._estimates[self._keys[s]].matrix()))
+        index = self._next_index
+        self._reset_smoother()
+        self._next_index = index
+        self._initial_pose = last.matrix()
+        self._initial_covariance = np.eye(6) * self.config.inputs.vo.lost_variance
+        self._start(stamp)
+        self._finished = [p for p in self._finished if p.stamp != stamp]
+
+    # ------------------------------------------------------------------ outputs
+    def pose(self, stamp: int | None = None) -> Array:
+        """T_map,cam (4x4) of the live state at ``stamp`` (default: the newest)."""
+        if not self._stamps:
+            raise ValueError("the fusion graph has no state yet")
+        key = self._keys[self._stamps[-1]] if stamp is None else self._find(stamp)
+        if key is None:
+            raise ValueError(f"no live state at stamp {stamp}")
+        return self._estimates[key].matrix()
+
+    def _joint_covariance(self, keys: list[int]) -> Array:
+        """Joint marginal covariance (GTSAM order/perturbation, 6n x 6n) of live states, by dense QR."""
+        graph = self._smoother.getFactors()
+        linear = graph.linearize(self._smoother.calculateEstimate())
+        live = [self._keys[s] for s in self._stamps]
+        ordering = gtsam.Ordering()
+        for key in live:
+            ordering.push_back(key)
+        a, _ = linear.jacobian(ordering)
+        r = np.linalg.qr(a, mode="r")
+        # Σ = (RᵀR)^-1; only the requested blocks are needed.
+        index = {k: i for i, k in enumerate(live)}
+        cols = np.concatenate([np.arange(6 * index[k], 6 * index[k] + 6) for k in keys])
+        n = r.shape[1]
+        rhs = np.zeros((n, len(cols)))
+        rhs[cols, np.arange(len(cols))] = 1.0
+        y = np.linalg.solve(r.T, rhs)
+        sigma = np.linalg.solve(r, y)
+        return sigma[cols]
+
+    def covariance(self, stamp: int | None = None) -> Array:
+        """Marginal covariance of the state at ``stamp`` (default newest): 6x6, ROS order, left perturbation."""
+        if not self._stamps:
+            raise ValueError("the fusion graph has no state yet")
+        key = self._keys[self._stamps[-1]] if stamp is None else self._find(stamp)
+        if key is None:
+            raise ValueError(f"no live state at stamp {stamp}")
+        return gtsam_to_ros_covariance(self._joint_covariance([key]), self._estimates[key].matrix())
+
+    def window(self) -> list[FusedPose]:
+        """The live states, oldest first, with their current (smoothed) estimates."""
+        return [FusedPose(s, self._estimates[self._keys[s]].matrix()) for s in self._stamps]
+
+    def drain_finished(self) -> list[FusedPose]:
+        """States that left the window since the last call, with their final fixed-lag estimates."""
+        out, self._finished = self._finished, []
+        return out
+
+    def trajectory(self) -> list[FusedPose]:
+        """Everything not yet drained plus the live window (call at the end of a run)."""
+        return self.drain_finished() + self.window()
+
+    def pending(self) -> int:
+        return len(self._pending)
+
+
+def run_measurements(graph: FusionGraph, events: Iterable[tuple[str, RelativeMeasurement | SunMeasurement]]) -> list[FusedPose]:
+    """Feed ``(kind, measurement)`` events in order (kind: vo, sun, correction, rotation); the full trajectory."""
+    add = {"vo": graph.add_vo, "sun": graph.add_sun, "correction": graph.add_correction, "rotation": graph.add_rotation}
+    out: list[FusedPose] = []
+    for kind, m in events:
+        add[kind](m)  # type: ignore[arg-type]
+        out.extend(graph.drain_finished())
+    out.extend(graph.trajectory())
+    return out

@@ -1,0 +1,23 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "pvo_fusion"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="pvo maintainers",
+    maintainer_email="maintainers@pvo-project.org",
+    description="Sliding-window GTSAM fusion of pvo",
+    license="Apache-2.0",
+    entry_points={"console_scripts": ["fusion = pvo_fusion.fusion_node:main"]},
+)

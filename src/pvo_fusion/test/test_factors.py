@@ -1,0 +1,149 @@
+"""Each factor's error and Jacobian against finite differences on GTSAM's own retraction."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+from gtsam.symbol_shorthand import X
+from pvo_core.lie import se3_exp, se3_inverse, so3_exp
+from pvo_fusion.factors import (
+    between_measurement,
+    rotation_error,
+    rotation_factor,
+    sun_error,
+    sun_factor,
+    wrap_angle,
+    zenith_azimuth,
+)
+
+RNG = np.random.default_rng(7)
+
+
+def random_pose(rng: np.random.Generator = RNG, scale: float = 1.0) -> gtsam.Pose3:
+    return gtsam.Pose3(se3_exp(rng.normal(0.0, scale, 6)))
+
+
+def numerical_jacobian(f, pose: gtsam.Pose3, step: float = 1e-7) -> np.ndarray:
+    """d f(pose.retract(xi)) / d xi at 0, central differences, GTSAM tangent order [omega; v]."""
+    base = np.asarray(f(pose))
+    jac = np.zeros((base.size, 6))
+    for i in range(6):
+        d = np.zeros(6)
+        d[i] = step
+        jac[:, i] = (np.asarray(f(pose.retract(d))) - np.asarray(f(pose.retract(-d)))) / (2 * step)
+    return jac
+
+
+def test_between_measurement_left_perturbation_of_t_to_from_is_right_perturbation_of_its_inverse() -> None:
+    transform = se3_exp(np.array([0.3, -0.1, 1.2, 0.02, -0.05, 0.01]))
+    covariance = np.diag([1e-4, 2e-4, 3e-4, 1e-6, 2e-6, 3e-6])
+    measured, cov = between_measurement(transform, covariance)
+    np.testing.assert_allclose(measured.matrix(), se3_inverse(transform), atol=1e-12)
+    # GTSAM order: rotation block first, same numbers (no adjoint for this pairing).
+    np.testing.assert_allclose(np.diag(cov), [1e-6, 2e-6, 3e-6, 1e-4, 2e-4, 3e-4])
+    # The pairing itself: exp(eps) T  ==  (T^-1 Exp_gtsam(-eps'))^-1 with eps' = eps reordered.
+    eps = np.array([0.01, -0.02, 0.03, 0.004, -0.002, 0.003])  # [rho; phi]
+    perturbed = se3_exp(eps) @ transform
+    via_gtsam = measured.retract(-np.concatenate([eps[3:], eps[:3]])).matrix()
+    # retract is the group exponential on Pose3 only to first order in GTSAM's default chart; compare loosely.
+    np.testing.assert_allclose(np.linalg.inv(perturbed), via_gtsam, atol=5e-4)
+    via_expmap = measured.compose(gtsam.Pose3.Expmap(-np.concatenate([eps[3:], eps[:3]]))).matrix()
+    np.testing.assert_allclose(np.linalg.inv(perturbed), via_expmap, atol=1e-12)
+
+
+def sun_direction(zenith_deg: float, azimuth_deg: float) -> np.ndarray:
+    z, a = np.radians(zenith_deg), np.radians(azimuth_deg)
+    return np.array([np.sin(z) * np.sin(a), -np.cos(z), np.sin(z) * np.cos(a)])
+
+
+@pytest.mark.parametrize(
+    "zenith_deg, azimuth_deg",
+    [(50.0, 20.0), (120.0, -150.0), (0.5, 45.0), (179.0, 10.0), (70.0, 179.999), (30.0, -90.0)],
+)
+def test_sun_error_jacobian_matches_finite_differences(zenith_deg: float, azimuth_deg: float) -> None:
+    pose = random_pose(scale=0.7)
+    camera_sun = sun_direction(zenith_deg, azimuth_deg)
+    sun_map = pose.rotation().matrix() @ camera_sun  # predicted = camera_sun at this pose
+    measured = zenith_azimuth(sun_direction(zenith_deg + 2.0 if zenith_deg < 170 else zenith_deg - 2.0, azimuth_deg - 3.0))
+
+    def f(p: gtsam.Pose3) -> np.ndarray:
+        return sun_error(p.rotation().matrix(), sun_map, measured)[0]
+
+    error, jacobian = sun_error(pose.rotation().matrix(), sun_map, measured)
+    step = 1e-8 if zenith_deg < 1.0 else 1e-7
+    np.testing.assert_allclose(jacobian, numerical_jacobian(f, pose, step), atol=2e-5 if zenith_deg < 1 else 1e-6)
+    assert np.all(jacobian[:, 3:] == 0.0)
+    assert np.all(np.abs(error) < np.radians(10.0))  # small, including across the azimuth wrap
+
+
+def test_sun_error_wraps_azimuth_and_is_zero_at_the_truth() -> None:
+    pose = random_pose()
+    camera_sun = sun_direction(60.0, 179.9)
+    sun_map = pose.rotation().matrix() @ camera_sun
+    error, _ = sun_error(pose.rotation().matrix(), sun_map, zenith_azimuth(camera_sun))
+    np.testing.assert_allclose(error, 0.0, atol=1e-12)
+    across = zenith_azimuth(sun_direction(60.0, -179.9))
+    error, _ = sun_error(pose.rotation().matrix(), sun_map, across)
+    np.testing.assert_allclose(error, [0.0, np.radians(-0.2)], atol=1e-9)
+    assert wrap_angle(np.radians(359.0)) == pytest.approx(np.radians(-1.0))
+
+
+def test_sun_error_follows_eq_5_7() -> None:
+    s = np.array([0.3, -0.5, 0.6])
+    s /= np.linalg.norm(s)
+    zenith, azimuth = zenith_azimuth(s)
+    assert zenith == pytest.approx(np.arccos(-s[1]))
+    assert azimuth == pytest.approx(np.arctan2(s[0], s[2]))
+
+
+def test_sun_factor_whitened_jacobian_and_huber() -> None:
+    pose = random_pose()
+    camera_sun = sun_direction(40.0, 30.0)
+    sun_map = pose.rotation().matrix() @ camera_sun
+    measured = sun_direction(42.0, 27.0)
+    covariance = np.diag([np.radians(2.0) ** 2, np.radians(3.0) ** 2])
+    factor = sun_factor(X(0), sun_map, measured, covariance, huber_k=0.0)
+    values = gtsam.Values()
+    values.insert(X(0), pose)
+    expected, jac = sun_error(pose.rotation().matrix(), sun_map, zenith_azimuth(measured))
+    np.testing.assert_allclose(factor.unwhitenedError(values), expected, atol=1e-12)
+    whitened = np.linalg.cholesky(np.linalg.inv(covariance)).T
+    linear = factor.linearize(values)
+    a, _ = linear.jacobian()
+    np.testing.assert_allclose(np.abs(a), np.abs(whitened @ jac), atol=1e-9)
+    assert factor.error(values) == pytest.approx(0.5 * expected @ np.linalg.solve(covariance, expected))
+    robust = sun_factor(X(0), sun_map, measured, covariance, huber_k=1.0)
+    # Huber grows linearly beyond k: its cost is below the quadratic one for this 2-sigma residual.
+    assert robust.error(values) < factor.error(values)
+
+
+def test_rotation_error_jacobians_match_finite_differences() -> None:
+    pose_from, pose_to = random_pose(), random_pose()
+    truth = pose_from.rotation().matrix().T @ pose_to.rotation().matrix()
+    measured = truth @ so3_exp(np.array([0.01, -0.02, 0.015]))
+
+    e, j_from, j_to = rotation_error(pose_from.rotation().matrix(), pose_to.rotation().matrix(), measured)
+    f_from = lambda p: rotation_error(p.rotation().matrix(), pose_to.rotation().matrix(), measured)[0]  # noqa: E731
+    f_to = lambda p: rotation_error(pose_from.rotation().matrix(), p.rotation().matrix(), measured)[0]  # noqa: E731
+    np.testing.assert_allclose(j_from, numerical_jacobian(f_from, pose_from), atol=1e-6)
+    np.testing.assert_allclose(j_to, numerical_jacobian(f_to, pose_to), atol=1e-6)
+    assert np.linalg.norm(e) == pytest.approx(np.linalg.norm([0.01, -0.02, 0.015]), rel=1e-9)
+
+
+def test_rotation_factor_matches_eq_7_22_and_uses_the_rotation_block() -> None:
+    pose_from, pose_to = random_pose(), random_pose()
+    # RelativePose carries T_to,from; its rotation is C_to,from = C_map,to^T C_map,from.
+    t_to_from = pose_to.inverse().compose(pose_from).matrix()
+    covariance = np.diag([9.0, 9.0, 9.0, 1e-4, 2e-4, 3e-4])
+    factor = rotation_factor(X(0), X(1), t_to_from, covariance)
+    values = gtsam.Values()
+    values.insert(X(0), pose_from)
+    values.insert(X(1), pose_to)
+    np.testing.assert_allclose(factor.unwhitenedError(values), 0.0, atol=1e-12)
+    # Perturb the measurement by a known rotation: the thesis's log(C_2 C_1^T C_21^T) has that norm.
+    bumped = t_to_from.copy()
+    bumped[:3, :3] = so3_exp(np.array([0.0, 0.03, 0.0])) @ t_to_from[:3, :3]
+    factor = rotation_factor(X(0), X(1), bumped, covariance)
+    assert np.linalg.norm(factor.unwhitenedError(values)) == pytest.approx(0.03, rel=1e-9)
+    assert factor.error(values) == pytest.approx(0.5 * 0.03**2 / 2e-4, rel=1e-6)

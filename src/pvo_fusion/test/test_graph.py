@@ -1,0 +1,366 @@
+"""FusionGraph behaviour: exactness without aiding sensors, fusion gains, covariance, timing rules, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pvo_core.lie import se3_adjoint, se3_exp, se3_inverse, so3_log
+from pvo_fusion.factors import zenith_azimuth
+from pvo_fusion.sun_reference import FixedSunReference, TabulatedSunReference
+
+from pvo_fusion import FusionConfig, FusionGraph, RelativeMeasurement, SunMeasurement
+from pvo_fusion.config import flatten, from_flat
+
+SUN_MAP = np.array([0.3, -0.8, 0.52]) / np.linalg.norm([0.3, -0.8, 0.52])
+STEP_NS = 100_000_000
+T0 = 5_000_000_000
+
+
+def truth_trajectory(n: int) -> np.ndarray:
+    """Camera poses T_map,cam: forward 1 m/frame along z with a slow turn about the camera y axis."""
+    poses = [np.eye(4)]
+    step = se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.01, 0.0]))  # T_k-1,k in the camera frame
+    for _ in range(n - 1):
+        poses.append(poses[-1] @ step)
+    return np.array(poses)
+
+
+VO_COV = np.diag([4e-4, 4e-4, 1e-3, 4e-6, 4e-6, 4e-6])  # ROS order [rho; phi]
+
+
+def vo_stream(truth: np.ndarray, rng: np.random.Generator | None, covariance: np.ndarray = VO_COV) -> list[RelativeMeasurement]:
+    """T_k,k-1 with left-perturbation noise drawn from ``covariance`` (no noise when rng is None)."""
+    out = []
+    chol = np.linalg.cholesky(covariance)
+    for k in range(1, len(truth)):
+        t = se3_inverse(truth[k]) @ truth[k - 1]
+        if rng is not None:
+            t = se3_exp(chol @ rng.normal(size=6)) @ t
+        out.append(RelativeMeasurement(T0 + k * STEP_NS, T0 + (k - 1) * STEP_NS, t, covariance.copy()))
+    return out
+
+
+def sun_at(truth: np.ndarray, k: int, noise_deg: float = 0.0, rng: np.random.Generator | None = None) -> SunMeasurement:
+    s = truth[k][:3, :3].T @ SUN_MAP
+    if noise_deg and rng is not None:
+        s = s + np.radians(noise_deg) * rng.normal(size=3)
+        s /= np.linalg.norm(s)
+    sigma = np.radians(max(noise_deg, 0.5))
+    zen = zenith_azimuth(s)[0]
+    return SunMeasurement(T0 + k * STEP_NS, s, np.diag([sigma**2, sigma**2 / np.sin(zen) ** 2]))
+
+
+def run(graph: FusionGraph, vo: list[RelativeMeasurement], suns: dict[int, SunMeasurement] | None = None) -> np.ndarray:
+    suns = suns or {}
+    poses: dict[int, np.ndarray] = {}
+    for m in vo:
+        graph.add_vo(m)
+        if m.stamp in suns:
+            graph.add_sun(suns[m.stamp])
+        poses.update({p.stamp: p.pose for p in graph.drain_finished()})
+    poses.update({p.stamp: p.pose for p in graph.trajectory()})
+    return np.array([poses[s] for s in sorted(poses)])
+
+
+def compose(vo: list[RelativeMeasurement], first: np.ndarray) -> np.ndarray:
+    poses = [first]
+    for m in vo:
+        poses.append(poses[-1] @ se3_inverse(m.transform))
+    return np.array(poses)
+
+
+def rotation_rms(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean([np.sum(so3_log(x[:3, :3] @ y[:3, :3].T) ** 2) for x, y in zip(a, b, strict=True)])))
+
+
+@pytest.mark.parametrize("smoother", ["incremental", "batch"])
+def test_without_aiding_sensors_the_fusion_reproduces_the_vo_exactly(smoother: str) -> None:
+    truth = truth_trajectory(400)
+    vo = vo_stream(truth, np.random.default_rng(1))
+    graph = FusionGraph(from_flat({"solver.smoother": smoother}))
+    fused = run(graph, vo)
+    np.testing.assert_allclose(fused, compose(vo, np.eye(4)), atol=1e-9)
+    assert graph.counts["vo.accepted"] == 399
+    assert graph.window_size <= 11
+
+
+def test_sun_switched_off_reproduces_the_vo_and_counts_the_measurements() -> None:
+    truth = truth_trajectory(120)
+    vo = vo_stream(truth, np.random.default_rng(2))
+    suns = {T0 + k * STEP_NS: sun_at(truth, k) for k in range(0, 120, 10)}
+    graph = FusionGraph(from_flat({"inputs.sun.enabled": False}), FixedSunReference(SUN_MAP))
+    fused = run(graph, vo, suns)
+    np.testing.assert_allclose(fused, compose(vo, np.eye(4)), atol=1e-9)
+    assert graph.counts["sun.disabled"] == 11  # frame 0's sun is not fed by `run`
+
+
+def test_sun_measurements_cut_rotation_drift() -> None:
+    truth = truth_trajectory(600)
+    rng = np.random.default_rng(3)
+    vo = vo_stream(truth, rng, VO_COV * np.array([1, 1, 1, 25, 25, 25])[:, None])
+    suns = {T0 + k * STEP_NS: sun_at(truth, k, 2.0, rng) for k in range(10, 600, 10)}
+    vo_only = compose(vo, np.eye(4))
+    fused = run(FusionGraph(FusionConfig(), FixedSunReference(SUN_MAP)), vo, suns)
+    before, after = rotation_rms(vo_only, truth), rotation_rms(fused, truth)
+    assert after < 0.5 * before, (before, after)
+    # The sun does not see rotation about its own axis: the error left is mostly along SUN_MAP.
+    residual = np.array([so3_log(f[:3, :3] @ t[:3, :3].T) for f, t in zip(fused, truth, strict=True)])
+    along = residual @ SUN_MAP
+    assert np.sqrt(np.mean(np.sum(residual**2, axis=1) - along**2)) < 0.6 * np.sqrt(np.mean(along**2)) + 0.01
+
+
+def test_marginal_covariance_of_a_vo_chain_matches_first_order_propagation() -> None:
+    truth = truth_trajectory(8)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph(from_flat({"window.lag": 50.0}))
+    prior_sigmas = np.array([1e-3] * 3 + [1e-4] * 3)  # ROS order: translation, rotation
+    pose_cov = np.diag(prior_sigmas**2)
+    for m in vo:
+        graph.add_vo(m)
+        # Left perturbation in the map frame (as the stereo_vo node accumulates it):
+        # T_map,k = T_map,k-1 T_k,k-1^-1; a left perturbation eps of T_k,k-1 moves T_map,k by -Ad(T_map,k) eps.
+        pose_k = graph.pose()
+        adjoint = se3_adjoint(pose_k)
+        pose_cov = pose_cov + adjoint @ m.covariance @ adjoint.T
+        np.testing.assert_allclose(graph.covariance(), pose_cov, rtol=1e-6, atol=1e-12)
+
+
+def test_measurements_ahead_of_the_vo_are_buffered_and_attached() -> None:
+    truth = truth_trajectory(40)
+    vo = vo_stream(truth, np.random.default_rng(4))
+    graph = FusionGraph(FusionConfig(), FixedSunReference(SUN_MAP))
+    graph.add_vo(vo[0])
+    early = sun_at(truth, 5)
+    assert graph.add_sun(early) == "buffered"
+    assert graph.pending() == 1
+    for m in vo[1:5]:
+        graph.add_vo(m)
+    assert graph.counts["sun.accepted"] == 1 and graph.pending() == 0
+    assert graph.factor_counts["sun"] == 1
+
+
+def test_stamp_tolerance_attaches_near_stamps_and_drops_unmatched_ones() -> None:
+    truth = truth_trajectory(30)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph(from_flat({"stamp_tolerance": 0.002}), FixedSunReference(SUN_MAP))
+    for m in vo[:20]:
+        graph.add_vo(m)
+    near = sun_at(truth, 15)
+    shifted = SunMeasurement(near.stamp + 1_500_000, near.direction, near.covariance)
+    assert graph.add_sun(shifted) == "accepted"
+    between = SunMeasurement(near.stamp + 50_000_000, near.direction, near.covariance)
+    assert graph.add_sun(between) == "dropped.no_state_at_stamp"
+    old = sun_at(truth, 2)
+    assert graph.add_sun(old) == "dropped.older_than_window"
+    assert graph.counts["sun.dropped.older_than_window"] == 1
+
+
+def test_out_of_order_and_duplicate_vo_are_rejected_without_touching_the_estimate() -> None:
+    truth = truth_trajectory(20)
+    vo = vo_stream(truth, np.random.default_rng(5))
+    graph = FusionGraph()
+    for m in vo[:10]:
+        graph.add_vo(m)
+    before = graph.pose().copy()
+    assert graph.add_vo(vo[9]) == "rejected.duplicate_stamp"
+    assert graph.add_vo(vo[4]) == "rejected.duplicate_stamp"
+    between = RelativeMeasurement(vo[4].stamp + STEP_NS // 2, vo[4].reference_stamp, vo[4].transform, VO_COV)
+    assert graph.add_vo(between) == "rejected.out_of_order"
+    np.testing.assert_array_equal(graph.pose(), before)
+
+
+@pytest.mark.parametrize(
+    "covariance, reason",
+    [
+        (np.full((6, 6), np.nan), "rejected.non_finite_covariance"),
+        (-np.eye(6), "rejected.covariance_not_positive_definite"),
+        (np.diag([1, 1, 1, 1, 1, 0.0]), "rejected.covariance_not_positive_definite"),
+    ],
+)
+def test_bad_vo_covariance_is_rejected_and_counted(covariance: np.ndarray, reason: str) -> None:
+    truth = truth_trajectory(5)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph()
+    graph.add_vo(vo[0])
+    before = graph.pose().copy()
+    bad = RelativeMeasurement(vo[1].stamp, vo[1].reference_stamp, vo[1].transform, covariance)
+    assert graph.add_vo(bad) == reason
+    assert graph.counts[f"vo.{reason}"] == 1
+    np.testing.assert_array_equal(graph.pose(), before)
+    assert graph.add_vo(vo[1]) == "accepted"
+
+
+def test_nan_pose_is_rejected() -> None:
+    truth = truth_trajectory(3)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph()
+    bad = RelativeMeasurement(vo[0].stamp, vo[0].reference_stamp, np.full((4, 4), np.nan), VO_COV)
+    assert graph.add_vo(bad) == "rejected.non_finite_pose"
+    assert not graph.started
+
+
+def test_bad_sun_measurements_are_rejected_with_reasons() -> None:
+    truth = truth_trajectory(30)
+    graph = FusionGraph(FusionConfig(), FixedSunReference(SUN_MAP))
+    for m in vo_stream(truth, None):
+        graph.add_vo(m)
+    good = sun_at(truth, 25)
+    before = graph.pose().copy()
+    assert graph.add_sun(SunMeasurement(good.stamp, 2.0 * good.direction, good.covariance)) == "rejected.direction_not_unit"
+    assert graph.add_sun(SunMeasurement(good.stamp, good.direction * np.nan, good.covariance)) == "rejected.non_finite_direction"
+    assert (
+        graph.add_sun(SunMeasurement(good.stamp, good.direction, -good.covariance)) == "rejected.covariance_not_positive_definite"
+    )
+    assert (
+        graph.add_sun(SunMeasurement(good.stamp, good.direction, np.full((2, 2), np.nan)))
+        == "rejected.covariance_not_positive_definite"
+    )
+    np.testing.assert_array_equal(graph.pose(), before)
+    # A wildly wrong sun (90 degrees off) fails the Mahalanobis gate.
+    wrong = np.cross(good.direction, [0.0, 1.0, 0.0])
+    wrong /= np.linalg.norm(wrong)
+    assert graph.add_sun(SunMeasurement(good.stamp, wrong, good.covariance)) == "gated"
+    np.testing.assert_array_equal(graph.pose(), before)
+    assert graph.counts["sun.gated"] == 1
+
+
+def test_sun_without_a_gps_origin_is_rejected_not_fused() -> None:
+    truth = truth_trajectory(12)
+    graph = FusionGraph()  # reference: ephemeris, and no origin set
+    for m in vo_stream(truth, None):
+        graph.add_vo(m)
+    assert graph.add_sun(sun_at(truth, 10)) == "rejected.no_gps_origin"
+    assert graph.factor_counts["sun"] == 0
+
+
+def test_vo_gap_and_lost_frames_are_bridged_with_a_huge_covariance() -> None:
+    truth = truth_trajectory(30)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph()
+    for m in vo[:10]:
+        graph.add_vo(m)
+    # frame 11 never arrives: frame 12 refers to it
+    assert graph.add_vo(vo[11]) == "accepted"
+    assert graph.counts["vo.gap"] == 1
+    assert np.max(np.diag(graph.covariance())) > 100.0
+    lost = RelativeMeasurement(vo[12].stamp, vo[12].reference_stamp, vo[12].transform, np.eye(6) * 9999.0)
+    assert graph.add_vo(lost) == "accepted"
+    assert graph.counts["vo.lost"] == 1
+    for m in vo[13:]:
+        graph.add_vo(m)
+    assert np.all(np.isfinite(graph.pose()))
+
+
+def test_pose_corrections_and_relative_rotations_pull_towards_the_truth() -> None:
+    truth = truth_trajectory(200)
+    rng = np.random.default_rng(6)
+    biased = VO_COV.copy()
+    vo = []
+    for m in vo_stream(truth, rng):
+        # a constant yaw bias the VO covariance does not know about
+        t = se3_exp(np.array([0, 0, 0, 0, 2e-3, 0])) @ m.transform
+        vo.append(RelativeMeasurement(m.stamp, m.reference_stamp, t, biased))
+    # The VO is biased beyond its covariance, so the aiding measurements disagree with it by several
+    # sigma: the gates (tested below) would call them outliers; here we test the factors' pull.
+    ungated = {"window.lag": 12.0, "inputs.correction.gate_probability": 0.0, "inputs.rotation.gate_probability": 0.0}
+    graph = FusionGraph(from_flat(ungated))
+    hydra = FusionGraph(from_flat(ungated))
+    dp = 5
+    fused_poses: dict[int, np.ndarray] = {}
+    hydra_poses: dict[int, np.ndarray] = {}
+    for i, m in enumerate(vo):
+        graph.add_vo(m)
+        hydra.add_vo(m)
+        k = i + 1
+        if k % dp == 0:
+            t = se3_inverse(truth[k]) @ truth[k - dp]
+            correction = RelativeMeasurement(T0 + k * STEP_NS, T0 + (k - dp) * STEP_NS, t, VO_COV / 10)
+            assert graph.add_correction(correction) == "accepted"
+            rot_cov = np.diag([9.0, 9.0, 9.0, 1e-7, 1e-7, 1e-7])
+            assert (
+                hydra.add_rotation(RelativeMeasurement(correction.stamp, correction.reference_stamp, t, rot_cov, True))
+                == "accepted"
+            )
+        fused_poses.update({p.stamp: p.pose for p in graph.drain_finished()})
+        hydra_poses.update({p.stamp: p.pose for p in hydra.drain_finished()})
+    fused_poses.update({p.stamp: p.pose for p in graph.trajectory()})
+    hydra_poses.update({p.stamp: p.pose for p in hydra.trajectory()})
+    vo_only = compose(vo, np.eye(4))
+    fused = np.array([fused_poses[s] for s in sorted(fused_poses)])
+    rotated = np.array([hydra_poses[s] for s in sorted(hydra_poses)])
+    assert rotation_rms(fused, truth) < 0.3 * rotation_rms(vo_only, truth)
+    assert rotation_rms(rotated, truth) < 0.3 * rotation_rms(vo_only, truth)
+    assert graph.factor_counts["correction"] == 39 and hydra.factor_counts["rotation"] == 39
+
+
+def test_grossly_wrong_corrections_and_rotations_are_gated() -> None:
+    truth = truth_trajectory(12)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph()
+    for m in vo:
+        graph.add_vo(m)
+    before = graph.pose().copy()
+    t = se3_exp(np.array([0.0, 0.0, 2.0, 0.0, 0.2, 0.0])) @ se3_inverse(truth[11]) @ truth[6]
+    wrong = RelativeMeasurement(T0 + 11 * STEP_NS, T0 + 6 * STEP_NS, t, VO_COV)
+    assert graph.add_correction(wrong) == "gated"
+    rot_cov = np.diag([9.0, 9.0, 9.0, 1e-6, 1e-6, 1e-6])
+    assert graph.add_rotation(RelativeMeasurement(wrong.stamp, wrong.reference_stamp, t, rot_cov, True)) == "gated"
+    np.testing.assert_array_equal(graph.pose(), before)
+    right = RelativeMeasurement(wrong.stamp, wrong.reference_stamp, se3_inverse(truth[11]) @ truth[6], VO_COV)
+    assert graph.add_correction(right) == "accepted"
+    outside = RelativeMeasurement(right.stamp, T0 - STEP_NS * 50, right.transform, VO_COV)
+    assert graph.add_correction(outside) == "dropped.reference_not_in_window"
+
+
+def test_relative_rotation_with_a_huge_covariance_is_skipped() -> None:
+    truth = truth_trajectory(10)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph()
+    for m in vo:
+        graph.add_vo(m)
+    t = se3_inverse(truth[9]) @ truth[5]
+    loose = RelativeMeasurement(T0 + 9 * STEP_NS, T0 + 5 * STEP_NS, t, np.eye(6) * 0.1, True)
+    assert graph.add_rotation(loose) == "rejected.covariance_too_large"
+
+
+def test_tabulated_reference_interpolates_and_refuses_far_outside() -> None:
+    stamps = np.array([0, 1_000_000_000, 2_000_000_000])
+    dirs = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+    ref = TabulatedSunReference(stamps, dirs, slack_ns=100)
+    np.testing.assert_allclose(ref.direction(500_000_000), np.array([1, 1, 0]) / np.sqrt(2))
+    assert ref.direction(2_000_000_101) is None
+    with pytest.raises(ValueError, match="increase"):
+        TabulatedSunReference(stamps[::-1], dirs)
+
+
+def test_config_round_trip_and_errors() -> None:
+    config = FusionConfig()
+    assert from_flat(flatten(config)) == config
+    with pytest.raises(ValueError, match="unknown fusion parameter"):
+        from_flat({"window.lagg": 3})
+    with pytest.raises(ValueError, match="window.lag_unit"):
+        from_flat({"window.lag_unit": "hours"})
+    with pytest.raises(ValueError, match="inputs.vo.covariance_scale"):
+        from_flat({"inputs.vo.covariance_scale": [1.0, 2.0]})
+    with pytest.raises(ValueError, match="must be a boolean"):
+        from_flat({"inputs.sun.enabled": "yes"})
+
+
+def test_yaml_defaults_equal_the_typed_config() -> None:
+    from pathlib import Path
+
+    import yaml
+
+    path = Path(__file__).resolve().parents[1] / "config" / "fusion.yaml"
+    params = yaml.safe_load(path.read_text())["fusion"]["ros__parameters"]
+    node_only = {"map_frame", "camera_frame", "publish_path", "initial_pose", "initial_pose_from_ground_truth"}
+    assert from_flat({k: v for k, v in params.items() if k not in node_only}) == FusionConfig()
+    assert set(params) - node_only == set(flatten(FusionConfig()))
+
+
+def test_seconds_lag_keeps_the_window_by_time() -> None:
+    truth = truth_trajectory(60)
+    graph = FusionGraph(from_flat({"window.lag": 1.0, "window.lag_unit": "seconds"}))
+    for m in vo_stream(truth, None):
+        graph.add_vo(m)
+    assert 10 <= graph.window_size <= 12

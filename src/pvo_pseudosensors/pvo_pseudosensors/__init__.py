@@ -1,0 +1,1 @@
+"""pvo_pseudosensors: learned and simulated pseudo-sensors as ROS-free modules plus one node each."""

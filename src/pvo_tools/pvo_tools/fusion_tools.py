@@ -1,0 +1,109 @@
+"""CLI glue for the fusion experiments and benchmarks (`pvo experiment sun-sim`, `pvo bench fusion`)."""
+
+from __future__ import annotations
+
+import os
+import resource
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .vo_offline import parse_overrides
+
+
+def data_directory(explicit: Path | None) -> Path:
+    """``--data``, else ``$PVO_DATA_DIR``, else ``../shared/data`` (the layout of a checkout)."""
+    path = explicit or Path(os.environ.get("PVO_DATA_DIR", "../shared/data"))
+    if not (path / "kitti").is_dir():
+        raise ValueError(f"data directory {path} has no kitti/ folder (set --data or PVO_DATA_DIR)")
+    return path
+
+
+def cmd_sun_sim(args: Any) -> int:
+    from .sun_experiment import NOISE_LEVELS, SEQUENCE_DRIVES, format_table, run_experiment, summary, write_outputs
+
+    data = data_directory(args.data)
+    sequences = args.sequences or list(SEQUENCE_DRIVES)
+    levels = args.levels if args.levels is not None else list(NOISE_LEVELS)
+    overrides = parse_overrides(args.param)
+    say = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    start = time.perf_counter()
+    reports = run_experiment(data, sequences, levels, args.seed, overrides, anees_every=0 if args.no_anees else 10, progress=say)
+    table = format_table(reports, levels)
+    print(table)
+    means = summary(reports, levels)
+    for label, change in means.items():
+        print(
+            f"{label}: mean change trans {100 * change['trans']:+.1f} %, "
+            f"EN {100 * change['trans_en']:+.1f} %, rot {100 * change['rot']:+.1f} %"
+        )
+    write_outputs(args.out, reports, table, levels)
+    print(f"wrote {args.out}/results.json and report.md ({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def cmd_bench_fusion(args: Any) -> int:
+    """Whole-sequence FusionGraph throughput and memory (VO + GT-Sun-10, no covariance queries)."""
+    from .sun_experiment import (
+        SEQUENCE_DRIVES,
+        calibrate_vo,
+        experiment_config,
+        load_sun_sequence,
+        run_fusion,
+        sun_measurements,
+        sun_seed,
+        vo_measurements,
+    )
+
+    data = data_directory(args.data)
+    seq = load_sun_sequence(data, args.sequence)
+    others = [load_sun_sequence(data, n) for n in SEQUENCE_DRIVES if n != args.sequence]
+    vo = vo_measurements(seq, calibrate_vo(others))
+    sun = sun_measurements(seq, 10.0, sun_seed(0, args.sequence, 10.0))
+    config = experiment_config(parse_overrides(args.param))
+    times = []
+    for _ in range(max(args.repeat, 1)):
+        result = run_fusion(seq, vo, sun, config)
+        times.append(result.seconds)
+    frames = len(seq.stamps)
+    best = min(times)
+    print(
+        f"sequence {args.sequence}: {frames} frames, {len(sun)} sun measurements, "
+        f"smoother {config.solver.smoother}/{config.solver.linear_solver}, lag {config.window.lag:g} {config.window.lag_unit}"
+    )
+    print(
+        f"  whole sequence: best {best:.2f} s of {len(times)} ({1e3 * best / frames:.3f} ms/frame), "
+        f"runs: {', '.join(f'{t:.2f}' for t in times)}"
+    )
+    print(f"  factors: {result.factors}")
+    # Memory over the sequence: Python-heap peak per quarter of the run must stay flat.
+    tracemalloc.start()
+    marks = []
+    quarter = frames // 4
+    from pvo_fusion.sun_reference import TabulatedSunReference
+
+    from pvo_fusion import FusionGraph
+
+    from .sun_experiment import ordered_events
+
+    graph = FusionGraph(config, TabulatedSunReference(seq.stamps, seq.sun_map()))
+    graph.set_initial_pose(seq.ground_truth[0])
+    rss_start = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    for i, (kind, m) in enumerate(ordered_events(vo, sun)):
+        (graph.add_vo if kind == "vo" else graph.add_sun)(m)
+        graph.drain_finished()
+        if kind == "vo" and graph.window_size and (i + 1) % max(quarter, 1) < 2 and len(marks) < 4 and i > 10:
+            marks.append((i, tracemalloc.get_traced_memory()[0] / 1e6, graph.window_size))
+    current, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    rss_end = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    print("  memory (live Python heap, MB) at quarters: " + ", ".join(f"event {i}: {mb:.2f} (window {w})" for i, mb, w in marks))
+    print(
+        f"  end: {current / 1e6:.2f} MB live, peak {peak / 1e6:.2f} MB; max RSS {rss_start / 1024:.0f} -> {rss_end / 1024:.0f} MB"
+    )
+    _ = np
+    return 0
