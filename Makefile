@@ -21,7 +21,7 @@ help:
 	@echo "make test    build, then run the whole test suite (what CI runs)"
 	@echo "make demo    build, then run the main job on the embedded sample bag"
 	@echo "make lint    ruff over the sources"
-	@echo "make bench   conversion, bag-play and stereo VO benchmarks"
+	@echo "make bench   conversion, bag-play, stereo VO and fusion benchmarks"
 	@echo "make clean   remove build products (keeps .venv); make distclean also removes .venv"
 
 venv: $(VENV_STAMP)
@@ -52,6 +52,8 @@ demo: build
 bench: build
 	$(ENV) && python benchmarks/bench_bags.py
 	$(ENV) && pvo bench vo $(PVO_DATA_DIR)/kitti/sequences/06 --poses $(PVO_DATA_DIR)/kitti/poses/06.txt --compare
+	$(ENV) && pvo bench fusion --data $(PVO_DATA_DIR) --sequence 00
+	$(ENV) && pvo experiment sun-sim --data $(PVO_DATA_DIR) --through-nodes 05 --frames 1000 --rate 10 -o runs/bench-fusion-nodes
 
 clean:
 	rm -rf build install log runs .pytest_cache

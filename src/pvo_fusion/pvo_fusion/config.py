@@ -36,6 +36,7 @@ class SolverConfig:
     smoother: str = "incremental"
     linear_solver: str = "qr"
     iterations: int = 2
+    relinearize_threshold: float = 0.0
     relative_error_tol: float = 1e-9
     absolute_error_tol: float = 1e-12
 
@@ -126,6 +127,7 @@ def validate(config: FusionConfig) -> None:
         (config.solver.linear_solver in LINEAR_SOLVERS, f"solver.linear_solver must be one of {', '.join(LINEAR_SOLVERS)}"),
         (config.solver.smoother in SMOOTHERS, f"solver.smoother must be one of {', '.join(SMOOTHERS)}"),
         (config.solver.iterations >= 1, "solver.iterations must be >= 1"),
+        (config.solver.relinearize_threshold >= 0.0, "solver.relinearize_threshold must be >= 0"),
         (config.solver.relative_error_tol >= 0.0, "solver.relative_error_tol must be >= 0"),
         (config.solver.absolute_error_tol >= 0.0, "solver.absolute_error_tol must be >= 0"),
         (config.prior.source in PRIOR_SOURCES, f"prior.source must be one of {', '.join(PRIOR_SOURCES)}"),

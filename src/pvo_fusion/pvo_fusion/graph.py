@@ -94,9 +94,9 @@ class FusionGraph:
         if solver.smoother == "incremental":
             isam = gtsam.ISAM2Params()
             isam.setFactorization("QR" if solver.linear_solver == "qr" else "CHOLESKY")
-            # Relinearise every variable on every pass: the window is small and exactness matters more.
+            # Relinearise on every pass every variable whose update exceeds the threshold (0: all of them).
             isam.relinearizeSkip = 1
-            isam.setRelinearizeThreshold(0.0)
+            isam.setRelinearizeThreshold(solver.relinearize_threshold)
             self._smoother = gtsam.IncrementalFixedLagSmoother(self.config.window.lag, isam)
         else:
             params = gtsam.LevenbergMarquardtParams()
@@ -189,7 +189,9 @@ class FusionGraph:
         factors.add(gtsam.BetweenFactorPose3(reference_key, key, measured, gtsam.noiseModel.Gaussian.Covariance(cov)))
         self.factor_counts["vo"] += 1
         values = gtsam.Values()
-        values.insert(key, self._estimates[reference_key].compose(measured))
+        initial = self._estimates[reference_key].compose(measured)
+        values.insert(key, initial)
+        self._estimates[key] = initial
         timestamps = gtsam.FixedLagSmootherKeyTimestampMap()
         timestamps.insert((key, self._timestamp(m.stamp, self._next_index)))
         self._stamps.append(m.stamp)

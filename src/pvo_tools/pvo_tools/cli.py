@@ -190,10 +190,18 @@ def _add_experiment(sub: argparse._SubParsersAction, bench_kinds: argparse._SubP
     sim.add_argument("--sequences", nargs="+", default=None, help="sequences (default: 00 01 02 04 05 06 07 08 09 10)")
     sim.add_argument("--levels", nargs="+", type=float, default=None, help="mean sun errors in degrees (default 0 10 20 30)")
     sim.add_argument("--seed", type=int, default=0, help="seed of the simulated sun noise (default 0)")
+    sim.add_argument("--trials", type=int, default=1, help="noise realisations averaged per level (seeds SEED..SEED+N-1)")
     sim.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="fusion parameter, e.g. -p window.lag=20")
     sim.add_argument("--no-anees", action="store_true", help="skip the marginal covariances (faster)")
     sim.add_argument("--out", "-o", type=Path, default=Path("runs/sun-sim"), help="output directory (default runs/sun-sim)")
     sim.add_argument("--quiet", "-q", action="store_true", help="no per-run lines")
+    sim.add_argument(
+        "--through-nodes",
+        metavar="SEQ",
+        help="instead: run SEQ with GT-Sun-10 as a bag through the fusion node over DDS and compare with the ROS-free run",
+    )
+    sim.add_argument("--frames", type=int, help="with --through-nodes: only the first N frames")
+    sim.add_argument("--rate", type=float, default=20.0, help="with --through-nodes: playback rate (default 20x real time)")
 
     bf = bench_kinds.add_parser(
         "fusion", help="FusionGraph over a whole KITTI sequence (viso2-s VO + GT-Sun-10): time and memory"

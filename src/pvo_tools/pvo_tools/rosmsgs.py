@@ -109,3 +109,23 @@ def sun_direction(
         azimuth=float(azimuth),
         covariance=np.zeros(4) if covariance is None else np.asarray(covariance, dtype=float).reshape(4),
     )
+
+
+def relative_pose(
+    stamp_ns: int,
+    reference_ns: int,
+    frame_id: str,
+    transform: NDArray[np.float64],
+    covariance: NDArray[np.float64],
+    rotation_only: bool = False,
+) -> Any:
+    """pvo_msgs/RelativePose: T_to,from (stamp = t_to, reference_stamp = t_from), ROS-order left covariance."""
+    types = project_typestore().types
+    return types["pvo_msgs/msg/RelativePose"](
+        header=header(stamp_ns, frame_id),
+        reference_stamp=stamp(reference_ns),
+        pose=types["geometry_msgs/msg/PoseWithCovariance"](
+            pose=pose(transform), covariance=np.asarray(covariance, dtype=float).reshape(-1)
+        ),
+        rotation_only=bool(rotation_only),
+    )

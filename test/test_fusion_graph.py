@@ -1,0 +1,203 @@
+"""The fusion and simulated_sun nodes over DDS: same numbers as the ROS-free objects; bad input reported."""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from nav_msgs.msg import Odometry
+from pvo_core.lie import se3_exp, se3_inverse
+from pvo_core.msgconv import covariance_to_matrix, fill_pose, pose_to_matrix, stamp_to_nanoseconds
+from pvo_fusion.fusion_node import FusionNode
+from pvo_pseudosensors.simulated_sun import SimulatedSunConfig, SimulatedSunSensor
+from pvo_pseudosensors.simulated_sun_node import SimulatedSunNode
+from pvo_tools.testing import Spinner
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import NavSatFix, NavSatStatus
+
+from pvo_fusion import FusionGraph
+from pvo_fusion.config import from_flat
+from pvo_msgs.msg import RelativePose, SunDirection
+
+pytestmark = pytest.mark.ros
+RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def wait_for(predicate, timeout: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not predicate():
+        time.sleep(0.02)
+
+
+def relative_msg(stamp: int, reference: int, transform: np.ndarray, covariance: np.ndarray) -> RelativePose:
+    msg = RelativePose()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+    msg.header.frame_id = "camera_left_optical"
+    msg.reference_stamp.sec, msg.reference_stamp.nanosec = divmod(reference, 1_000_000_000)
+    fill_pose(msg.pose.pose, transform)
+    msg.pose.covariance = [float(v) for v in np.asarray(covariance).reshape(-1)]
+    return msg
+
+
+def sun_msg(stamp: int, direction: np.ndarray, covariance: np.ndarray) -> SunDirection:
+    msg = SunDirection()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+    msg.direction.x, msg.direction.y, msg.direction.z = (float(v) for v in direction)
+    msg.covariance = [float(v) for v in np.asarray(covariance).reshape(-1)]
+    return msg
+
+
+def test_sun_sim_sequence_through_the_fusion_node_equals_the_ros_free_run(pvo_data: Path, tmp_path: Path, domain_id: int) -> None:
+    from pvo_tools.sun_experiment import (
+        SEQUENCE_DRIVES,
+        armse,
+        calibrate_vo,
+        clip_sequence,
+        experiment_config,
+        load_sun_sequence,
+        run_fusion,
+        sun_measurements,
+        sun_seed,
+        vo_measurements,
+    )
+    from pvo_tools.sun_experiment_nodes import run_through_nodes
+
+    seq = load_sun_sequence(pvo_data, "05")
+    calibration = calibrate_vo(load_sun_sequence(pvo_data, n) for n in SEQUENCE_DRIVES if n not in ("05", "00", "02", "08"))
+    seq = clip_sequence(seq, 200)
+    vo = vo_measurements(seq, calibration)
+    sun = sun_measurements(seq, 10.0, sun_seed(0, "05", 10.0))
+    ros_free = run_fusion(seq, vo, sun, experiment_config())
+    nodes = run_through_nodes(seq, vo, sun, tmp_path, rate=20.0, domain_id=domain_id, timeout_s=120.0)
+    assert nodes.odometry_messages == len(vo) == 199
+    assert np.all(np.isfinite(nodes.poses))
+    np.testing.assert_allclose(nodes.poses, ros_free.poses, atol=1e-7)
+    a, b = armse(seq.ground_truth, ros_free.poses), armse(seq.ground_truth, nodes.poses)
+    for key in ("trans", "trans_en", "rot"):
+        assert b[key] == pytest.approx(a[key], rel=1e-7)
+    # Every 10th frame carried a sun factor, and it moved the estimate away from the VO alone.
+    assert ros_free.factors["sun"] == 20
+    vo_alone = run_fusion(seq, vo, None, experiment_config())
+    assert np.max(np.abs(vo_alone.poses - ros_free.poses)) > 1e-3
+
+
+def test_simulated_sun_node_publishes_every_nth_seeded_measurement(ros_context) -> None:
+    node = SimulatedSunNode(
+        context=ros_context, parameter_overrides=[Parameter("mean_error_deg", value=20.0), Parameter("seed", value=4)]
+    )
+    io = Node("io", context=ros_context)
+    received: list[SunDirection] = []
+    io.create_subscription(SunDirection, "/pvo/sun/direction", received.append, RELIABLE)
+    pub = io.create_publisher(SunDirection, "/ground_truth/sun_direction", RELIABLE)
+    truth = np.array([0.1, -0.6, 0.79])
+    truth /= np.linalg.norm(truth)
+    try:
+        with Spinner(ros_context, node), Spinner(ros_context, io):
+            wait_for(lambda: pub.get_subscription_count() > 0 and node.publisher.get_subscription_count() > 0, 10.0)
+            for k in range(25):
+                pub.publish(sun_msg(1_000_000_000 + k * 100_000_000, truth, np.zeros(4)))
+            pub.publish(sun_msg(4_000_000_000, np.array([np.nan, 0.0, 1.0]), np.zeros(4)))
+            wait_for(lambda: len(received) >= 3 and node.rejected == 1, 10.0)
+    finally:
+        node.destroy_node()
+        io.destroy_node()
+    assert [stamp_to_nanoseconds(m.header.stamp) for m in received] == [1_000_000_000, 2_000_000_000, 3_000_000_000]
+    reference = SimulatedSunSensor(SimulatedSunConfig(mean_error_deg=20.0, seed=4))
+    expected = [r for r in (reference.measure(truth) for _ in range(25)) if r is not None]
+    for msg, (direction, covariance) in zip(received, expected, strict=True):
+        np.testing.assert_allclose([msg.direction.x, msg.direction.y, msg.direction.z], direction, atol=1e-15)
+        np.testing.assert_allclose(np.reshape(msg.covariance, (2, 2)), covariance, atol=1e-18)
+        assert msg.zenith == pytest.approx(np.arccos(-direction[1]))
+    assert node.rejected == 1
+
+
+def test_fusion_node_reports_bad_input_and_keeps_going(ros_context) -> None:
+    fusion = FusionNode(context=ros_context, parameter_overrides=[Parameter("publish_path", value=False)])
+    io = Node("io", context=ros_context)
+    odometry: list[Odometry] = []
+    statuses: list[DiagnosticArray] = []
+    io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
+    io.create_subscription(DiagnosticArray, "/pvo/fusion/status", statuses.append, RELIABLE)
+    vo_pub = io.create_publisher(RelativePose, "/pvo/vo/relative", RELIABLE)
+    sun_pub = io.create_publisher(SunDirection, "/pvo/sun/direction", RELIABLE)
+    gps_pub = io.create_publisher(NavSatFix, "/gps/fix", RELIABLE)
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.01, 0.0])))  # T_k,k-1
+    cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    t0 = 1_317_640_000_000_000_000
+    dt = 100_000_000
+    try:
+        with Spinner(ros_context, fusion), Spinner(ros_context, io):
+            wait_for(lambda: vo_pub.get_subscription_count() > 0 and fusion.pub_status.get_subscription_count() > 0, 10.0)
+            for k in range(1, 6):
+                vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step, cov))
+            wait_for(lambda: len(odometry) >= 5)
+            vo_pub.publish(relative_msg(t0 + 6 * dt, t0 + 5 * dt, step, np.full((6, 6), np.nan)))
+            direction = np.array([0.0, -0.6, 0.8])
+            sun_pub.publish(sun_msg(t0 + 5 * dt, direction, np.diag([1e-3, 2e-3])))  # no GPS origin yet
+            sun_pub.publish(sun_msg(t0 + 5 * dt, 3.0 * direction, np.diag([1e-3, 2e-3])))
+            wait_for(lambda: len(statuses) >= 8)
+            fix = NavSatFix()
+            fix.status.status = NavSatStatus.STATUS_FIX
+            fix.latitude, fix.longitude, fix.altitude = 49.01, 8.43, 115.0
+            gps_pub.publish(fix)
+            wait_for(lambda: fusion.graph.sun_reference is not None, 10.0)
+            vo_pub.publish(relative_msg(t0 + 6 * dt, t0 + 5 * dt, step, cov))
+            wait_for(lambda: len(odometry) >= 6)
+    finally:
+        fusion.destroy_node()
+        io.destroy_node()
+    messages = [s.status[0].message for s in statuses]
+    assert "rejected.non_finite_covariance" in messages
+    assert "sun: rejected.no_gps_origin" in messages
+    assert "sun: rejected.direction_not_unit" in messages
+    bad = next(s.status[0] for s in statuses if s.status[0].message == "rejected.non_finite_covariance")
+    assert bad.level == DiagnosticStatus.WARN
+    keys = {kv.key: kv.value for kv in statuses[-1].status[0].values}
+    assert keys["count.vo.rejected.non_finite_covariance"] == "1"
+    assert keys["count.sun.rejected.no_gps_origin"] == "1"
+    assert keys["factors.vo"] == "6" and keys["window_size"] == "7"
+    assert keys["sun_reference"] == "EphemerisSunReference"
+    # the odometry equals the ROS-free graph fed the same good messages; covariance in ROS order
+    graph = FusionGraph(from_flat({}))
+    from pvo_fusion import RelativeMeasurement
+
+    for k in range(1, 7):
+        graph.add_vo(RelativeMeasurement(t0 + k * dt, t0 + (k - 1) * dt, step, cov))
+    assert len(odometry) == 6
+    np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), graph.pose(), atol=1e-9)
+    np.testing.assert_allclose(covariance_to_matrix(odometry[-1].pose.covariance), graph.covariance(), rtol=1e-6, atol=1e-15)
+    position_variance = np.diag(covariance_to_matrix(odometry[-1].pose.covariance))[:3]
+    assert np.all(position_variance > 5e-4)  # grown from 1e-6 m² by six VO steps (ROS order: position first)
+
+
+def test_wrong_parameter_is_one_clear_line(ros_env) -> None:
+    result = subprocess.run(
+        ["pvo", "run", "pvo_fusion", "fusion", "--ros-args", "-p", "window.lag_unit:=hours"],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert lines == ["fusion: error: invalid fusion configuration: window.lag_unit must be one of frames, seconds"]
+
+
+def test_missing_sun_table_is_one_clear_line(ros_env, tmp_path: Path) -> None:
+    missing = tmp_path / "none.csv"
+    command = ["pvo", "run", "pvo_fusion", "fusion", "--ros-args", "-p", "inputs.sun.reference:=table"]
+    result = subprocess.run(
+        [*command, "-p", f"inputs.sun.reference_table:={missing}"],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip() == f"fusion: error: sun reference table {missing}: no such file"
