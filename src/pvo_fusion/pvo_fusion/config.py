@@ -52,12 +52,18 @@ class PriorConfig:
 
 @dataclass(frozen=True)
 class VOInputConfig:
-    """``/pvo/vo/relative``. ``covariance_scale`` multiplies each ROS-order variance (x y z rotX rotY rotZ)."""
+    """``/pvo/vo/relative``. ``covariance_scale`` multiplies each ROS-order variance (x y z rotX rotY rotZ).
+
+    The VO creates the states, so its gate tests each motion against the previous one (constant
+    velocity): innovation ``Log(T_k,k-1 T_k-1,k-2^-1)`` against ``Σ_k + Σ_k-1 + diag(motion_change_sigma²)``
+    (m, m, m, rad, rad, rad per frame). A gated motion is dropped; the next frame bridges the gap.
+    """
 
     enabled: bool = True
     covariance_scale: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     lost_variance: float = 1000.0
     gate_probability: float = 0.0
+    motion_change_sigma: tuple[float, ...] = (0.5, 0.5, 1.0, 0.05, 0.1, 0.05)
 
 
 @dataclass(frozen=True)
@@ -138,6 +144,10 @@ def validate(config: FusionConfig) -> None:
             "inputs.vo.covariance_scale needs 6 positive values",
         ),
         (config.inputs.vo.lost_variance > 0.0, "inputs.vo.lost_variance must be positive"),
+        (
+            len(config.inputs.vo.motion_change_sigma) == 6 and min(config.inputs.vo.motion_change_sigma) > 0.0,
+            "inputs.vo.motion_change_sigma needs 6 positive values",
+        ),
         (config.inputs.sun.huber_k >= 0.0, "inputs.sun.huber_k must be >= 0 (0 = no Huber loss)"),
         (config.inputs.sun.reference in SUN_REFERENCES, f"inputs.sun.reference must be one of {', '.join(SUN_REFERENCES)}"),
         (len(config.inputs.sun.reference_direction) == 3, "inputs.sun.reference_direction needs 3 values"),

@@ -33,6 +33,7 @@ import numpy as np
 from gtsam.symbol_shorthand import X
 from numpy.typing import ArrayLike, NDArray
 from pvo_core.covariance import gtsam_to_ros_covariance, is_positive_definite, ros_to_gtsam_covariance
+from pvo_core.lie import se3_inverse, se3_log
 from scipy.stats import chi2
 
 from .config import FusionConfig
@@ -112,6 +113,7 @@ class FusionGraph:
         self._finished: list[FusedPose] = []
         self._next_index = 0
         self._first_stamp: int | None = None
+        self._last_motion: tuple[Array, Array] | None = None
 
     def set_initial_pose(self, pose: ArrayLike, covariance: ArrayLike | None = None) -> None:
         """Prior of the first state (T_map,cam, 4x4; optional ROS-order left covariance). Before the first VO."""
@@ -183,6 +185,9 @@ class FusionGraph:
             covariance = np.eye(6) * self.config.inputs.vo.lost_variance
         elif float(np.max(np.diag(covariance))) >= self.config.inputs.vo.lost_variance:
             self._count("vo", "lost")
+        elif not self._vo_motion_consistent(m.transform, covariance):
+            return self._count("vo", "gated")
+        self._last_motion = (np.asarray(m.transform, dtype=float), covariance)
         measured, cov = between_measurement(m.transform, covariance)
         key = X(self._next_index)
         factors = gtsam.NonlinearFactorGraph()
@@ -204,6 +209,17 @@ class FusionGraph:
         if late.size() > 0:
             self._update(late, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
         return self._count("vo", ACCEPTED)
+
+    def _vo_motion_consistent(self, transform: Array, covariance: Array) -> bool:
+        """Constant-velocity Mahalanobis gate on a VO motion (left errors, ROS order)."""
+        threshold = self._gates["vo"]
+        if not np.isfinite(threshold) or self._last_motion is None:
+            return True
+        previous, previous_cov = self._last_motion
+        change = se3_log(np.asarray(transform, dtype=float) @ se3_inverse(previous))
+        sigma = np.asarray(self.config.inputs.vo.motion_change_sigma, dtype=float)
+        innovation = covariance + previous_cov + np.diag(sigma**2)
+        return float(change @ np.linalg.solve(innovation, change)) <= threshold
 
     def add_sun(self, m: SunMeasurement) -> str:
         """A sun direction in the camera frame at ``m.stamp``."""

@@ -147,3 +147,32 @@ def test_rotation_factor_matches_eq_7_22_and_uses_the_rotation_block() -> None:
     factor = rotation_factor(X(0), X(1), bumped, covariance)
     assert np.linalg.norm(factor.unwhitenedError(values)) == pytest.approx(0.03, rel=1e-9)
     assert factor.error(values) == pytest.approx(0.5 * 0.03**2 / 2e-4, rel=1e-6)
+
+
+def test_gtsam_between_and_prior_factors_match_finite_differences() -> None:
+    """The VO/correction factor is GTSAM's own BetweenFactorPose3 and the prior its PriorFactorPose3:
+    their linearisation is checked against finite differences of their errors, as ours are."""
+    x1, x2 = random_pose(), random_pose()
+    measured = gtsam.Pose3(se3_exp(RNG.normal(0.0, 0.5, 6)))
+    covariance = np.diag([1e-4, 2e-4, 3e-4, 1e-2, 2e-2, 3e-2])
+    noise = gtsam.noiseModel.Gaussian.Covariance(covariance)
+    factor = gtsam.BetweenFactorPose3(X(0), X(1), measured, noise)
+    prior = gtsam.PriorFactorPose3(X(0), measured, noise)
+    values = gtsam.Values()
+    values.insert(X(0), x1)
+    values.insert(X(1), x2)
+    whitener = np.linalg.cholesky(np.linalg.inv(covariance)).T
+
+    def between_error(a: gtsam.Pose3, b: gtsam.Pose3) -> np.ndarray:
+        return gtsam.Pose3.Logmap(measured.between(a.between(b)))
+
+    a, _ = factor.linearize(values).jacobian()
+    j1 = numerical_jacobian(lambda p: between_error(p, x2), x1)
+    j2 = numerical_jacobian(lambda p: between_error(x1, p), x2)
+    # whitened rows of the linear factor are an orthogonal transform of whitener @ J: compare Gram matrices
+    expected = whitener @ np.hstack([j1, j2])
+    np.testing.assert_allclose(a.T @ a, expected.T @ expected, rtol=1e-5, atol=1e-3)
+    np.testing.assert_allclose(factor.unwhitenedError(values), between_error(x1, x2), atol=1e-12)
+    a, _ = prior.linearize(values).jacobian()
+    jp = numerical_jacobian(lambda p: gtsam.Pose3.Logmap(measured.between(p)), x1)
+    np.testing.assert_allclose(a.T @ a, (whitener @ jp).T @ whitener @ jp, rtol=1e-5, atol=1e-3)

@@ -364,3 +364,18 @@ def test_seconds_lag_keeps_the_window_by_time() -> None:
     for m in vo_stream(truth, None):
         graph.add_vo(m)
     assert 10 <= graph.window_size <= 12
+
+
+def test_vo_constant_velocity_gate_drops_a_jump_and_bridges_it() -> None:
+    truth = truth_trajectory(20)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph(from_flat({"inputs.vo.gate_probability": 0.9999}))
+    for m in vo[:10]:
+        assert graph.add_vo(m) == "accepted"
+    jumped = se3_exp(np.array([3.0, 0, 0, 0, 0.5, 0])) @ vo[10].transform
+    jump = RelativeMeasurement(vo[10].stamp, vo[10].reference_stamp, jumped, VO_COV)
+    assert graph.add_vo(jump) == "gated"
+    assert graph.add_vo(vo[11]) == "accepted"  # refers to the dropped frame: a bridged gap
+    assert graph.counts["vo.gap"] == 1 and graph.counts["vo.gated"] == 1
+    for m in vo[12:]:
+        assert graph.add_vo(m) == "accepted"
