@@ -96,3 +96,28 @@ def sun_direction_enu(origin: GeodeticOrigin, unix_time: ArrayLike) -> Array:
     el, az = np.radians(elevation), np.radians(azimuth)
     direction = np.stack([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)], axis=-1)
     return direction if np.ndim(unix_time) else direction[0]
+
+
+def ecef_to_geodetic(ecef: ArrayLike) -> Array:
+    """WGS-84 latitude, longitude (degrees) and altitude (m), shape (..., 3), of ECEF points (Bowring)."""
+    p = np.asarray(ecef, dtype=float)
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    b = _A * (1.0 - _F)
+    ep2 = (_A**2 - b**2) / b**2
+    r = np.hypot(x, y)
+    theta = np.arctan2(z * _A, r * b)
+    lat = np.arctan2(z + ep2 * b * np.sin(theta) ** 3, r - _E2 * _A * np.cos(theta) ** 3)
+    for _ in range(3):  # refine: Bowring's single step is already at the 1e-9 degree level on the ground
+        n = _A / np.sqrt(1.0 - _E2 * np.sin(lat) ** 2)
+        alt = r / np.cos(lat) - n
+        lat = np.arctan2(z, r * (1.0 - _E2 * n / (n + alt)))
+    n = _A / np.sqrt(1.0 - _E2 * np.sin(lat) ** 2)
+    alt = r / np.cos(lat) - n
+    return np.stack([np.degrees(lat), np.degrees(np.arctan2(y, x)), alt], axis=-1)
+
+
+def enu_to_geodetic(origin: GeodeticOrigin, enu: ArrayLike) -> Array:
+    """Latitude, longitude (degrees) and altitude (m) of ENU points (..., 3) relative to ``origin``."""
+    ecef0 = geodetic_to_ecef(origin.latitude, origin.longitude, origin.altitude)
+    ecef = ecef0 + np.asarray(enu, dtype=float) @ enu_rotation(origin)
+    return ecef_to_geodetic(ecef)

@@ -203,6 +203,12 @@ def _add_experiment(sub: argparse._SubParsersAction, bench_kinds: argparse._SubP
     sim.add_argument("--frames", type=int, help="with --through-nodes: only the first N frames")
     sim.add_argument("--rate", type=float, default=20.0, help="with --through-nodes: playback rate (default 20x real time)")
 
+    bs = bench_kinds.add_parser(
+        "sim", help="synthetic world: stereo frames/s at 620x188 and 1241x376, world generation vs length"
+    )
+    bs.add_argument("--preset", default="urban", help="urban | planetary")
+    bs.add_argument("--frames", type=int, default=30, help="frames rendered per size (default 30)")
+
     bf = bench_kinds.add_parser(
         "fusion", help="FusionGraph over a whole KITTI sequence (viso2-s VO + GT-Sun-10): time and memory"
     )
@@ -210,6 +216,34 @@ def _add_experiment(sub: argparse._SubParsersAction, bench_kinds: argparse._SubP
     bf.add_argument("--sequence", default="00", help="KITTI sequence (default 00: 4541 frames)")
     bf.add_argument("--repeat", type=int, default=3, help="runs; the fastest is reported (default 3)")
     bf.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="fusion parameter")
+
+
+def _add_sim(sub: argparse._SubParsersAction) -> None:
+    sim = sub.add_parser("sim", help="render a synthetic stereo sequence (MuJoCo) under the real sun, with IMU, GPS and truth")
+    sim.add_argument("out", type=Path, help="output directory (KITTI odometry layout plus sidecars)")
+    sim.add_argument("--preset", default="urban", help="urban | planetary (default urban)")
+    sim.add_argument("--frames", type=int, default=100, help="number of stereo frames (default 100)")
+    sim.add_argument("--size", default="620x188", help="image size WxH (default 620x188)")
+    sim.add_argument("--focal", type=float, help="focal length in px (default: KITTI's 718.856 scaled to the width)")
+    sim.add_argument("--baseline", type=float, default=0.54, help="stereo baseline in m (default 0.54)")
+    sim.add_argument("--rate", type=float, default=10.0, help="frame rate in Hz (default 10)")
+    sim.add_argument("--colour", action="store_true", help="colour images (image_2/image_3) instead of grey")
+    sim.add_argument("--path", default="loop", help="procedural path: loop | straight | s-curve (default loop)")
+    sim.add_argument("--poses", type=Path, help="replay a KITTI ground-truth pose file instead of a procedural path")
+    sim.add_argument("--start", type=int, default=0, help="with --poses: first pose")
+    sim.add_argument("--speed", type=float, default=8.0, help="procedural path speed in m/s (default 8)")
+    sim.add_argument("--heading", type=float, default=0.0, help="initial heading, degrees clockwise from north")
+    sim.add_argument("--lat", type=float, default=49.011, help="latitude of the world origin (default Karlsruhe)")
+    sim.add_argument("--lon", type=float, default=8.4245, help="longitude of the world origin")
+    sim.add_argument("--alt", type=float, default=115.0, help="altitude of the world origin (m)")
+    sim.add_argument("--start-time", default="2011-09-30T11:30:00Z", help="UTC time of the first frame (ISO 8601)")
+    sim.add_argument("--overcast", action="store_true", help="diffuse light, no cast shadows")
+    sim.add_argument("--night", action="store_true", help="render even when the sun is below the horizon")
+    sim.add_argument("--depth", action="store_true", help="also write depth_0/*.png (16-bit, metres x 256)")
+    sim.add_argument("--seed", type=int, default=0, help="world and noise seed (default 0)")
+    sim.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
+    sim.add_argument("--bag", type=Path, help="also convert the result to this rosbag2 (pvo convert kitti --sun)")
+    sim.add_argument("--quiet", "-q", action="store_true", help="no progress output")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -221,6 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_vo(sub)
     bench_kinds = next(a for a in sub.choices["bench"]._actions if isinstance(a, argparse._SubParsersAction))
     _add_experiment(sub, bench_kinds)
+    _add_sim(sub)
     return parser
 
 
@@ -376,6 +411,10 @@ def main(argv: list[str] | None = None) -> int:
 
             run_eval(args.gt, args.est, args.align, args.out, args.gt_start, args.relative)
             return 0
+        if args.command == "bench" and args.bench == "sim":
+            from .sim.cli import cmd_bench_sim
+
+            return cmd_bench_sim(args)
         if args.command == "bench" and args.bench == "fusion":
             from .fusion_tools import cmd_bench_fusion
 
@@ -384,6 +423,10 @@ def main(argv: list[str] | None = None) -> int:
             from .vo_offline import cmd_bench_vo
 
             return cmd_bench_vo(args)
+        if args.command == "sim":
+            from .sim.cli import cmd_sim
+
+            return cmd_sim(args)
         if args.command == "experiment":
             from .fusion_tools import cmd_sun_sim
 

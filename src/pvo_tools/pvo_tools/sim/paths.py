@@ -1,0 +1,112 @@
+"""Camera trajectories for the synthetic world, as T_world,cam (4x4) of the left optical camera.
+
+The world frame is a local East-North-Up frame (x east, y north, z up, metres) whose origin is on the
+ground under the first camera; the optical frame is x right, y down, z forward.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from pvo_core.lie import so3_exp
+from pvo_core.trajectory import read_kitti_poses
+
+Array = NDArray[np.float64]
+
+#: Optical axes of a level camera looking north, in ENU: x right = east, y down = -up, z forward = north.
+ENU_FROM_LEVEL_CAMERA = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+PATH_KINDS = ("loop", "straight", "s-curve")
+
+
+def heading_rotation(heading_deg: float) -> Array:
+    """Rotation about the up axis turning north towards east by ``heading_deg`` (clockwise seen from above)."""
+    return so3_exp(np.array([0.0, 0.0, -np.radians(heading_deg)]))
+
+
+def level_camera_poses(positions: Array, headings: Array) -> Array:
+    """Level cameras (no roll/pitch) at ENU ``positions`` (N, 3) facing ``headings`` (N,) rad from north."""
+    poses = np.tile(np.eye(4), (len(positions), 1, 1))
+    for k, (p, h) in enumerate(zip(positions, headings, strict=True)):
+        poses[k, :3, :3] = heading_rotation(np.degrees(h)) @ ENU_FROM_LEVEL_CAMERA
+        poses[k, :3, 3] = p
+    return poses
+
+
+def procedural_path(kind: str, frames: int, rate: float, speed: float, camera_height: float, seed: int = 0) -> Array:
+    """A driven path: ``loop`` (a rounded rectangle), ``straight`` or ``s-curve``; speed in m/s with a
+    gentle seeded speed profile (±20 %)."""
+    if kind not in PATH_KINDS:
+        raise ValueError(f"unknown path {kind!r}: choose one of {', '.join(PATH_KINDS)}")
+    if frames < 2 or rate <= 0 or speed <= 0:
+        raise ValueError("a path needs at least 2 frames, a positive rate and a positive speed")
+    rng = np.random.default_rng(seed)
+    t = np.arange(frames) / rate
+    phase = rng.uniform(0, 2 * np.pi)
+    profile = 1.0 + 0.2 * np.sin(2 * np.pi * t / max(t[-1], 1.0) + phase)
+    s = np.concatenate([[0.0], np.cumsum(speed * profile[1:] / rate)])  # arc length
+    if kind == "straight":
+        xy = np.stack([np.zeros_like(s), s], axis=1)
+    elif kind == "s-curve":
+        xy = np.stack([15.0 * np.sin(s / 40.0), s], axis=1)
+    else:
+        xy = _rounded_rectangle(s, width=120.0, height=80.0, radius=20.0)
+    positions = np.column_stack([xy, np.full(frames, camera_height)])
+    # heading from the tangent, by differentiating the analytic curve finely
+    ahead = {
+        "straight": lambda q: np.stack([np.zeros_like(q), q], 1),
+        "s-curve": lambda q: np.stack([15.0 * np.sin(q / 40.0), q], 1),
+    }
+    nxt = ahead[kind](s + 0.01) if kind in ahead else _rounded_rectangle(s + 0.01, 120.0, 80.0, 20.0)
+    d = nxt - xy
+    headings = np.arctan2(d[:, 0], d[:, 1])
+    return level_camera_poses(positions, headings)
+
+
+def _rounded_rectangle(s: Array, width: float, height: float, radius: float) -> Array:
+    """Points at arc length ``s`` on a rounded rectangle driven clockwise (seen from above) from the origin, first north."""
+    straight_w, straight_h = width - 2 * radius, height - 2 * radius
+    quarter = np.pi * radius / 2
+    perimeter = 2 * straight_w + 2 * straight_h + 4 * quarter
+    segments = [
+        ("line", np.array([0.0, 0.0]), np.array([0.0, 1.0]), straight_h),
+        ("arc", np.array([radius, straight_h]), np.pi, quarter),
+        ("line", np.array([radius, straight_h + radius]), np.array([1.0, 0.0]), straight_w),
+        ("arc", np.array([radius + straight_w, straight_h]), np.pi / 2, quarter),
+        ("line", np.array([2 * radius + straight_w, straight_h]), np.array([0.0, -1.0]), straight_h),
+        ("arc", np.array([radius + straight_w, 0.0]), 0.0, quarter),
+        ("line", np.array([radius + straight_w, -radius]), np.array([-1.0, 0.0]), straight_w),
+        ("arc", np.array([radius, 0.0]), -np.pi / 2, quarter),
+    ]
+    out = np.zeros((len(s), 2))
+    u = np.mod(s, perimeter)
+    for i, value in enumerate(u):
+        rest = value
+        for kind, a, b, length in segments:
+            if rest <= length:
+                if kind == "line":
+                    out[i] = a + b * rest
+                else:  # clockwise arc of `radius` about centre a, starting at angle b
+                    angle = b - rest / radius
+                    out[i] = a + radius * np.array([np.cos(angle), np.sin(angle)])
+                break
+            rest -= length
+    return out
+
+
+def kitti_path(poses_file: Path, frames: int | None, start: int, camera_height: float, heading_deg: float = 0.0) -> Array:
+    """A real KITTI ground-truth trajectory placed in the world: the first camera level at
+    ``camera_height`` facing ``heading_deg`` (from north); KITTI's own poses (first camera frame) after it."""
+    try:
+        poses = read_kitti_poses(poses_file)
+    except Exception as exc:  # noqa: BLE001 - the reader raises DataFormatError naming the line
+        raise ValueError(f"{poses_file}: not a KITTI pose file ({exc})") from None
+    if start < 0 or start >= len(poses) - 1:
+        raise ValueError(f"{poses_file}: start frame {start} outside its {len(poses)} poses")
+    end = len(poses) if frames is None else min(len(poses), start + frames)
+    relative = np.linalg.inv(poses[start]) @ poses[start:end]
+    anchor = np.eye(4)
+    anchor[:3, :3] = heading_rotation(heading_deg) @ ENU_FROM_LEVEL_CAMERA
+    anchor[2, 3] = camera_height
+    return anchor @ relative

@@ -1,0 +1,293 @@
+"""Render a synthetic sequence: stereo images, ground-truth poses, sun, IMU, GPS and (optionally) depth.
+
+Output is the KITTI odometry layout (``image_0``/``image_1`` grey or ``image_2``/``image_3`` colour,
+``calib.txt``, ``times.txt``, ``poses.txt``) plus sidecars: ``sun.csv`` (the Sun-BCNN CSV format:
+``relpath,sx,sy,sz`` in the left camera frame), ``imu.csv`` (``t,wx,wy,wz,fx,fy,fz``: angular rate
+rad/s and specific force m/s² in the left camera frame), ``gps.csv`` (``t,latitude,longitude,altitude``),
+``sim.yaml`` (everything needed to reproduce it) and ``depth_0/*.png`` (16-bit, metres x 256, 0 = sky).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from pvo_core.ephemeris import GeodeticOrigin, enu_to_geodetic, sun_direction_enu, sun_elevation_azimuth
+from pvo_core.lie import rotation_to_quaternion, so3_log
+
+from .paths import kitti_path, procedural_path
+from .world import PRESETS, WorldSpec, build_world
+
+Array = NDArray[np.float64]
+GRAVITY_ENU = np.array([0.0, 0.0, -9.80665])
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """Continuous-time white noise densities and constant biases (camera frame)."""
+
+    gyro_noise: float = 0.0  # rad/s/sqrt(Hz)
+    accel_noise: float = 0.0  # m/s^2/sqrt(Hz)
+    gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    accel_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    preset: str = "urban"
+    frames: int = 100
+    width: int = 620
+    height: int = 188
+    focal: float = 359.4  # px; KITTI's 718.856 scaled to 620 px wide
+    baseline: float = 0.54
+    rate: float = 10.0
+    colour: bool = False
+    path: str = "loop"  # loop | straight | s-curve, or a KITTI pose file via poses_file
+    poses_file: str = ""
+    start_frame: int = 0
+    speed: float = 8.0
+    camera_height: float = 1.65
+    heading_deg: float = 0.0
+    latitude: float = 49.011
+    longitude: float = 8.4245
+    altitude: float = 115.0
+    start_time: str = "2011-09-30T11:30:00Z"
+    overcast: bool = False
+    night: bool = False
+    depth: bool = False
+    seed: int = 0
+    imu: ImuNoise = field(default_factory=ImuNoise)
+    gps_sigma: float = 0.0  # m, horizontal and vertical
+    shadow_map: int = 1024
+
+    def __post_init__(self) -> None:
+        if self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}: choose one of {', '.join(PRESETS)}")
+        if self.frames < 2:
+            raise ValueError(f"--frames must be >= 2, got {self.frames}")
+        if self.width < 16 or self.height < 16 or self.focal <= 0 or self.baseline <= 0 or self.rate <= 0:
+            raise ValueError("image size >= 16 px, focal length, baseline and rate must be positive")
+
+    @property
+    def epoch(self) -> float:
+        text = self.start_time.replace("Z", "+00:00")
+        try:
+            moment = datetime.fromisoformat(text)
+        except ValueError:
+            raise ValueError(f"--start-time {self.start_time!r} is not ISO 8601 (e.g. 2011-09-30T11:30:00Z)") from None
+        if moment.tzinfo is None:
+            moment = moment.replace(tzinfo=UTC)
+        return moment.timestamp()
+
+
+def camera_trajectory(config: SimConfig) -> Array:
+    """T_world,cam (N, 4, 4) of the left camera."""
+    if config.poses_file:
+        return kitti_path(Path(config.poses_file), config.frames, config.start_frame, config.camera_height, config.heading_deg)
+    return procedural_path(config.path, config.frames, config.rate, config.speed, config.camera_height, config.seed)
+
+
+def imu_from_trajectory(poses: Array, rate: float) -> tuple[Array, Array]:
+    """Noise-free angular rate (rad/s) and specific force (m/s²) in the camera frame at each frame,
+    by central differences of the poses (one-sided at the ends)."""
+    n = len(poses)
+    dt = 1.0 / rate
+    omega = np.zeros((n, 3))
+    accel = np.zeros((n, 3))
+    positions = poses[:, :3, 3]
+    for k in range(n):
+        a, b = max(k - 1, 0), min(k + 1, n - 1)
+        omega[k] = so3_log(poses[a, :3, :3].T @ poses[b, :3, :3]) / ((b - a) * dt)
+        # the rate is expressed in the frame at k: rotate from the frame at a
+        omega[k] = poses[k, :3, :3].T @ poses[a, :3, :3] @ omega[k]
+        k0 = min(max(k, 1), n - 2)
+        world_accel = (positions[k0 + 1] - 2 * positions[k0] + positions[k0 - 1]) / dt**2
+        accel[k] = poses[k, :3, :3].T @ (world_accel - GRAVITY_ENU)
+    return omega, accel
+
+
+@dataclass
+class SimResult:
+    out: Path
+    frames: int
+    seconds_render: float
+    seconds_world: float
+    sun_elevation_deg: tuple[float, float]
+
+
+def _require_renderer() -> None:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    try:
+        import mujoco  # noqa: F401
+    except ImportError as exc:  # pragma: no cover - mujoco is pinned in requirements.txt
+        raise ValueError(f"the mujoco Python package is missing ({exc}); pip install -r requirements.txt") from None
+
+
+def open_renderer(model, height: int, width: int):
+    """A MuJoCo offscreen renderer, or one clear error naming the system package to install."""
+    import mujoco
+
+    try:
+        return mujoco.Renderer(model, height, width)
+    except Exception as exc:  # noqa: BLE001 - GL back-ends raise many types
+        backend = os.environ.get("MUJOCO_GL", "egl")
+        package = {"egl": "libegl1 and libgl1-mesa-dri (Mesa EGL)", "osmesa": "libosmesa6"}.get(backend, "an OpenGL driver")
+        raise ValueError(
+            f"no offscreen renderer (MUJOCO_GL={backend}): install {package}, or set MUJOCO_GL=osmesa with libosmesa6 ({exc})"
+        ) from None
+
+
+def mocap_quaternion(rotation_world_optical: Array) -> Array:
+    """MuJoCo (w, x, y, z) of a camera body whose -z looks along the optical +z and whose y is optical -y."""
+    body = rotation_world_optical @ np.diag([1.0, -1.0, -1.0])
+    return rotation_to_quaternion(body)
+
+
+def simulate(
+    config: SimConfig, out: Path, overwrite: bool = False, progress: Callable[[int, int], None] | None = None
+) -> SimResult:
+    """Render the sequence into ``out`` (refused if it exists, unless ``overwrite``)."""
+    import cv2
+
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise ValueError(f"{out} exists: refusing to overwrite it (use --overwrite)")
+    poses = camera_trajectory(config)
+    n = len(poses)
+    origin = GeodeticOrigin(config.latitude, config.longitude, config.altitude)
+    times = config.epoch + np.arange(n) / config.rate
+    elevation, _ = sun_elevation_azimuth(origin, times)
+    if not config.night and float(np.min(elevation)) <= 0.0:
+        when = datetime.fromtimestamp(float(times[int(np.argmin(elevation))]), tz=UTC).isoformat()
+        raise ValueError(
+            f"the sun is below the horizon at {config.latitude:.4f}, {config.longitude:.4f} on {when} "
+            f"(elevation {float(np.min(elevation)):.1f} deg): choose another --start-time, or --night to render anyway"
+        )
+    sun_world = sun_direction_enu(origin, times)
+    sun_camera = np.einsum("nji,nj->ni", poses[:, :3, :3], sun_world)
+
+    _require_renderer()
+    import mujoco
+
+    t0 = time.perf_counter()
+    fovy = float(np.degrees(2.0 * np.arctan(config.height / (2.0 * config.focal))))
+    spec = WorldSpec(config.preset, config.seed, config.baseline, fovy, config.overcast, shadow_map=config.shadow_map)
+    world = build_world(spec, poses, config.camera_height)
+    model = mujoco.MjModel.from_xml_string(world.xml)
+    if world.hfield is not None:
+        model.hfield_data[:] = world.hfield.reshape(-1)
+    data = mujoco.MjData(model)
+    seconds_world = time.perf_counter() - t0
+
+    if out.exists():
+        import shutil
+
+        shutil.rmtree(out)
+    left_dir, right_dir = ("image_2", "image_3") if config.colour else ("image_0", "image_1")
+    for d in (left_dir, right_dir, *(["depth_0"] if config.depth else [])):
+        (out / d).mkdir(parents=True, exist_ok=True)
+    renderer = open_renderer(model, config.height, config.width)
+    rig = model.body("rig").mocapid[0]
+    vehicles = [model.body(f"vehicle{j}").mocapid[0] for j in range(len(world.moving_paths))]
+    light = model.light("sun").id
+    depth_renderer = open_renderer(model, config.height, config.width) if config.depth else None
+    if depth_renderer is not None:
+        depth_renderer.enable_depth_rendering()
+    t1 = time.perf_counter()
+    try:
+        for k in range(n):
+            data.mocap_pos[rig] = poses[k, :3, 3]
+            data.mocap_quat[rig] = mocap_quaternion(poses[k, :3, :3])
+            for j, mid in enumerate(vehicles):
+                data.mocap_pos[mid] = world.moving_paths[j][k]
+                h = world.moving_headings[j][k]
+                data.mocap_quat[mid] = [np.cos(h / 2), 0.0, 0.0, np.sin(h / 2)]
+            model.light_dir[light] = -sun_world[k]
+            model.light_pos[light] = poses[k, :3, 3] + 100.0 * sun_world[k]
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_camlight(model, data)
+            name = f"{k:06d}.png"
+            for camera, folder in (("left", left_dir), ("right", right_dir)):
+                renderer.update_scene(data, camera=camera)
+                rgb = renderer.render()
+                image = rgb if config.colour else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+                if config.colour:
+                    image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+                cv2.imwrite(str(out / folder / name), image)
+            if depth_renderer is not None:
+                depth_renderer.update_scene(data, camera="left")
+                depth = depth_renderer.render()
+                far = depth >= 0.99 * model.vis.map.zfar * model.stat.extent
+                encoded = np.clip(np.round(depth * 256.0), 0, 65535).astype(np.uint16)
+                encoded[far] = 0
+                cv2.imwrite(str(out / "depth_0" / name), encoded)
+            if progress:
+                progress(k + 1, n)
+    finally:
+        renderer.close()
+        if depth_renderer is not None:
+            depth_renderer.close()
+    seconds_render = time.perf_counter() - t1
+    _write_sidecars(config, out, poses, times, sun_camera, origin, left_dir, world)
+    return SimResult(out, n, seconds_render, seconds_world, (float(elevation.min()), float(elevation.max())))
+
+
+def _write_sidecars(
+    config: SimConfig, out: Path, poses: Array, times: Array, sun_camera: Array, origin: GeodeticOrigin, left_dir: str, world
+) -> None:
+    import yaml
+
+    n = len(poses)
+    # MuJoCo's frustum is symmetric about the image centre, which lies at (W-1)/2, (H-1)/2 with pixel
+    # centres at integer coordinates (the OpenCV/KITTI convention).
+    f, cu, cv = config.focal, (config.width - 1) / 2.0, (config.height - 1) / 2.0
+    lines = []
+    for i in range(4):
+        tx = -f * config.baseline if i % 2 == 1 else 0.0
+        p = [f, 0.0, cu, tx, 0.0, f, cv, 0.0, 0.0, 0.0, 1.0, 0.0]
+        lines.append(f"P{i}: " + " ".join(f"{v:.12e}" for v in p))
+    (out / "calib.txt").write_text("\n".join(lines) + "\n")
+    (out / "times.txt").write_text("".join(f"{t - times[0]:.6e}\n" for t in times))
+    relative = np.linalg.inv(poses[0]) @ poses
+    (out / "poses.txt").write_text("".join(" ".join(f"{v:.12e}" for v in p[:3].reshape(-1)) + "\n" for p in relative))
+    (out / "sun.csv").write_text(
+        "".join(f"{left_dir}/{k:06d}.png,{s[0]:.9f},{s[1]:.9f},{s[2]:.9f}\n" for k, s in enumerate(sun_camera))
+    )
+    rng = np.random.default_rng(config.seed + 7919)
+    omega, accel = imu_from_trajectory(poses, config.rate)
+    noise = config.imu
+    omega = omega + np.asarray(noise.gyro_bias) + rng.normal(0.0, noise.gyro_noise * np.sqrt(config.rate), omega.shape)
+    accel = accel + np.asarray(noise.accel_bias) + rng.normal(0.0, noise.accel_noise * np.sqrt(config.rate), accel.shape)
+    (out / "imu.csv").write_text(
+        "t,wx,wy,wz,fx,fy,fz\n"
+        + "".join(
+            f"{t:.6f}," + ",".join(f"{v:.9e}" for v in (*w, *a)) + "\n" for t, w, a in zip(times, omega, accel, strict=True)
+        )
+    )
+    enu = poses[:, :3, 3] + rng.normal(0.0, config.gps_sigma, (n, 3)) if config.gps_sigma > 0 else poses[:, :3, 3]
+    geodetic = enu_to_geodetic(origin, enu)
+    (out / "gps.csv").write_text(
+        "t,latitude,longitude,altitude\n"
+        + "".join(f"{t:.6f},{g[0]:.10f},{g[1]:.10f},{g[2]:.4f}\n" for t, g in zip(times, geodetic, strict=True))
+    )
+    meta = {
+        "generator": "pvo sim",
+        "config": asdict(config),
+        "epoch_unix_s": float(times[0]),
+        "world_T_cam0": poses[0].tolist(),
+        "frames": n,
+        "world_extent_m": world.extent,
+        "conventions": {
+            "world": "ENU at the ground under the first camera (x east, y north, z up)",
+            "camera": "left optical frame, x right, y down, z forward",
+            "poses.txt": "T_cam0,camk (KITTI)",
+            "imu.csv": "angular rate [rad/s], specific force [m/s^2], left camera frame",
+        },
+    }
+    (out / "sim.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))

@@ -1,0 +1,134 @@
+"""`pvo sim`: geometry of the rendered images against the scene, truth files, IMU, determinism, bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pvo_core.ephemeris import GeodeticOrigin, sun_direction_enu
+from pvo_core.lie import so3_exp
+from pvo_core.trajectory import read_kitti_poses
+from pvo_tools.sim.paths import procedural_path
+from pvo_tools.sim.simulate import SimConfig, camera_trajectory, imu_from_trajectory, simulate
+
+SMALL = {"width": 320, "height": 120, "focal": 185.4, "path": "straight", "speed": 6.0}
+
+
+def render(out: Path, **overrides) -> SimConfig:
+    config = SimConfig(**{**SMALL, **overrides})
+    try:
+        simulate(config, out, overwrite=True)
+    except ValueError as exc:
+        if "no offscreen renderer" in str(exc):
+            pytest.skip(str(exc))
+        raise
+    return config
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory) -> tuple[Path, SimConfig]:
+    out = tmp_path_factory.mktemp("sim") / "urban"
+    return out, render(out, frames=8, depth=True)
+
+
+def test_depth_of_the_road_plane_matches_the_camera_height(sequence) -> None:
+    import cv2
+
+    out, config = sequence
+    depth = cv2.imread(str(out / "depth_0" / "000000.png"), cv2.IMREAD_UNCHANGED).astype(float) / 256.0
+    cv = (config.height - 1) / 2.0
+    height_above_road = config.camera_height - 0.01  # the road boxes are 1 cm thick on the ground
+    rows = np.arange(int(cv) + 15, config.height)
+    centre = depth[rows, config.width // 2 - 5 : config.width // 2 + 5].mean(axis=1)
+    expected = config.focal * height_above_road / (rows - cv)
+    np.testing.assert_allclose(centre, expected, rtol=0.01)
+
+
+def test_disparity_of_matched_features_is_f_b_over_z(sequence) -> None:
+    import cv2
+
+    out, config = sequence
+    left = cv2.imread(str(out / "image_0" / "000004.png"), cv2.IMREAD_GRAYSCALE)
+    right = cv2.imread(str(out / "image_1" / "000004.png"), cv2.IMREAD_GRAYSCALE)
+    depth = cv2.imread(str(out / "depth_0" / "000004.png"), cv2.IMREAD_UNCHANGED).astype(float) / 256.0
+    corners = cv2.goodFeaturesToTrack(left, 300, 0.01, 5)
+    assert corners is not None and len(corners) > 50
+    tracked, status, _ = cv2.calcOpticalFlowPyrLK(left, right, corners, None, winSize=(21, 21), maxLevel=3)
+    back, status_back, _ = cv2.calcOpticalFlowPyrLK(right, left, tracked, None, winSize=(21, 21), maxLevel=3)
+    # keep left-right consistent matches on the epipolar line, away from depth discontinuities
+    ok = (status.ravel() == 1) & (status_back.ravel() == 1) & (np.linalg.norm(back - corners, axis=2).ravel() < 0.3)
+    pl, pr = corners[ok, 0], tracked[ok, 0]
+    u, v = np.round(pl[:, 0]).astype(int), np.round(pl[:, 1]).astype(int)
+    inside = (u >= 3) & (u < config.width - 3) & (v >= 3) & (v < config.height - 3)
+    pl, pr, u, v = pl[inside], pr[inside], u[inside], v[inside]
+    z = depth[v, u]
+    patch = np.stack([depth[v + dv, u + du] for dv in (-3, 0, 3) for du in (-3, 0, 3)], axis=1)
+    smooth = (patch.max(axis=1) - patch.min(axis=1)) < 0.1 * z
+    good = (z > 2.0) & (z < 60.0) & (np.abs(pl[:, 1] - pr[:, 1]) < 0.5) & smooth
+    assert good.sum() > 20
+    disparity = pl[good, 0] - pr[good, 0]
+    expected = config.focal * config.baseline / z[good]
+    assert np.median(np.abs(disparity - expected)) < 0.3
+
+
+def test_truth_files_agree_with_the_trajectory_and_the_ephemeris(sequence) -> None:
+    import yaml
+
+    out, config = sequence
+    meta = yaml.safe_load((out / "sim.yaml").read_text())
+    world_from_cam0 = np.array(meta["world_T_cam0"])
+    poses = world_from_cam0 @ read_kitti_poses(out / "poses.txt")
+    np.testing.assert_allclose(poses, camera_trajectory(config), atol=1e-9)
+    sun = np.array([[float(v) for v in line.split(",")[1:]] for line in (out / "sun.csv").read_text().splitlines()])
+    times = meta["epoch_unix_s"] + np.loadtxt(out / "times.txt")
+    truth = sun_direction_enu(GeodeticOrigin(config.latitude, config.longitude, config.altitude), times)
+    np.testing.assert_allclose(np.einsum("nij,nj->ni", poses[:, :3, :3], sun), truth, atol=1e-8)
+    calib = (out / "calib.txt").read_text().splitlines()
+    p1 = np.array([float(v) for v in calib[1].split()[1:]])
+    assert p1[3] == pytest.approx(-config.focal * config.baseline)
+
+
+def test_same_seed_same_bytes(tmp_path: Path) -> None:
+    a, b = tmp_path / "a", tmp_path / "b"
+    render(a, frames=3, seed=5)
+    render(b, frames=3, seed=5)
+    for name in ("image_0/000002.png", "image_1/000001.png", "imu.csv", "gps.csv", "poses.txt"):
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    render(b, frames=3, seed=6)
+    assert (a / "image_0/000002.png").read_bytes() != (b / "image_0/000002.png").read_bytes()
+
+
+def test_noise_free_imu_integrates_back_to_the_trajectory() -> None:
+    rate = 10.0
+    poses = procedural_path("s-curve", 101, rate, 8.0, 1.65, seed=2)
+    omega, force = imu_from_trajectory(poses, rate)
+    dt = 1.0 / rate
+    gravity = np.array([0.0, 0.0, -9.80665])
+    rotation = poses[0, :3, :3].copy()
+    position = poses[0, :3, 3].copy()
+    velocity = (poses[1, :3, 3] - poses[0, :3, 3]) / dt
+    for k in range(100):
+        accel = rotation @ force[k] + gravity
+        position = position + velocity * dt + 0.5 * accel * dt**2
+        velocity = velocity + accel * dt
+        rotation = rotation @ so3_exp(0.5 * (omega[k] + omega[k + 1]) * dt)
+    path_length = np.sum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))
+    assert np.linalg.norm(position - poses[100, :3, 3]) < 0.01 * path_length
+    assert np.degrees(np.linalg.norm(so3_exp(np.zeros(3)) @ (rotation.T @ poses[100, :3, :3]) - np.eye(3))) < 1.0
+
+
+def test_bad_input_is_one_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unknown preset 'lunar'"):
+        SimConfig(preset="lunar")
+    bad = tmp_path / "poses.txt"
+    bad.write_text("1 2 3\n")
+    with pytest.raises(ValueError, match="not a KITTI pose file"):
+        camera_trajectory(SimConfig(poses_file=str(bad)))
+    with pytest.raises(ValueError, match="below the horizon"):
+        simulate(SimConfig(**SMALL, frames=2, start_time="2011-09-30T22:00:00Z"), tmp_path / "night")
+    (tmp_path / "exists").mkdir()
+    with pytest.raises(ValueError, match="exists: refusing"):
+        simulate(SimConfig(**SMALL, frames=2), tmp_path / "exists")
+    with pytest.raises(ValueError, match="not ISO 8601"):
+        _ = SimConfig(start_time="yesterday").epoch
