@@ -177,7 +177,7 @@ def simulate(
 
     t0 = time.perf_counter()
     fovy = float(np.degrees(2.0 * np.arctan(config.height / (2.0 * config.focal))))
-    spec = WorldSpec(config.preset, config.seed, config.baseline, fovy, config.overcast, shadow_map=config.shadow_map)
+    spec = WorldSpec(config.preset, config.seed, config.baseline, fovy, config.overcast, shadow_map=config.shadow_map, image_size=(config.width, config.height))
     world = build_world(spec, poses, config.camera_height)
     model = mujoco.MjModel.from_xml_string(world.xml)
     if world.hfield is not None:
@@ -209,7 +209,7 @@ def simulate(
                 h = world.moving_headings[j][k]
                 data.mocap_quat[mid] = [np.cos(h / 2), 0.0, 0.0, np.sin(h / 2)]
             model.light_dir[light] = -sun_world[k]
-            model.light_pos[light] = poses[k, :3, 3] + 100.0 * sun_world[k]
+            model.light_pos[light] = poses[k, :3, 3]
             mujoco.mj_kinematics(model, data)
             mujoco.mj_camlight(model, data)
             name = f"{k:06d}.png"

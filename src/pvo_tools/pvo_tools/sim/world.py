@@ -31,6 +31,7 @@ class WorldSpec:
     clearance: float = 3.0
     terrain_resolution: float = 1.0  # planetary: metres per height-field sample
     shadow_map: int = 1024  # texels; the map covers 60 m around the camera
+    image_size: tuple[int, int] = (640, 480)  # the offscreen framebuffer must hold the images
 
 
 @dataclass
@@ -214,7 +215,8 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
   <statistic extent="{extent:.1f}" center="{centre[0]:.1f} {centre[1]:.1f} 0"/>
   <visual>
     <headlight ambient="0 0 0" diffuse="0 0 0" specular="0 0 0"/>
-    <quality shadowsize="{spec.shadow_map}" offsamples="0"/>
+    <global offwidth="{max(spec.image_size[0], 64)}" offheight="{max(spec.image_size[1], 64)}"/>
+    <quality shadowsize="{spec.shadow_map}" offsamples="0" numslices="12" numstacks="6"/>
     <map znear="{0.3 / extent:.6f}" zfar="{3.0:.1f}" shadowclip="{60.0 / extent:.4f}" haze="0.05"/>
     <rgba haze="0.65 0.72 0.82 1" fog="0.7 0.75 0.82 1"/>
   </visual>
