@@ -26,6 +26,8 @@ def _add_convert(sub: argparse._SubParsersAction) -> None:
     timing.add_argument("--rate", type=float, help="frame rate (Hz) when there is no times file")
     kitti.add_argument("--epoch", type=float, default=0.0, help="UNIX seconds added to every frame time (default 0)")
     kitti.add_argument("--sun", type=Path, help="Sun-BCNN sun-vector CSV -> /ground_truth/sun_direction")
+    kitti.add_argument("--imu", type=Path, help="imu.csv of `pvo sim` (t,wx,wy,wz,fx,fy,fz) -> /imu/data")
+    kitti.add_argument("--gps", type=Path, help="gps.csv of `pvo sim` (t,latitude,longitude,altitude) -> /gps/fix")
     kitti.add_argument("--colour", action="store_true", help="use image_2/image_3 (rgb8) and P2/P3")
     kitti.add_argument("--start", type=int, default=0, help="first frame (position in the sequence)")
     kitti.add_argument("--count", type=int, help="number of frames (default: all)")
@@ -242,7 +244,16 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("--depth", action="store_true", help="also write depth_0/*.png (16-bit, metres x 256)")
     sim.add_argument("--seed", type=int, default=0, help="world and noise seed (default 0)")
     sim.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
-    sim.add_argument("--bag", type=Path, help="also convert the result to this rosbag2 (pvo convert kitti --sun)")
+    sim.add_argument("--bag", type=Path, help="also convert the result to this rosbag2 (images, truth, sun, IMU, GPS)")
+    deg = sim.add_argument_group("degradations")
+    deg.add_argument("--distortion", type=float, default=0.0, help="radial distortion kappa, then crop (e.g. -0.3, 0.2, 0.01)")
+    deg.add_argument("--blur", type=float, default=0.0, help="horizontal motion blur length in px")
+    deg.add_argument("--exposure", type=float, default=0.0, help="exposure change amplitude (relative gain, e.g. 0.3)")
+    deg.add_argument("--noise", type=float, default=0.0, help="sensor noise std in grey levels")
+    deg.add_argument("--focal-scale", type=float, default=1.0, help="write calib.txt with the focal length times this")
+    deg.add_argument("--baseline-scale", type=float, default=1.0, help="write calib.txt with the baseline times this")
+    deg.add_argument("--texture-poor", type=float, default=0.0, help="urban: fraction of buildings with plain walls")
+    deg.add_argument("--moving", type=int, default=3, help="urban: number of independently moving vehicles")
     sim.add_argument("--quiet", "-q", action="store_true", help="no progress output")
 
 
@@ -277,8 +288,17 @@ def _cmd_convert(args: argparse.Namespace) -> int:
             start=args.start,
             count=args.count,
         )
+        from .sim.sidecars import read_gps_csv, read_imu_csv
+
         summary = convert_kitti(
-            sequence, args.out, storage=args.storage, overwrite=args.overwrite, epoch=args.epoch, show_progress=not args.quiet
+            sequence,
+            args.out,
+            storage=args.storage,
+            overwrite=args.overwrite,
+            epoch=args.epoch,
+            show_progress=not args.quiet,
+            imu=read_imu_csv(args.imu) if args.imu else None,
+            gps=read_gps_csv(args.gps) if args.gps else None,
         )
     else:
         dataset = DevonDataset(

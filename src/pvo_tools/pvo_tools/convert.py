@@ -30,6 +30,9 @@ TOPIC_RIGHT_INFO = "/stereo/right/camera_info"
 TOPIC_GT_ODOMETRY = "/ground_truth/odometry"
 TOPIC_GT_SUN = "/ground_truth/sun_direction"
 TOPIC_SUN_SENSOR = "/sun_sensor/direction"
+TOPIC_IMU = "/imu/data"
+TOPIC_GPS = "/gps/fix"
+GPS_FRAME = "gps"
 GT_FRAME = "world"  # the first left-camera frame (KITTI) / local ENU (Devon GPS)
 
 #: Nominal ground-truth pose covariance (ROS order): small, never all-zero.
@@ -70,8 +73,15 @@ def convert_kitti(
     overwrite: bool = False,
     epoch: float = 0.0,
     show_progress: bool = True,
+    imu: np.ndarray | None = None,
+    gps: np.ndarray | None = None,
 ) -> ConversionSummary:
-    """Write a KITTI sequence as a bag. ``epoch`` (UNIX s) is added to the sequence's times."""
+    """Write a KITTI sequence as a bag. ``epoch`` (UNIX s) is added to the sequence's times.
+
+    ``imu`` (N, 7: t, angular rate, specific force in the left camera frame) and ``gps`` (N, 4: t,
+    latitude, longitude, altitude), times relative to the first frame like ``times.txt``, add
+    ``/imu/data`` and ``/gps/fix`` (the simulator's sidecars), interleaved in time order.
+    """
     start = time.monotonic()
     width = height = 0
     with SafeBagWriter(out, storage=storage, overwrite=overwrite) as writer:
@@ -86,6 +96,16 @@ def convert_kitti(
             writer.add_topic(TOPIC_GT_ODOMETRY, "nav_msgs/msg/Odometry")
         if sequence.sun_vectors is not None:
             writer.add_topic(TOPIC_GT_SUN, "pvo_msgs/msg/SunDirection")
+        if imu is not None:
+            writer.add_topic(TOPIC_IMU, "sensor_msgs/msg/Imu")
+        if gps is not None:
+            writer.add_topic(TOPIC_GPS, "sensor_msgs/msg/NavSatFix")
+        extras = sorted(
+            [(float(row[0]), "imu", row) for row in (imu if imu is not None else [])]
+            + [(float(row[0]), "gps", row) for row in (gps if gps is not None else [])],
+            key=lambda item: item[0],
+        )
+        next_extra = 0
         progress = Progress(len(sequence), "convert kitti") if show_progress else None
         for i in range(len(sequence)):
             left, right = sequence.load_pair(i)
@@ -97,6 +117,9 @@ def convert_kitti(
                     f"image size {left.shape[1]}x{left.shape[0]} differs from the first frame's {width}x{height}",
                 )
             t = _ns(epoch + sequence.stamps[i])
+            while next_extra < len(extras) and _ns(epoch + extras[next_extra][0]) <= t:
+                _write_extra(writer, epoch, *extras[next_extra])
+                next_extra += 1
             writer.write(TOPIC_LEFT_INFO, t, rosmsgs.camera_info(t, rosmsgs.LEFT_FRAME, sequence.projection_left, width, height))
             writer.write(
                 TOPIC_RIGHT_INFO, t, rosmsgs.camera_info(t, rosmsgs.RIGHT_FRAME, sequence.projection_right, width, height)
@@ -116,10 +139,20 @@ def convert_kitti(
                 writer.write(TOPIC_GT_SUN, t, rosmsgs.sun_direction(t, rosmsgs.LEFT_FRAME, sequence.sun_vectors[i]))
             if progress:
                 progress.update()
+        for extra in extras[next_extra:]:
+            _write_extra(writer, epoch, *extra)
         if progress:
             progress.close()
         counts = dict(writer.counts)
     return ConversionSummary(out, len(sequence), counts, time.monotonic() - start, _bag_size(out))
+
+
+def _write_extra(writer: SafeBagWriter, epoch: float, t: float, kind: str, row: np.ndarray) -> None:
+    stamp = _ns(epoch + t)
+    if kind == "imu":
+        writer.write(TOPIC_IMU, stamp, rosmsgs.imu(stamp, rosmsgs.LEFT_FRAME, row[1:4], row[4:7]))
+    else:
+        writer.write(TOPIC_GPS, stamp, rosmsgs.nav_sat_fix(stamp, GPS_FRAME, row[1], row[2], row[3]))
 
 
 @dataclass(frozen=True)

@@ -129,3 +129,37 @@ def relative_pose(
         ),
         rotation_only=bool(rotation_only),
     )
+
+
+def imu(stamp_ns: int, frame_id: str, angular_velocity: NDArray[np.float64], specific_force: NDArray[np.float64]) -> Any:
+    """sensor_msgs/Imu without orientation (orientation_covariance[0] = -1, as REP 145 says)."""
+    types = project_typestore().types
+    vector3 = types["geometry_msgs/msg/Vector3"]
+    w, f = np.asarray(angular_velocity, dtype=float), np.asarray(specific_force, dtype=float)
+    unknown = np.zeros(9)
+    unknown[0] = -1.0
+    return types["sensor_msgs/msg/Imu"](
+        header=header(stamp_ns, frame_id),
+        orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+        orientation_covariance=unknown,
+        angular_velocity=vector3(x=float(w[0]), y=float(w[1]), z=float(w[2])),
+        angular_velocity_covariance=np.zeros(9),
+        linear_acceleration=vector3(x=float(f[0]), y=float(f[1]), z=float(f[2])),
+        linear_acceleration_covariance=np.zeros(9),
+    )
+
+
+def nav_sat_fix(stamp_ns: int, frame_id: str, latitude: float, longitude: float, altitude: float, sigma: float = 0.0) -> Any:
+    """sensor_msgs/NavSatFix with a fix (GPS service) and a diagonal position covariance."""
+    types = project_typestore().types
+    status = types["sensor_msgs/msg/NavSatStatus"](status=0, service=1)
+    covariance = np.diag([sigma**2] * 3).reshape(-1) if sigma > 0 else np.zeros(9)
+    return types["sensor_msgs/msg/NavSatFix"](
+        header=header(stamp_ns, frame_id),
+        status=status,
+        latitude=float(latitude),
+        longitude=float(longitude),
+        altitude=float(altitude),
+        position_covariance=covariance,
+        position_covariance_type=2 if sigma > 0 else 0,
+    )

@@ -16,7 +16,7 @@ SMALL = {"width": 320, "height": 120, "focal": 185.4, "path": "straight", "speed
 
 
 def render(out: Path, **overrides) -> SimConfig:
-    config = SimConfig(**{**SMALL, **overrides})
+    config = SimConfig(**{**SMALL, **overrides})  # type: ignore[arg-type]
     try:
         simulate(config, out, overwrite=True)
     except ValueError as exc:
@@ -132,3 +132,121 @@ def test_bad_input_is_one_clear_error(tmp_path: Path) -> None:
         simulate(SimConfig(**SMALL, frames=2), tmp_path / "exists")
     with pytest.raises(ValueError, match="not ISO 8601"):
         _ = SimConfig(start_time="yesterday").epoch
+
+
+def test_degradations_are_what_they_say(tmp_path: Path) -> None:
+    import cv2
+    from pvo_tools.sim.degrade import Degradations, ImageDegrader, distortion_maps, exposure_gains
+
+    mx, my = distortion_maps(320, 120, 185.4, 0.0)
+    v, u = np.mgrid[0:120, 0:320]
+    np.testing.assert_allclose(mx, u, atol=1e-4)
+    np.testing.assert_allclose(my, v, atol=1e-4)
+    for kappa in (-0.3, 0.2, 0.01):
+        mx, my = distortion_maps(320, 120, 185.4, kappa)
+        assert mx.min() >= -0.5 and mx.max() <= 319.5 and my.min() >= -0.5 and my.max() <= 119.5  # cropped to valid
+        assert abs(mx[60, 160] - 160) < 1.0 and abs(my[60, 160] - 60) < 1.0  # the centre stays
+    gains = exposure_gains(200, 0.3, seed=1)
+    assert 0.7 <= gains.min() < 0.95 and 1.05 < gains.max() <= 1.3 and np.max(np.abs(np.diff(gains))) < 0.05
+    flat = np.full((120, 320), 100, dtype=np.uint8)
+    noisy = ImageDegrader(Degradations(noise=4.0), 320, 120, 185.4, 1, seed=0)(flat, 0)
+    assert abs(float(noisy.std()) - 4.0) < 0.2
+    with pytest.raises(ValueError, match="--distortion"):
+        Degradations(distortion=2.0)
+    out = tmp_path / "miscal"
+    config = render(out, frames=2, degradations=Degradations(focal_scale=1.1, baseline_scale=0.9, blur_px=5))
+    p1 = np.array([float(v) for v in (out / "calib.txt").read_text().splitlines()[1].split()[1:]])
+    assert p1[0] == pytest.approx(1.1 * config.focal)
+    assert p1[3] == pytest.approx(-1.1 * config.focal * 0.9 * config.baseline)
+    blurred = cv2.imread(str(out / "image_0" / "000001.png"), cv2.IMREAD_GRAYSCALE).astype(float)
+    sharp_dir = tmp_path / "sharp"
+    render(sharp_dir, frames=2)
+    sharp = cv2.imread(str(sharp_dir / "image_0" / "000001.png"), cv2.IMREAD_GRAYSCALE).astype(float)
+    assert np.abs(np.diff(blurred, axis=1)).mean() < 0.8 * np.abs(np.diff(sharp, axis=1)).mean()
+
+
+def test_a_pole_casts_its_shadow_away_from_the_sun_azimuth() -> None:
+    import os
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    mujoco = pytest.importorskip("mujoco")
+    from pvo_tools.sim.simulate import open_renderer, place_rig, place_sun
+
+    origin = GeodeticOrigin(49.011, 8.4245, 115.0)
+    when = SimConfig(start_time="2011-09-30T14:00:00Z").epoch  # afternoon: sun in the south-west
+    sun = sun_direction_enu(origin, when)
+    xml = """<mujoco><visual><global offwidth="400" offheight="400"/><quality shadowsize="2048"/>
+      <map znear="0.01" zfar="50" shadowclip="0.5"/></visual>
+      <statistic extent="20" center="0 0 0"/>
+      <worldbody>
+        <light name="sun" directional="true" castshadow="true" dir="0 0 -1" ambient="0.3 0.3 0.3" diffuse="0.9 0.9 0.9"/>
+        <geom type="plane" size="20 20 0.1" rgba="0.8 0.8 0.8 1"/>
+        <geom type="cylinder" pos="0 0 1.5" size="0.15 1.5" rgba="0.8 0.8 0.8 1"/>
+        <body name="rig" mocap="true"><camera name="left" fovy="60"/></body>
+      </worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    # a camera 12 m above the pole looking straight down, image x = east, image y = south
+    pose = np.eye(4)
+    pose[:3, :3] = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+    pose[:3, 3] = [0.0, 0.0, 12.0]
+    place_rig(data, model.body("rig").mocapid[0], pose)
+    place_sun(model, model.light("sun").id, sun, pose[:3, 3])
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_camlight(model, data)
+    try:
+        renderer = open_renderer(model, 400, 400)
+    except ValueError as exc:
+        pytest.skip(str(exc))
+    try:
+        renderer.update_scene(data, camera="left")
+        grey = renderer.render().mean(axis=2)
+    finally:
+        renderer.close()
+    import cv2
+
+    # the shadow is the largest dark blob; a morphological opening removes isolated shadow-map acne
+    mask = (grey < 0.75 * np.median(grey)).astype(np.uint8)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask)
+    assert count > 1
+    largest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    rows, cols = np.nonzero(labels == largest)
+    centre = (400 - 1) / 2.0
+    east, north = cols - centre, -(rows - centre)
+    far = np.hypot(east, north) > 15  # away from the pole itself
+    assert far.sum() > 100
+    shadow_azimuth = np.degrees(np.arctan2(east[far].mean(), north[far].mean())) % 360
+    sun_azimuth = np.degrees(np.arctan2(sun[0], sun[1])) % 360
+    difference = (shadow_azimuth - (sun_azimuth + 180.0) + 180.0) % 360 - 180.0
+    assert abs(difference) < 3.0, (shadow_azimuth, sun_azimuth)
+
+
+def test_the_bag_carries_imu_and_gps_from_the_sidecars(sequence, tmp_path: Path) -> None:
+    from pvo_core.errors import DataFormatError
+    from pvo_core.readers import KittiSequence
+    from pvo_tools.bagio import iter_messages, open_bag
+    from pvo_tools.convert import convert_kitti
+    from pvo_tools.sim.sidecars import read_gps_csv, read_imu_csv
+    from pvo_tools.typesys import project_typestore
+
+    out, config = sequence
+    imu, gps = read_imu_csv(out / "imu.csv"), read_gps_csv(out / "gps.csv")
+    kitti = KittiSequence(out, poses_file=out / "poses.txt", sun_file=out / "sun.csv")
+    summary = convert_kitti(kitti, tmp_path / "bag", epoch=config.epoch, show_progress=False, imu=imu, gps=gps)
+    assert summary.counts["/imu/data"] == 8 and summary.counts["/gps/fix"] == 8
+    store = project_typestore()
+    with open_bag(tmp_path / "bag") as reader:
+        messages = {
+            c.topic: store.deserialize_cdr(raw, c.msgtype)
+            for c, _, raw in iter_messages(reader)
+            if c.topic in ("/imu/data", "/gps/fix")
+        }
+    last_imu, last_fix = messages["/imu/data"], messages["/gps/fix"]
+    np.testing.assert_allclose([last_imu.angular_velocity.x, last_imu.linear_acceleration.z], [imu[-1, 1], imu[-1, 6]])
+    assert last_imu.orientation_covariance[0] == -1.0
+    assert last_fix.latitude == pytest.approx(gps[-1, 1]) and last_fix.status.status == 0
+    bad = tmp_path / "imu.csv"
+    bad.write_text("time,wx\n0,1\n")
+    with pytest.raises(DataFormatError, match="expected the header"):
+        read_imu_csv(bad)

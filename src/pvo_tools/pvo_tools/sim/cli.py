@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from ..progress import Progress
+from .degrade import Degradations
 from .simulate import SimConfig, simulate
 
 KITTI_FOCAL_PER_PIXEL_WIDTH = 718.856 / 1241.0
@@ -44,6 +45,16 @@ def cmd_sim(args: Any) -> int:
         night=args.night,
         depth=args.depth,
         seed=args.seed,
+        degradations=Degradations(
+            distortion=args.distortion,
+            blur_px=args.blur,
+            exposure=args.exposure,
+            noise=args.noise,
+            focal_scale=args.focal_scale,
+            baseline_scale=args.baseline_scale,
+            texture_poor=args.texture_poor,
+            moving_vehicles=args.moving,
+        ),
     )
     if args.bag is not None and args.bag.exists() and not args.overwrite:
         raise ValueError(f"{args.bag} exists: refusing to overwrite it (use --overwrite)")
@@ -64,8 +75,19 @@ def cmd_sim(args: Any) -> int:
 
         out = Path(args.out)
         sequence = KittiSequence(out, colour=config.colour, poses_file=out / "poses.txt", sun_file=out / "sun.csv")
-        summary = convert_kitti(sequence, args.bag, overwrite=args.overwrite, epoch=config.epoch, show_progress=not args.quiet)
-        print(f"{args.bag}: {summary}", file=sys.stderr)
+        from .sidecars import read_gps_csv, read_imu_csv
+
+        summary = convert_kitti(
+            sequence,
+            args.bag,
+            overwrite=args.overwrite,
+            epoch=config.epoch,
+            show_progress=not args.quiet,
+            imu=read_imu_csv(out / "imu.csv"),
+            gps=read_gps_csv(out / "gps.csv"),
+        )
+        total = sum(summary.counts.values())
+        print(f"{args.bag}: {total} messages on {len(summary.counts)} topics, {summary.bytes / 1e6:.1f} MB", file=sys.stderr)
     return 0
 
 

@@ -3,7 +3,8 @@
 Output is the KITTI odometry layout (``image_0``/``image_1`` grey or ``image_2``/``image_3`` colour,
 ``calib.txt``, ``times.txt``, ``poses.txt``) plus sidecars: ``sun.csv`` (the Sun-BCNN CSV format:
 ``relpath,sx,sy,sz`` in the left camera frame), ``imu.csv`` (``t,wx,wy,wz,fx,fy,fz``: angular rate
-rad/s and specific force m/s² in the left camera frame), ``gps.csv`` (``t,latitude,longitude,altitude``),
+rad/s and specific force m/s² in the left camera frame), ``gps.csv`` (``t,latitude,longitude,altitude``;
+``t`` in seconds from the first frame, like ``times.txt``),
 ``sim.yaml`` (everything needed to reproduce it) and ``depth_0/*.png`` (16-bit, metres x 256, 0 = sky).
 """
 
@@ -21,6 +22,7 @@ from numpy.typing import NDArray
 from pvo_core.ephemeris import GeodeticOrigin, enu_to_geodetic, sun_direction_enu, sun_elevation_azimuth
 from pvo_core.lie import rotation_to_quaternion, so3_log
 
+from .degrade import Degradations, ImageDegrader
 from .paths import kitti_path, procedural_path
 from .world import PRESETS, WorldSpec, build_world
 
@@ -65,6 +67,7 @@ class SimConfig:
     imu: ImuNoise = field(default_factory=ImuNoise)
     gps_sigma: float = 0.0  # m, horizontal and vertical
     shadow_map: int = 1024
+    degradations: Degradations = field(default_factory=Degradations)
 
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
@@ -149,6 +152,18 @@ def mocap_quaternion(rotation_world_optical: Array) -> Array:
     return rotation_to_quaternion(body)
 
 
+def place_sun(model, light: int, sun_world: Array, near: Array) -> None:
+    """Point the directional light along the sun (ENU unit vector towards the sun): light travels along -s."""
+    model.light_dir[light] = -np.asarray(sun_world, dtype=float)
+    model.light_pos[light] = near
+
+
+def place_rig(data, rig: int, pose: Array) -> None:
+    """Move the camera rig (mocap ``rig``) to the left camera pose T_world,cam."""
+    data.mocap_pos[rig] = pose[:3, 3]
+    data.mocap_quat[rig] = mocap_quaternion(pose[:3, :3])
+
+
 def simulate(
     config: SimConfig, out: Path, overwrite: bool = False, progress: Callable[[int, int], None] | None = None
 ) -> SimResult:
@@ -177,7 +192,17 @@ def simulate(
 
     t0 = time.perf_counter()
     fovy = float(np.degrees(2.0 * np.arctan(config.height / (2.0 * config.focal))))
-    spec = WorldSpec(config.preset, config.seed, config.baseline, fovy, config.overcast, shadow_map=config.shadow_map, image_size=(config.width, config.height))
+    spec = WorldSpec(
+        config.preset,
+        config.seed,
+        config.baseline,
+        fovy,
+        config.overcast,
+        shadow_map=config.shadow_map,
+        image_size=(config.width, config.height),
+        texture_poor=config.degradations.texture_poor,
+        moving_vehicles=config.degradations.moving_vehicles,
+    )
     world = build_world(spec, poses, config.camera_height)
     model = mujoco.MjModel.from_xml_string(world.xml)
     if world.hfield is not None:
@@ -199,17 +224,16 @@ def simulate(
     depth_renderer = open_renderer(model, config.height, config.width) if config.depth else None
     if depth_renderer is not None:
         depth_renderer.enable_depth_rendering()
+    degrade = ImageDegrader(config.degradations, config.width, config.height, config.focal, n, config.seed)
     t1 = time.perf_counter()
     try:
         for k in range(n):
-            data.mocap_pos[rig] = poses[k, :3, 3]
-            data.mocap_quat[rig] = mocap_quaternion(poses[k, :3, :3])
+            place_rig(data, rig, poses[k])
             for j, mid in enumerate(vehicles):
                 data.mocap_pos[mid] = world.moving_paths[j][k]
                 h = world.moving_headings[j][k]
                 data.mocap_quat[mid] = [np.cos(h / 2), 0.0, 0.0, np.sin(h / 2)]
-            model.light_dir[light] = -sun_world[k]
-            model.light_pos[light] = poses[k, :3, 3]
+            place_sun(model, light, sun_world[k], poses[k, :3, 3])
             mujoco.mj_kinematics(model, data)
             mujoco.mj_camlight(model, data)
             name = f"{k:06d}.png"
@@ -217,6 +241,8 @@ def simulate(
                 renderer.update_scene(data, camera=camera)
                 rgb = renderer.render()
                 image = rgb if config.colour else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+                if config.degradations.touches_images:
+                    image = degrade(image, k)
                 if config.colour:
                     image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
                 cv2.imwrite(str(out / folder / name), image)
@@ -246,10 +272,13 @@ def _write_sidecars(
     n = len(poses)
     # MuJoCo's frustum is symmetric about the image centre, which lies at (W-1)/2, (H-1)/2 with pixel
     # centres at integer coordinates (the OpenCV/KITTI convention).
-    f, cu, cv = config.focal, (config.width - 1) / 2.0, (config.height - 1) / 2.0
+    # a miscalibration degradation writes a wrong calibration for the true rendering
+    f = config.focal * config.degradations.focal_scale
+    baseline = config.baseline * config.degradations.baseline_scale
+    cu, cv = (config.width - 1) / 2.0, (config.height - 1) / 2.0
     lines = []
     for i in range(4):
-        tx = -f * config.baseline if i % 2 == 1 else 0.0
+        tx = -f * baseline if i % 2 == 1 else 0.0
         p = [f, 0.0, cu, tx, 0.0, f, cv, 0.0, 0.0, 0.0, 1.0, 0.0]
         lines.append(f"P{i}: " + " ".join(f"{v:.12e}" for v in p))
     (out / "calib.txt").write_text("\n".join(lines) + "\n")
@@ -264,17 +293,19 @@ def _write_sidecars(
     noise = config.imu
     omega = omega + np.asarray(noise.gyro_bias) + rng.normal(0.0, noise.gyro_noise * np.sqrt(config.rate), omega.shape)
     accel = accel + np.asarray(noise.accel_bias) + rng.normal(0.0, noise.accel_noise * np.sqrt(config.rate), accel.shape)
+    relative_times = times - times[0]
     (out / "imu.csv").write_text(
         "t,wx,wy,wz,fx,fy,fz\n"
         + "".join(
-            f"{t:.6f}," + ",".join(f"{v:.9e}" for v in (*w, *a)) + "\n" for t, w, a in zip(times, omega, accel, strict=True)
+            f"{t:.6f}," + ",".join(f"{v:.9e}" for v in (*w, *a)) + "\n"
+            for t, w, a in zip(relative_times, omega, accel, strict=True)
         )
     )
     enu = poses[:, :3, 3] + rng.normal(0.0, config.gps_sigma, (n, 3)) if config.gps_sigma > 0 else poses[:, :3, 3]
     geodetic = enu_to_geodetic(origin, enu)
     (out / "gps.csv").write_text(
         "t,latitude,longitude,altitude\n"
-        + "".join(f"{t:.6f},{g[0]:.10f},{g[1]:.10f},{g[2]:.4f}\n" for t, g in zip(times, geodetic, strict=True))
+        + "".join(f"{t:.6f},{g[0]:.10f},{g[1]:.10f},{g[2]:.4f}\n" for t, g in zip(relative_times, geodetic, strict=True))
     )
     meta = {
         "generator": "pvo sim",

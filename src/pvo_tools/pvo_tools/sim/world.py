@@ -32,6 +32,8 @@ class WorldSpec:
     terrain_resolution: float = 1.0  # planetary: metres per height-field sample
     shadow_map: int = 1024  # texels; the map covers 60 m around the camera
     image_size: tuple[int, int] = (640, 480)  # the offscreen framebuffer must hold the images
+    texture_poor: float = 0.0  # fraction of buildings with plain walls
+    moving_vehicles: int = MOVING_VEHICLES
 
 
 @dataclass
@@ -118,6 +120,7 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
             '<material name="facade2" texture="facade2" texrepeat="6 8"/>',
             '<material name="car" texture="car" rgba="1 1 1 1"/>',
             '<material name="pole" rgba="0.2 0.2 0.22 1"/>',
+            '<material name="plain" rgba="0.62 0.62 0.60 1"/>',
         ]
         ground = (
             f'<geom name="ground" type="plane" pos="{centre[0]} {centre[1]} 0" size="{half[0]} {half[1]} 0.1" material="ground"/>'
@@ -142,6 +145,8 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
                     continue
                 yaw = np.degrees(np.arctan2(t[1], t[0]))
                 mat = "facade" if rng.random() < 0.5 else "facade2"
+                if rng.random() < spec.texture_poor:
+                    mat = "plain"
                 bodies.append(
                     f'<geom type="box" pos="{c[0]:.3f} {c[1]:.3f} {height / 2:.3f}" euler="0 0 {yaw:.2f}" '
                     f'size="{width / 2:.3f} {depth / 2:.3f} {height / 2:.3f}" material="{mat}"/>'
@@ -163,7 +168,7 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
         # moving vehicles: drive the path in the oncoming lane, offset in time
         path_xy = camera_poses[:, :2, 3]  # vehicles follow the driven part
         n = len(path_xy)
-        for j in range(MOVING_VEHICLES):
+        for j in range(spec.moving_vehicles):
             offset = int(rng.integers(n // 4, max(n // 4 + 1, n)))
             idx = (offset - np.arange(n)) % n
             tang = np.gradient(path_xy, axis=0)[idx]

@@ -1,0 +1,104 @@
+"""Image and calibration degradations for the pseudo-sensor studies, each a flag with a strength.
+
+Applied to the rendered 8-bit images in this order: radial distortion then crop (thesis ch. 6: an
+output pixel at normalised radius r shows the scene at r (1 + kappa r^2), cropped to the valid centre
+and scaled back to the full size), horizontal motion blur (a box kernel of ``blur_px`` pixels), exposure changes
+(a smooth seeded gain per frame, the same for both cameras), sensor noise (Gaussian, grey levels).
+``focal_scale`` and ``baseline_scale`` write a wrong ``calib.txt`` while rendering with the true one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class Degradations:
+    distortion: float = 0.0  # kappa
+    blur_px: float = 0.0
+    exposure: float = 0.0  # relative gain amplitude, e.g. 0.3 = +-30 %
+    noise: float = 0.0  # grey levels (std)
+    focal_scale: float = 1.0
+    baseline_scale: float = 1.0
+    texture_poor: float = 0.0  # urban: fraction of buildings with plain, untextured walls
+    moving_vehicles: int = 3
+
+    def __post_init__(self) -> None:
+        checks = [
+            (-0.5 <= self.distortion <= 0.5, "--distortion must be in [-0.5, 0.5]"),
+            (0.0 <= self.blur_px <= 50.0, "--blur must be in [0, 50] px"),
+            (0.0 <= self.exposure < 1.0, "--exposure must be in [0, 1)"),
+            (self.noise >= 0.0, "--noise must be >= 0"),
+            (self.focal_scale > 0.0 and self.baseline_scale > 0.0, "--focal-scale and --baseline-scale must be positive"),
+            (0.0 <= self.texture_poor <= 1.0, "--texture-poor must be in [0, 1]"),
+            (0 <= self.moving_vehicles <= 20, "--moving must be in [0, 20]"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
+
+    @property
+    def touches_images(self) -> bool:
+        return bool(self.distortion or self.blur_px or self.exposure or self.noise)
+
+
+def exposure_gains(frames: int, amplitude: float, seed: int) -> NDArray[np.float64]:
+    """Smooth per-frame gains 1 + amplitude * (sum of two seeded slow sinusoids)/2."""
+    if amplitude == 0.0:
+        return np.ones(frames)
+    rng = np.random.default_rng(seed + 104729)
+    k = np.arange(frames)
+    periods = rng.uniform(20, 80, 2)
+    phases = rng.uniform(0, 2 * np.pi, 2)
+    wave = 0.5 * (np.sin(2 * np.pi * k / periods[0] + phases[0]) + np.sin(2 * np.pi * k / periods[1] + phases[1]))
+    return 1.0 + amplitude * wave
+
+
+def distortion_maps(width: int, height: int, focal: float, kappa: float) -> tuple[np.ndarray, np.ndarray]:
+    """cv2.remap maps giving the radially distorted, cropped image (same size) from the pinhole render.
+
+    An output pixel at normalised radius r samples the render at ``s x (1 + kappa (s r)^2)``; the crop
+    factor ``s <= 1`` keeps every sample inside the render (needed for kappa > 0; s = 1 otherwise).
+    """
+    cu, cv = (width - 1) / 2.0, (height - 1) / 2.0
+    corner = np.hypot(cu, cv) / focal
+    crop = 1.0
+    if kappa > 0:
+        lo, hi = 0.0, 1.0
+        for _ in range(60):  # bisection on s (1 + kappa s^2 c^2) = 1
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if mid * (1.0 + kappa * (mid * corner) ** 2) < 1.0 else (lo, mid)
+        crop = lo
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    x = (u - cu) / focal * crop
+    y = (v - cv) / focal * crop
+    factor = 1.0 + kappa * (x**2 + y**2)
+    return (cu + focal * x * factor).astype(np.float32), (cv + focal * y * factor).astype(np.float32)
+
+
+class ImageDegrader:
+    def __init__(self, degradations: Degradations, width: int, height: int, focal: float, frames: int, seed: int) -> None:
+        self.d = degradations
+        self.gains = exposure_gains(frames, degradations.exposure, seed)
+        self.rng = np.random.default_rng(seed + 15485863)
+        self.maps = distortion_maps(width, height, focal, degradations.distortion) if degradations.distortion else None
+
+    def __call__(self, image: NDArray[np.uint8], frame: int) -> NDArray[np.uint8]:
+        import cv2
+
+        out = image
+        if self.maps is not None:
+            out = cv2.remap(out, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if self.d.blur_px >= 1.0:
+            size = round(self.d.blur_px)
+            kernel = np.full((1, size), 1.0 / size, dtype=np.float32)
+            out = cv2.filter2D(out, -1, kernel, borderType=cv2.BORDER_REPLICATE)
+        if self.d.exposure or self.d.noise:
+            value = out.astype(np.float32) * float(self.gains[frame])
+            if self.d.noise:
+                value += self.rng.normal(0.0, self.d.noise, out.shape).astype(np.float32)
+            out = np.clip(np.round(value), 0, 255).astype(np.uint8)
+        return out

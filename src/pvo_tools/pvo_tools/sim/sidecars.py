@@ -1,0 +1,48 @@
+"""Readers of the simulator's sidecar files (``imu.csv``, ``gps.csv``), times relative to the first frame."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from pvo_core.errors import DataFormatError
+
+Array = NDArray[np.float64]
+
+
+def _read_csv(path: Path, header: str, columns: int) -> Array:
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(path, "file not found")
+    lines = path.read_text().splitlines()
+    if not lines or lines[0].strip() != header:
+        raise DataFormatError(path, f"expected the header {header!r}", 1)
+    rows = []
+    for number, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        parts = line.split(",")
+        try:
+            values = [float(p) for p in parts]
+        except ValueError:
+            raise DataFormatError(path, "non-numeric value", number) from None
+        if len(values) != columns or not np.all(np.isfinite(values)):
+            raise DataFormatError(path, f"expected {columns} finite numbers", number)
+        rows.append(values)
+    if not rows:
+        raise DataFormatError(path, "no data")
+    data = np.asarray(rows)
+    if np.any(np.diff(data[:, 0]) <= 0):
+        raise DataFormatError(path, "times must increase")
+    return data
+
+
+def read_imu_csv(path: Path) -> Array:
+    """(N, 7): t [s from the first frame], angular rate (rad/s), specific force (m/s²), camera frame."""
+    return _read_csv(path, "t,wx,wy,wz,fx,fy,fz", 7)
+
+
+def read_gps_csv(path: Path) -> Array:
+    """(N, 4): t [s from the first frame], latitude, longitude (deg), altitude (m)."""
+    return _read_csv(path, "t,latitude,longitude,altitude", 4)
