@@ -250,3 +250,58 @@ def test_the_bag_carries_imu_and_gps_from_the_sidecars(sequence, tmp_path: Path)
     bad.write_text("time,wx\n0,1\n")
     with pytest.raises(DataFormatError, match="expected the header"):
         read_imu_csv(bad)
+
+
+def test_a_missing_renderer_backend_is_one_line(tmp_path: Path) -> None:
+    import os
+    import subprocess
+
+    env = dict(os.environ, MUJOCO_GL="osmesa", PYOPENGL_PLATFORM="osmesa")
+    try:
+        import ctypes.util
+
+        if ctypes.util.find_library("OSMesa"):
+            pytest.skip("libosmesa6 is installed here: the osmesa back-end works")
+    except ImportError:
+        pass
+    result = subprocess.run(
+        ["pvo", "sim", str(tmp_path / "x"), "--frames", "2", "-q"], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "no offscreen renderer (MUJOCO_GL=osmesa): install libosmesa6" in lines[0]
+
+
+def test_rig_and_light_placement_match_the_truth() -> None:
+    import os
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    mujoco = pytest.importorskip("mujoco")
+    from pvo_tools.sim.simulate import place_rig, place_sun
+    from pvo_tools.sim.world import WorldSpec, build_world
+
+    poses = camera_trajectory(SimConfig(**SMALL, frames=30))
+    model = mujoco.MjModel.from_xml_string(build_world(WorldSpec(), poses, 1.65).xml)
+    data = mujoco.MjData(model)
+    sun = np.array([0.3, -0.5, 0.81])
+    sun /= np.linalg.norm(sun)
+    for k in (0, 17, 29):
+        place_rig(data, model.body("rig").mocapid[0], poses[k])
+        place_sun(model, model.light("sun").id, sun, poses[k, :3, 3])
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_camlight(model, data)
+        left, right = model.camera("left").id, model.camera("right").id
+        np.testing.assert_allclose(data.cam_xpos[left], poses[k, :3, 3], atol=1e-9)
+        # MuJoCo camera axes: x right, y up, z backwards = optical (x, -y, -z)
+        np.testing.assert_allclose(data.cam_xmat[left].reshape(3, 3), poses[k, :3, :3] @ np.diag([1.0, -1.0, -1.0]), atol=1e-9)
+        np.testing.assert_allclose(data.cam_xpos[right], poses[k, :3, 3] + 0.54 * poses[k, :3, 0], atol=1e-9)
+        np.testing.assert_allclose(data.light_xdir[model.light("sun").id], -sun, atol=1e-12)
+
+
+def test_kitti_ground_truth_replay(pvo_data: Path, tmp_path: Path) -> None:
+    poses_file = pvo_data / "kitti" / "poses" / "06.txt"
+    config = render(tmp_path / "kitti", frames=4, poses_file=str(poses_file), start_frame=100)
+    written = read_kitti_poses(tmp_path / "kitti" / "poses.txt")
+    kitti = read_kitti_poses(poses_file)
+    np.testing.assert_allclose(written, np.linalg.inv(kitti[100]) @ kitti[100:104], atol=1e-9)
+    assert config.frames == 4

@@ -8,7 +8,7 @@ from typing import Any
 
 from ..progress import Progress
 from .degrade import Degradations
-from .simulate import SimConfig, simulate
+from .simulate import ImuNoise, SimConfig, simulate
 
 KITTI_FOCAL_PER_PIXEL_WIDTH = 718.856 / 1241.0
 
@@ -45,6 +45,8 @@ def cmd_sim(args: Any) -> int:
         night=args.night,
         depth=args.depth,
         seed=args.seed,
+        imu=ImuNoise(args.gyro_noise, args.accel_noise, tuple(args.gyro_bias), tuple(args.accel_bias)),
+        gps_sigma=args.gps_sigma,
         degradations=Degradations(
             distortion=args.distortion,
             blur_px=args.blur,

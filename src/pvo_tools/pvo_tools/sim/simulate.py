@@ -124,12 +124,24 @@ class SimResult:
     sun_elevation_deg: tuple[float, float]
 
 
+BACKEND_PACKAGES = {"egl": "libegl1 and libgl1-mesa-dri (Mesa EGL)", "osmesa": "libosmesa6", "glfw": "a display and libglfw3"}
+
+
+def _backend_error(exc: BaseException) -> ValueError:
+    backend = os.environ.get("MUJOCO_GL", "egl")
+    package = BACKEND_PACKAGES.get(backend, "an OpenGL driver")
+    detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return ValueError(f"no offscreen renderer (MUJOCO_GL={backend}): install {package}, or set MUJOCO_GL=egl|osmesa ({detail})")
+
+
 def _require_renderer() -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     try:
         import mujoco  # noqa: F401
-    except ImportError as exc:  # pragma: no cover - mujoco is pinned in requirements.txt
+    except ModuleNotFoundError as exc:  # pragma: no cover - mujoco is pinned in requirements.txt
         raise ValueError(f"the mujoco Python package is missing ({exc}); pip install -r requirements.txt") from None
+    except Exception as exc:  # noqa: BLE001 - a missing GL library surfaces as many error types at import
+        raise _backend_error(exc) from None
 
 
 def open_renderer(model, height: int, width: int):
@@ -139,11 +151,9 @@ def open_renderer(model, height: int, width: int):
     try:
         return mujoco.Renderer(model, height, width)
     except Exception as exc:  # noqa: BLE001 - GL back-ends raise many types
-        backend = os.environ.get("MUJOCO_GL", "egl")
-        package = {"egl": "libegl1 and libgl1-mesa-dri (Mesa EGL)", "osmesa": "libosmesa6"}.get(backend, "an OpenGL driver")
-        raise ValueError(
-            f"no offscreen renderer (MUJOCO_GL={backend}): install {package}, or set MUJOCO_GL=osmesa with libosmesa6 ({exc})"
-        ) from None
+        if "framebuffer" in str(exc):
+            raise ValueError(f"renderer: {str(exc).splitlines()[0]}") from None
+        raise _backend_error(exc) from None
 
 
 def mocap_quaternion(rotation_world_optical: Array) -> Array:
