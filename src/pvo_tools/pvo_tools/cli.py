@@ -249,7 +249,7 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     sensors.add_argument("--gyro-noise", type=float, default=0.0, help="gyro white noise density, rad/s/sqrt(Hz)")
     sensors.add_argument("--accel-noise", type=float, default=0.0, help="accelerometer white noise density, m/s^2/sqrt(Hz)")
     sensors.add_argument("--gyro-bias", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar="B", help="gyro bias, rad/s")
-    sensors.add_argument("--accel-bias", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar="B", help="accelerometer bias, m/s^2")
+    sensors.add_argument("--accel-bias", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar="B", help="accel bias, m/s^2")
     sensors.add_argument("--gps-sigma", type=float, default=0.0, help="GPS position noise std, m")
     deg = sim.add_argument_group("degradations")
     deg.add_argument("--distortion", type=float, default=0.0, help="radial distortion kappa, then crop (e.g. -0.3, 0.2, 0.01)")
