@@ -192,10 +192,7 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
         cols = int(np.ceil(2 * half[0] / spec.terrain_resolution)) + 1
         hfield = _terrain(rows, cols, rng)
         # flatten a corridor along the path so the rig's height above ground stays as given
-        gx = np.linspace(lo[0], hi[0], cols)
-        gy = np.linspace(lo[1], hi[1], rows)
-        grid = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
-        dist = _distance_to_path(grid, path_xy[:: max(1, len(path_xy) // 400)]).reshape(rows, cols)
+        dist = _corridor_distance(path_xy, lo, hi, rows, cols)
         blend = np.clip((dist - 3.0) / 6.0, 0.0, 1.0)
         hfield = hfield * blend
         relief = 2.5
@@ -240,6 +237,18 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
   </worldbody>
 </mujoco>"""
     return World(xml, hfield, moving_paths, moving_headings, extent)
+
+
+def _corridor_distance(path_xy: Array, lo: Array, hi: Array, rows: int, cols: int) -> Array:
+    """Distance (m) of every height-field sample to the path: the path drawn into the grid, then a
+    Euclidean distance transform (linear in the grid size)."""
+    import cv2
+
+    scale = np.array([(cols - 1) / (hi[0] - lo[0]), (rows - 1) / (hi[1] - lo[1])])
+    pixels = np.round((path_xy - lo) * scale).astype(np.int32)
+    free = np.full((rows, cols), 255, dtype=np.uint8)
+    cv2.polylines(free, [pixels.reshape(-1, 1, 2)], isClosed=False, color=0, thickness=1)
+    return cv2.distanceTransform(free, cv2.DIST_L2, 5) / float(scale.mean())
 
 
 def _terrain(rows: int, cols: int, rng: np.random.Generator) -> Array:
