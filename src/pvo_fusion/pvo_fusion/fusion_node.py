@@ -26,7 +26,7 @@ from pvo_core.ephemeris import GeodeticOrigin
 from pvo_core.lie import make_transform, quaternion_to_rotation
 from pvo_core.msgconv import covariance_to_matrix, fill_pose, pose_to_matrix, stamp_to_nanoseconds
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from pvo_msgs.msg import RelativePose, SunDirection
@@ -83,14 +83,17 @@ class FusionNode(Node):
             self.graph.set_initial_pose(_pose_from_parameter(self.get_parameter("initial_pose").value))
             self._initial_known = True
 
+        # Inputs keep every message: a lagging fusion must not silently lose VO frames (a lost frame
+        # would become a gap); outputs keep the last 200.
+        inputs = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-        self.create_subscription(RelativePose, "/pvo/vo/relative", self._on_vo, qos)
-        self.create_subscription(SunDirection, "/pvo/sun/direction", self._on_sun, qos)
-        self.create_subscription(RelativePose, "/pvo/dpc/correction", self._on_correction, qos)
-        self.create_subscription(RelativePose, "/pvo/hydranet/rotation", self._on_rotation, qos)
-        self.create_subscription(NavSatFix, "/gps/fix", self._on_gps, qos)
+        self.create_subscription(RelativePose, "/pvo/vo/relative", self._on_vo, inputs)
+        self.create_subscription(SunDirection, "/pvo/sun/direction", self._on_sun, inputs)
+        self.create_subscription(RelativePose, "/pvo/dpc/correction", self._on_correction, inputs)
+        self.create_subscription(RelativePose, "/pvo/hydranet/rotation", self._on_rotation, inputs)
+        self.create_subscription(NavSatFix, "/gps/fix", self._on_gps, inputs)
         if not self._initial_known:
-            self.create_subscription(Odometry, "/ground_truth/odometry", self._on_ground_truth, qos)
+            self.create_subscription(Odometry, "/ground_truth/odometry", self._on_ground_truth, inputs)
         self.pub_odometry = self.create_publisher(Odometry, "/pvo/fusion/odometry", qos)
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "/pvo/fusion/pose", qos)
         self.pub_path = self.create_publisher(Path, "/pvo/fusion/path", 10)

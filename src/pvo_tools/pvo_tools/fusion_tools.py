@@ -149,15 +149,18 @@ def cmd_bench_fusion(args: Any) -> int:
     graph = FusionGraph(config, TabulatedSunReference(seq.stamps, seq.sun_map()))
     graph.set_initial_pose(seq.ground_truth[0])
     rss_start = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    for i, (kind, m) in enumerate(ordered_events(vo, sun)):
+    frames_done = 0
+    for kind, m in ordered_events(vo, sun):
         (graph.add_vo if kind == "vo" else graph.add_sun)(m)
         graph.drain_finished()
-        if kind == "vo" and graph.window_size and (i + 1) % max(quarter, 1) < 2 and len(marks) < 4 and i > 10:
-            marks.append((i, tracemalloc.get_traced_memory()[0] / 1e6, graph.window_size))
+        if kind == "vo":
+            frames_done += 1
+            if frames_done % max(quarter, 1) == 0:
+                marks.append((frames_done, tracemalloc.get_traced_memory()[0] / 1e6, graph.window_size))
     current, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     rss_end = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    print("  memory (live Python heap, MB) at quarters: " + ", ".join(f"event {i}: {mb:.2f} (window {w})" for i, mb, w in marks))
+    print("  memory (live Python heap, MB) by frame: " + ", ".join(f"{i}: {mb:.3f} (window {w})" for i, mb, w in marks))
     print(
         f"  end: {current / 1e6:.2f} MB live, peak {peak / 1e6:.2f} MB; max RSS {rss_start / 1024:.0f} -> {rss_end / 1024:.0f} MB"
     )

@@ -111,7 +111,9 @@ def run_through_nodes(
                 deadline = time.monotonic() + timeout_s
                 while time.monotonic() < deadline and len(fusion.latencies_ms) < expected:
                     time.sleep(0.05)
-                time.sleep(0.5)  # let the recorder take the last path
+                # the last path (published after the last odometry) must have reached the recorder
+                while time.monotonic() < deadline and recorder.writer.counts.get("/pvo/fusion/path", 0) < expected:
+                    time.sleep(0.05)
         finally:
             recorder.close()
             latencies = list(fusion.latencies_ms)
