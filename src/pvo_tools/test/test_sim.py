@@ -219,6 +219,7 @@ def test_a_pole_casts_its_shadow_away_from_the_sun_azimuth() -> None:
     shadow_azimuth = np.degrees(np.arctan2(east[far].mean(), north[far].mean())) % 360
     sun_azimuth = np.degrees(np.arctan2(sun[0], sun[1])) % 360
     difference = (shadow_azimuth - (sun_azimuth + 180.0) + 180.0) % 360 - 180.0
+    print(f"shadow azimuth {shadow_azimuth:.2f} deg, sun azimuth {sun_azimuth:.2f} deg, off by {difference:+.2f} deg")
     assert abs(difference) < 3.0, (shadow_azimuth, sun_azimuth)
 
 
