@@ -36,7 +36,7 @@ class SolverConfig:
     smoother: str = "incremental"
     linear_solver: str = "qr"
     iterations: int = 2
-    relinearize_threshold: float = 0.0
+    relinearize_threshold: float = 1e-5
     relative_error_tol: float = 1e-9
     absolute_error_tol: float = 1e-12
 
