@@ -201,3 +201,40 @@ def test_missing_sun_table_is_one_clear_line(ros_env, tmp_path: Path) -> None:
     )
     assert result.returncode == 2
     assert result.stderr.strip() == f"fusion: error: sun reference table {missing}: no such file"
+
+
+def test_fusion_node_takes_its_first_pose_from_ground_truth_when_asked(ros_context) -> None:
+    params = [
+        Parameter("prior.source", value="given"),
+        Parameter("initial_pose_from_ground_truth", value=True),
+        Parameter("publish_path", value=False),
+    ]
+    fusion = FusionNode(context=ros_context, parameter_overrides=params)
+    io = Node("io", context=ros_context)
+    odometry: list[Odometry] = []
+    io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
+    vo_pub = io.create_publisher(RelativePose, "/pvo/vo/relative", RELIABLE)
+    gt_pub = io.create_publisher(Odometry, "/ground_truth/odometry", RELIABLE)
+    first = se3_exp(np.array([10.0, -4.0, 2.0, 0.1, -0.2, 0.3]))
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.01, 0.0])))
+    cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    t0, dt = 1_000_000_000, 100_000_000
+    try:
+        with Spinner(ros_context, fusion), Spinner(ros_context, io):
+            wait_for(lambda: vo_pub.get_subscription_count() > 0 and gt_pub.get_subscription_count() > 0, 10.0)
+            vo_pub.publish(relative_msg(t0 + dt, t0, step, cov))  # waits for the ground truth at t0
+            time.sleep(0.3)
+            assert odometry == []
+            truth = Odometry()
+            truth.header.stamp.sec, truth.header.stamp.nanosec = divmod(t0, 1_000_000_000)
+            fill_pose(truth.pose.pose, first)
+            gt_pub.publish(truth)
+            wait_for(lambda: len(odometry) >= 1, 10.0)
+            vo_pub.publish(relative_msg(t0 + 2 * dt, t0 + dt, step, cov))
+            wait_for(lambda: len(odometry) >= 2, 10.0)
+    finally:
+        fusion.destroy_node()
+        io.destroy_node()
+    assert len(odometry) == 2
+    expected = first @ se3_inverse(step) @ se3_inverse(step)
+    np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), expected, atol=1e-6)
