@@ -47,6 +47,12 @@ def _coerce(name: str, value: Any, default: Any, what: str) -> Any:
             raise ValueError(f"{what} parameter {name} must be an integer, got {value!r}")
         return int(value)
     if isinstance(default, float):
+        # YAML 1.1 reads "1e-5" (no dot) as a string: accept any text that is a number.
+        if isinstance(value, str):
+            try:
+                return float(value)
+            except ValueError:
+                pass
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ValueError(f"{what} parameter {name} must be a number, got {value!r}")
         return float(value)

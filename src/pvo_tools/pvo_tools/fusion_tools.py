@@ -53,27 +53,11 @@ def cmd_sun_sim(args: Any) -> int:
 
 
 def _through_nodes(args: Any, data: Path) -> int:
-    from .sun_experiment import (
-        SEQUENCE_DRIVES,
-        armse,
-        calibrate_vo,
-        clip_sequence,
-        experiment_config,
-        load_sun_sequence,
-        run_fusion,
-        sun_measurements,
-        sun_seed,
-        vo_measurements,
-    )
+    from .sun_experiment import armse, experiment_config, prepare_sequence, run_fusion
     from .sun_experiment_nodes import run_through_nodes
 
     name = args.through_nodes
-    seq = load_sun_sequence(data, name)
-    calibration = calibrate_vo(load_sun_sequence(data, n) for n in SEQUENCE_DRIVES if n != name)
-    if args.frames:
-        seq = clip_sequence(seq, args.frames)
-    vo = vo_measurements(seq, calibration)
-    sun = sun_measurements(seq, 10.0, sun_seed(args.seed, name, 10.0))
+    seq, vo, sun = prepare_sequence(data, name, 10.0, args.seed, args.frames)
     overrides = parse_overrides(args.param)
     ros_free = run_fusion(seq, vo, sun, experiment_config(overrides))
     print(f"sequence {name}: {len(seq.stamps)} frames, {len(sun)} GT-Sun-10 measurements; playing at {args.rate:g}x", flush=True)
@@ -104,22 +88,10 @@ def _through_nodes(args: Any, data: Path) -> int:
 
 def cmd_bench_fusion(args: Any) -> int:
     """Whole-sequence FusionGraph throughput and memory (VO + GT-Sun-10, no covariance queries)."""
-    from .sun_experiment import (
-        SEQUENCE_DRIVES,
-        calibrate_vo,
-        experiment_config,
-        load_sun_sequence,
-        run_fusion,
-        sun_measurements,
-        sun_seed,
-        vo_measurements,
-    )
+    from .sun_experiment import experiment_config, prepare_sequence, run_fusion
 
     data = data_directory(args.data)
-    seq = load_sun_sequence(data, args.sequence)
-    others = [load_sun_sequence(data, n) for n in SEQUENCE_DRIVES if n != args.sequence]
-    vo = vo_measurements(seq, calibrate_vo(others))
-    sun = sun_measurements(seq, 10.0, sun_seed(0, args.sequence, 10.0))
+    seq, vo, sun = prepare_sequence(data, args.sequence, 10.0, seed=0)
     config = experiment_config(parse_overrides(args.param))
     times = []
     for _ in range(max(args.repeat, 1)):
@@ -164,5 +136,4 @@ def cmd_bench_fusion(args: Any) -> int:
     print(
         f"  end: {current / 1e6:.2f} MB live, peak {peak / 1e6:.2f} MB; max RSS {rss_start / 1024:.0f} -> {rss_end / 1024:.0f} MB"
     )
-    _ = np
     return 0

@@ -218,6 +218,18 @@ def sun_seed(base_seed: int, name: str, mean_error_deg: float) -> int:
     return int(base_seed) * 100_000 + int(name) * 1000 + round(mean_error_deg * 10)
 
 
+def prepare_sequence(
+    data_dir: Path, name: str, mean_error_deg: float = 10.0, seed: int = 0, frames: int | None = None
+) -> tuple[SunSequence, list[RelativeMeasurement], list[SunMeasurement]]:
+    """One sequence ready to fuse: its VO calibrated on the other sequences (leave one out) and its
+    GT-Sun measurements; ``frames`` keeps only the first N frames (after the calibration)."""
+    seq = load_sun_sequence(data_dir, name)
+    calibration = calibrate_vo(load_sun_sequence(data_dir, n) for n in SEQUENCE_DRIVES if n != name)
+    if frames:
+        seq = clip_sequence(seq, frames)
+    return seq, vo_measurements(seq, calibration), sun_measurements(seq, mean_error_deg, sun_seed(seed, name, mean_error_deg))
+
+
 def experiment_config(overrides: dict | None = None) -> FusionConfig:
     """The fusion configuration of the experiment: prior from the first ground-truth pose, tabulated sun reference."""
     values = {"prior.source": "given", "inputs.sun.reference": "table"}

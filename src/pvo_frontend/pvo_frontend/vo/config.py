@@ -7,10 +7,12 @@ and ``config/stereo_vo.yaml`` holds the same defaults; :func:`flatten` / :func:`
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
+
+from pvo_core.config import flatten as _flatten
+from pvo_core.config import from_flat as _from_flat
 
 LOSSES = ("l2", "huber", "cauchy", "geman_mcclure", "student_t")
 
@@ -167,41 +169,11 @@ def validate(config: VOConfig) -> None:
             raise ValueError(f"invalid VO configuration: {message}")
 
 
-def flatten(config: Any, prefix: str = "") -> dict[str, Any]:
+def flatten(config: Any) -> dict[str, Any]:
     """``{"detector.bucket_size": 48, ...}`` for a (nested) config dataclass; tuples become lists."""
-    out: dict[str, Any] = {}
-    for f in dataclasses.fields(config):
-        value = getattr(config, f.name)
-        name = f"{prefix}{f.name}"
-        if dataclasses.is_dataclass(value):
-            out.update(flatten(value, name + "."))
-        else:
-            out[name] = list(value) if isinstance(value, tuple) else value
-    return out
+    return _flatten(config)
 
 
 def from_flat(values: Mapping[str, Any], base: VOConfig | None = None) -> VOConfig:
     """A :class:`VOConfig` from dotted names over ``base`` (defaults); unknown names are an error."""
-    base = base or VOConfig()
-    known = flatten(base)
-    unknown = sorted(set(values) - set(known))
-    if unknown:
-        raise ValueError(f"unknown VO parameter(s): {', '.join(unknown)}")
-    sections: dict[str, dict[str, Any]] = {}
-    for name, value in values.items():
-        section, leaf = name.split(".", 1)
-        default = known[name]
-        if isinstance(default, list):
-            value = tuple(float(v) for v in value)
-        elif isinstance(default, bool):
-            if not isinstance(value, bool):
-                raise ValueError(f"VO parameter {name} must be a boolean, got {value!r}")
-        elif isinstance(default, int):
-            if isinstance(value, bool) or int(value) != value:
-                raise ValueError(f"VO parameter {name} must be an integer, got {value!r}")
-            value = int(value)
-        elif isinstance(default, float):
-            value = float(value)
-        sections.setdefault(section, {})[leaf] = value
-    parts = {s: dataclasses.replace(getattr(base, s), **v) for s, v in sections.items()}
-    return dataclasses.replace(base, **parts)
+    return _from_flat(values, base or VOConfig(), what="VO")

@@ -98,8 +98,6 @@ def cmd_bench_sim(args: Any) -> int:
     import tempfile
     import time
 
-    import numpy as np
-
     from .paths import procedural_path
     from .world import WorldSpec, build_world
 
@@ -119,5 +117,4 @@ def cmd_bench_sim(args: Any) -> int:
         world = build_world(WorldSpec(args.preset), poses, 1.65)
         seconds = time.perf_counter() - start
         print(f"world generation, {frames} frames ({frames * 0.8:.0f} m): {seconds:.3f} s, {world.xml.count('<geom')} geoms")
-    _ = np
     return 0
