@@ -306,3 +306,20 @@ def test_kitti_ground_truth_replay(pvo_data: Path, tmp_path: Path) -> None:
     kitti = read_kitti_poses(poses_file)
     np.testing.assert_allclose(written, np.linalg.inv(kitti[100]) @ kitti[100:104], atol=1e-9)
     assert config.frames == 4
+
+
+def test_a_failed_render_keeps_the_previous_output(tmp_path: Path, monkeypatch) -> None:
+    import pvo_tools.sim.simulate as sim
+
+    out = tmp_path / "keep"
+    render(out, frames=2)
+    before = (out / "image_0" / "000001.png").read_bytes()
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("renderer crashed")
+
+    monkeypatch.setattr(sim, "_render", broken)
+    with pytest.raises(RuntimeError, match="renderer crashed"):
+        simulate(SimConfig(**SMALL, frames=2, seed=9), out, overwrite=True)
+    assert (out / "image_0" / "000001.png").read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["keep"]  # no partial directory left behind

@@ -11,6 +11,7 @@ rad/s and specific force m/s² in the left camera frame), ``gps.csv`` (``t,latit
 from __future__ import annotations
 
 import os
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -178,8 +179,6 @@ def simulate(
     config: SimConfig, out: Path, overwrite: bool = False, progress: Callable[[int, int], None] | None = None
 ) -> SimResult:
     """Render the sequence into ``out`` (refused if it exists, unless ``overwrite``)."""
-    import cv2
-
     out = Path(out)
     if out.exists() and not overwrite:
         raise ValueError(f"{out} exists: refusing to overwrite it (use --overwrite)")
@@ -220,10 +219,41 @@ def simulate(
     data = mujoco.MjData(model)
     seconds_world = time.perf_counter() - t0
 
+    # Render into a hidden sibling and move it into place only when complete: an interrupted or failed
+    # run leaves nothing half-written and keeps an existing output until the new one is whole.
+    final = out
+    out = out.parent / f".{out.name}.partial"
     if out.exists():
-        import shutil
-
         shutil.rmtree(out)
+    try:
+        seconds_render = _render(config, out, model, data, world, poses, times, sun_world, sun_camera, origin, n, progress)
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    if final.exists():
+        shutil.rmtree(final)
+    out.rename(final)
+    return SimResult(final, n, seconds_render, seconds_world, (float(elevation.min()), float(elevation.max())))
+
+
+def _render(
+    config: SimConfig,
+    out: Path,
+    model,
+    data,
+    world,
+    poses: Array,
+    times: Array,
+    sun_world: Array,
+    sun_camera: Array,
+    origin: GeodeticOrigin,
+    n: int,
+    progress: Callable[[int, int], None] | None,
+) -> float:
+    """Render every frame into ``out`` and write the truth files; the rendering time (s)."""
+    import cv2
+    import mujoco
+
     left_dir, right_dir = ("image_2", "image_3") if config.colour else ("image_0", "image_1")
     for d in (left_dir, right_dir, *(["depth_0"] if config.depth else [])):
         (out / d).mkdir(parents=True, exist_ok=True)
@@ -271,7 +301,7 @@ def simulate(
             depth_renderer.close()
     seconds_render = time.perf_counter() - t1
     _write_sidecars(config, out, poses, times, sun_camera, origin, left_dir, world)
-    return SimResult(out, n, seconds_render, seconds_world, (float(elevation.min()), float(elevation.max())))
+    return seconds_render
 
 
 def _write_sidecars(
