@@ -155,6 +155,11 @@ class FusionNode(Node):
     def _on_vo(self, msg: RelativePose) -> None:
         received = time.perf_counter()
         if not self._initial_known:
+            if not self._waiting_vo:
+                self.get_logger().info(
+                    f"waiting for /ground_truth/odometry at {msg.reference_stamp.sec}.{msg.reference_stamp.nanosec:09d} "
+                    "for the first pose (prior.source: given, initial_pose_from_ground_truth: true)"
+                )
             self._waiting_vo.append(msg)
             if len(self._waiting_vo) > self.config.max_pending:
                 self._waiting_vo.pop(0)

@@ -61,6 +61,16 @@ class BagRecorder:
         self.discover()
         self._timer = node.create_timer(0.2, self.discover)
 
+    @property
+    def subscribed_topics(self) -> list[str]:
+        """Topics being recorded so far."""
+        return list(self._subscribed)
+
+    def received(self, topic: str) -> int:
+        """Messages written for ``topic`` so far."""
+        with self._lock:
+            return int(self.writer.counts.get(topic, 0))
+
     def discover(self) -> None:
         """Subscribe to every wanted topic that has appeared on the graph."""
         for topic, types in self.node.get_topic_names_and_types():

@@ -104,7 +104,7 @@ def run_through_nodes(
         try:
             with Spinner(context, fusion), Spinner(context, recorder_node):
                 deadline = time.monotonic() + 10.0
-                while time.monotonic() < deadline and len(recorder._subscribed) < len(OUTPUT_TOPICS):
+                while time.monotonic() < deadline and len(recorder.subscribed_topics) < len(OUTPUT_TOPICS):
                     recorder.discover()
                     time.sleep(0.05)
                 BagPlayer(player_node, input_bag, PlayOptions(rate=rate, wait_for_subscribers=1, clock=False)).play()
@@ -112,7 +112,7 @@ def run_through_nodes(
                 while time.monotonic() < deadline and len(fusion.latencies_ms) < expected:
                     time.sleep(0.05)
                 # the last path (published after the last odometry) must have reached the recorder
-                while time.monotonic() < deadline and recorder.writer.counts.get("/pvo/fusion/path", 0) < expected:
+                while time.monotonic() < deadline and recorder.received("/pvo/fusion/path") < expected:
                     time.sleep(0.05)
         finally:
             recorder.close()
