@@ -70,3 +70,15 @@ def test_bad_input_and_configuration() -> None:
         SimulatedSunConfig(mean_error_deg=-1.0)
     with pytest.raises(ValueError, match="every_n"):
         SimulatedSunConfig(every_n=0)
+
+
+def test_yaml_defaults_equal_the_typed_config() -> None:
+    from pathlib import Path
+
+    import yaml
+    from pvo_core.config import flatten, from_flat
+
+    path = Path(__file__).resolve().parents[1] / "config" / "simulated_sun.yaml"
+    params = yaml.safe_load(path.read_text())["simulated_sun"]["ros__parameters"]
+    assert set(params) == set(flatten(SimulatedSunConfig()))
+    assert from_flat(params, SimulatedSunConfig()) == SimulatedSunConfig()
