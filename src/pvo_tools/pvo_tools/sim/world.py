@@ -29,7 +29,7 @@ class WorldSpec:
     fovy_deg: float = 35.0
     overcast: bool = False
     clearance: float = 3.0
-    terrain_resolution: float = 1.0  # planetary: metres per height-field sample
+    terrain_resolution: float = 2.0  # planetary: metres per height-field sample
     shadow_map: int = 1024  # texels; the map covers 60 m around the camera
     image_size: tuple[int, int] = (640, 480)  # the offscreen framebuffer must hold the images
     texture_poor: float = 0.0  # fraction of buildings with plain walls
