@@ -271,3 +271,16 @@ def is_rotation(matrix: ArrayLike, tol: float = 1e-6) -> bool:
     deviation[2, 2] -= 1.0
     # NaN compares False, so a non-finite matrix fails both tests.
     return bool(np.abs(deviation).max() <= tol) and bool(abs(np.linalg.det(m) - 1.0) < tol)
+
+
+def nearest_rotations(matrices: ArrayLike) -> Array:
+    """The closest proper rotations (Frobenius norm) to a stack of 3x3 matrices (..., 3, 3): U diag(1, 1, det) V^T.
+
+    Rotations read from files are orthonormal only to their stored precision; composing thousands of
+    them with inverse = transpose (as GTSAM does) and with a general matrix inverse then drifts apart.
+    """
+    m = np.asarray(matrices, dtype=float)
+    u, _, vt = np.linalg.svd(m)
+    d = np.sign(np.linalg.det(u @ vt))
+    u[..., :, 2] *= d[..., None]
+    return u @ vt

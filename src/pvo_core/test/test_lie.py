@@ -136,3 +136,19 @@ def test_quaternion_rejects_zero() -> None:
 def test_se3_inverse() -> None:
     transform = lie.se3_exp(RNG.normal(size=6))
     np.testing.assert_allclose(lie.se3_inverse(transform), np.linalg.inv(transform), atol=1e-12)
+
+
+def test_nearest_rotations_projects_noisy_matrices_and_keeps_rotations() -> None:
+    from pvo_core.lie import nearest_rotations, so3_exp
+
+    rng = np.random.default_rng(4)
+    rotations = np.array([so3_exp(rng.normal(size=3)) for _ in range(20)])
+    np.testing.assert_allclose(nearest_rotations(rotations), rotations, atol=1e-14)
+    noisy = rotations + 1e-6 * rng.normal(size=rotations.shape)
+    projected = nearest_rotations(noisy)
+    identity = np.broadcast_to(np.eye(3), (20, 3, 3))
+    np.testing.assert_allclose(np.einsum("nij,nkj->nik", projected, projected), identity, atol=1e-14)
+    np.testing.assert_allclose(np.linalg.det(projected), 1.0, atol=1e-14)
+    assert np.abs(projected - rotations).max() < 1e-5
+    # a reflection is mapped to a proper rotation
+    assert np.linalg.det(nearest_rotations(np.diag([1.0, 1.0, -1.0]))) == pytest.approx(1.0)

@@ -21,9 +21,14 @@ SUN_REFERENCES = ("ephemeris", "fixed", "table")
 
 @dataclass(frozen=True)
 class WindowConfig:
-    """Fixed-lag window: states older than ``lag`` (frames or seconds) behind the newest are marginalised."""
+    """Fixed-lag window: states older than ``lag`` (frames or seconds) behind the newest are marginalised.
 
-    lag: float = 10.0
+    100 frames (10 s at 10 Hz, ten sun measurements) smooths each pose with the sun measurements of the
+    next 10 s: on the KITTI sun experiment the rotational gain grows with the lag (GT-Sun-10: -30 % at 10,
+    -31 % at 30, -35.5 % at 100, -39 % at 200 frames) while the cost per frame grows too (seq 00:
+    2.6 s at 10, 6-8 s at 100, 17 s at 200 frames)."""
+
+    lag: float = 100.0
     lag_unit: str = "frames"
 
 
@@ -36,7 +41,7 @@ class SolverConfig:
     smoother: str = "incremental"
     linear_solver: str = "qr"
     iterations: int = 2
-    relinearize_threshold: float = 1e-5
+    relinearize_threshold: float = 1e-3
     relative_error_tol: float = 1e-9
     absolute_error_tol: float = 1e-12
 

@@ -108,7 +108,7 @@ class FusionGraph:
             self._smoother = gtsam.BatchFixedLagSmoother(self.config.window.lag, params)
         self._stamps: list[int] = []  # live states, increasing
         self._keys: dict[int, int] = {}  # stamp -> key
-        self._estimates: dict[int, gtsam.Pose3] = {}  # key -> latest estimate
+        self._estimates = _Estimates()  # key -> latest estimate
         self._pending: deque[_Pending] = deque()
         self._finished: list[FusedPose] = []
         self._next_index = 0
@@ -378,14 +378,12 @@ class FusionGraph:
             self.last_update_seconds = time.perf_counter() - start
             return
         estimate = self._smoother.calculateEstimate()
-        for stamp in self._stamps:
-            key = self._keys[stamp]
-            if estimate.exists(key):
-                self._estimates[key] = estimate.atPose3(key)
+        # States marginalised by this update keep their estimate from before it: their final one.
         while self._stamps and not estimate.exists(self._keys[self._stamps[0]]):
             stamp = self._stamps.pop(0)
             key = self._keys.pop(stamp)
-            self._finished.append(FusedPose(stamp, self._estimates.pop(key).matrix()))
+            self._finished.append(FusedPose(stamp, self._estimates[key].matrix()))
+        self._estimates.refresh(estimate)
         self.last_update_seconds = time.perf_counter() - start
 
     def _restart_lost(self) -> None:
@@ -412,7 +410,20 @@ class FusionGraph:
         return self._estimates[key].matrix()
 
     def _joint_covariance(self, keys: list[int]) -> Array:
-        """Joint marginal covariance (GTSAM order/perturbation, 6n x 6n) of live states, by dense QR."""
+        """Joint marginal covariance (GTSAM order/perturbation, 6n x 6n) of live states.
+
+        iSAM2: from its Bayes tree (QR-factorised, cost independent of the lag); batch: dense QR of the window.
+        """
+        if isinstance(self._smoother, gtsam.IncrementalFixedLagSmoother):
+            try:
+                joint = self._smoother.getISAM2().jointMarginalCovariance(gtsam.KeyVector(keys))
+                return np.block([[joint.at(row, col) for col in keys] for row in keys])
+            except RuntimeError:
+                pass  # an indeterminate tree: the dense QR below still answers
+        return self._dense_joint_covariance(keys)
+
+    def _dense_joint_covariance(self, keys: list[int]) -> Array:
+        """Joint marginal covariance of live states by dense QR of the relinearised window."""
         graph = self._smoother.getFactors()
         linear = graph.linearize(self._smoother.calculateEstimate())
         live = [self._keys[s] for s in self._stamps]
@@ -455,6 +466,26 @@ class FusionGraph:
 
     def pending(self) -> int:
         return len(self._pending)
+
+
+class _Estimates:
+    """The live states' latest estimates: the smoother's last ``Values`` (read on demand, not copied per
+    update: the window may hold hundreds of states) plus initial guesses of states added since."""
+
+    def __init__(self) -> None:
+        self._values = gtsam.Values()
+        self._added: dict[int, gtsam.Pose3] = {}
+
+    def __getitem__(self, key: int) -> gtsam.Pose3:
+        pose = self._added.get(key)
+        return pose if pose is not None else self._values.atPose3(key)
+
+    def __setitem__(self, key: int, pose: gtsam.Pose3) -> None:
+        self._added[key] = pose
+
+    def refresh(self, values: gtsam.Values) -> None:
+        self._values = values
+        self._added.clear()
 
 
 def run_measurements(graph: FusionGraph, events: Iterable[tuple[str, RelativeMeasurement | SunMeasurement]]) -> list[FusedPose]:
