@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import Odometry
+from nav_msgs.msg import Path as PathMessage
 from pvo_core.lie import se3_exp, se3_inverse
 from pvo_core.msgconv import covariance_to_matrix, fill_pose, pose_to_matrix, stamp_to_nanoseconds
 from pvo_fusion.fusion_node import FusionNode
@@ -174,6 +175,33 @@ def test_fusion_node_reports_bad_input_and_keeps_going(ros_context) -> None:
     np.testing.assert_allclose(covariance_to_matrix(odometry[-1].pose.covariance), graph.covariance(), rtol=1e-6, atol=1e-15)
     position_variance = np.diag(covariance_to_matrix(odometry[-1].pose.covariance))[:3]
     assert np.all(position_variance > 5e-4)  # grown from 1e-6 m² by six VO steps (ROS order: position first)
+
+
+def test_fusion_path_is_published_once_per_path_period(ros_context) -> None:
+    fusion = FusionNode(context=ros_context, parameter_overrides=[Parameter("path_period", value=0.5)])
+    io = Node("io", context=ros_context)
+    paths: list[PathMessage] = []
+    odometry: list[Odometry] = []
+    io.create_subscription(PathMessage, "/pvo/fusion/path", paths.append, 10)
+    io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
+    vo_pub = io.create_publisher(RelativePose, "/pvo/vo/relative", RELIABLE)
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))
+    cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    t0, dt = 1_000_000_000, 100_000_000
+    try:
+        with Spinner(ros_context, fusion), Spinner(ros_context, io):
+            wait_for(lambda: vo_pub.get_subscription_count() > 0 and fusion.pub_path.get_subscription_count() > 0, 10.0)
+            for k in range(1, 13):
+                vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step, cov))
+            wait_for(lambda: len(odometry) >= 12 and len(paths) >= 3)
+            time.sleep(0.2)
+    finally:
+        fusion.destroy_node()
+        io.destroy_node()
+    assert len(odometry) == 12
+    # frames 1..12 at 10 Hz, one path per 0.5 s of message time: at frames 1, 6 and 11
+    assert [stamp_to_nanoseconds(p.header.stamp) for p in paths] == [t0 + k * dt for k in (1, 6, 11)]
+    assert [len(p.poses) for p in paths] == [2, 7, 12]  # the first state and every frame since
 
 
 def test_wrong_parameter_is_one_clear_line(ros_env) -> None:

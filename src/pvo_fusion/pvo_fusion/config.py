@@ -36,11 +36,13 @@ class WindowConfig:
 class SolverConfig:
     """The smoother: ``incremental`` (iSAM2, ``iterations`` Gauss-Newton passes per update) or ``batch``
     (Levenberg-Marquardt over the window, at most ``iterations`` iterations). QR keeps long drifting chains
-    solvable (see the module notes in :mod:`pvo_fusion.graph`)."""
+    solvable (see the module notes in :mod:`pvo_fusion.graph`). Three iSAM2 passes let a sun correction's
+    relinearisation of the window finish in the sun's own update, off the VO -> odometry path (with two,
+    the next VO update paid it: 6 ms instead of 1.5 ms); the estimates are the same."""
 
     smoother: str = "incremental"
     linear_solver: str = "qr"
-    iterations: int = 2
+    iterations: int = 3
     relinearize_threshold: float = 1e-3
     relative_error_tol: float = 1e-9
     absolute_error_tol: float = 1e-12

@@ -377,7 +377,7 @@ def test_yaml_defaults_equal_the_typed_config() -> None:
 
     path = Path(__file__).resolve().parents[1] / "config" / "fusion.yaml"
     params = yaml.safe_load(path.read_text())["fusion"]["ros__parameters"]
-    node_only = {"map_frame", "camera_frame", "publish_path", "initial_pose", "initial_pose_from_ground_truth"}
+    node_only = {"map_frame", "camera_frame", "publish_path", "path_period", "initial_pose", "initial_pose_from_ground_truth"}
     assert from_flat({k: v for k, v in params.items() if k not in node_only}) == FusionConfig()
     assert set(params) - node_only == set(flatten(FusionConfig()))
 

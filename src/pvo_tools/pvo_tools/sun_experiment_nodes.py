@@ -10,10 +10,12 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from pvo_core.config import flatten
 from pvo_core.lie import rotation_to_quaternion
 from pvo_fusion.sun_reference import TabulatedSunReference
 
 from pvo_fusion import RelativeMeasurement, SunMeasurement
+from pvo_fusion.config import FusionConfig, from_flat
 
 from . import rosmsgs
 from .bagio import SafeBagWriter, iter_messages, open_bag
@@ -89,9 +91,13 @@ def run_through_nodes(
         "initial_pose": initial_pose_parameter(seq.ground_truth[0]),
         "inputs.sun.reference": "table",
         "inputs.sun.reference_table": str(table),
+        "path_period": 0.0,  # a path per frame: the last one carries every final estimate
         **(parameters or {}),
     }
-    overrides = [Parameter(name, value=value) for name, value in values.items()]
+    # Typed as the node declares them (YAML reads "1e-5" as a string; the typed config accepts it).
+    fields = flatten(FusionConfig())
+    typed = flatten(from_flat({k: v for k, v in values.items() if k in fields}))
+    overrides = [Parameter(name, value=typed.get(name, value)) for name, value in values.items()]
     context = Context()
     rclpy.init(context=context, domain_id=domain_id) if domain_id is not None else rclpy.init(context=context)
     expected = len(vo)
