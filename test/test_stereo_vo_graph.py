@@ -104,7 +104,10 @@ def test_bad_input_is_reported_and_the_node_keeps_running(ros_context) -> None:
     }
     try:
         with Spinner(ros_context, vo_node, io):
+            # both directions discovered: the node's inputs and our status subscription (under load the
+            # reverse match can lag, and a status published before it is lost)
             wait_for(lambda: all(p.get_subscription_count() > 0 for p in pub.values()), 10)
+            wait_for(lambda: vo_node.pub_status.get_subscription_count() > 0, 10)
             # 1. two pairs before any camera_info: one is kept (max_pending_frames 1), the older dropped and reported
             for k in (1, 2):
                 pub["left_image"].publish(make_image(k * 1_000_000_000, 320, 240, 2 * k))

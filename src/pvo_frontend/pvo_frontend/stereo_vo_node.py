@@ -34,6 +34,7 @@ from pvo_msgs.msg import RelativePose
 from .vo import FrameResult, FrameStatus, StereoVO, VOConfig, flatten, from_flat
 
 STATUS_NAME = "pvo/stereo_vo"
+INPUT_QUEUE_DEPTH = 10  # messages per input topic held by DDS until the callbacks take them
 
 
 class StereoPairSynchroniser:
@@ -82,7 +83,9 @@ class StereoVONode(Node):
         self.vo: StereoVO | None = None
         self.camera_info: dict[str, CameraInfo] = {}
         self.max_pending = int(self.get_parameter("max_pending_frames").value)
-        self.sync = StereoPairSynchroniser(self.max_pending)
+        # Halves wait for their partner independently of max_pending_frames (pairs waiting for camera_info):
+        # the executor may take two lefts before the first right.
+        self.sync = StereoPairSynchroniser(max(INPUT_QUEUE_DEPTH, self.max_pending))
         self._waiting: list[tuple[int, Image, Image]] = []  # pairs that arrived before camera_info
         self.pose_covariance = np.zeros((6, 6))
         self.path = Path()
@@ -91,7 +94,10 @@ class StereoVONode(Node):
         self._last_problem = ""
         self._previous_stamp_ns: int | None = None  # exact stamp of the last frame the VO accepted
 
-        qos = QoSProfile(depth=int(self.get_parameter("max_pending_frames").value), reliability=ReliabilityPolicy.RELIABLE)
+        # The DDS queue must not be shallower than a short burst: a frame it overwrites is lost unreported,
+        # while one the node drops (beyond max_pending_frames) is reported on /pvo/vo/status.
+        depth = max(INPUT_QUEUE_DEPTH, self.max_pending)
+        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(Image, "/stereo/left/image_rect", lambda m: self._on_image("left", m), qos)
         self.create_subscription(Image, "/stereo/right/image_rect", lambda m: self._on_image("right", m), qos)
         self.create_subscription(CameraInfo, "/stereo/left/camera_info", lambda m: self._on_info("left", m), qos)
