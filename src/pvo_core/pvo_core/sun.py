@@ -21,11 +21,17 @@ def unit_vector(vector: ArrayLike, what: str = "sun vector") -> Array:
 
 
 def vector_to_zenith_azimuth(vector: ArrayLike) -> tuple[Array, Array]:
-    """Zenith and azimuth (rad) of unit vector(s) (3,) or (N, 3) (normalised first)."""
-    s = unit_vector(vector)
-    zenith = np.arccos(np.clip(-s[..., 1], -1.0, 1.0))
-    azimuth = np.arctan2(s[..., 0], s[..., 2])
-    return zenith, azimuth
+    """Zenith and azimuth (rad) of unit vector(s) (3,) or (N, 3) (normalised first).
+
+    The zenith is ``acos(-s_y)`` computed as ``atan2(hypot(s_x, s_z), -s_y)``: exact to round-off near
+    0 and pi, where acos loses half the digits (the sun factor differentiates it there).
+    """
+    return unit_zenith_azimuth(unit_vector(vector))
+
+
+def unit_zenith_azimuth(s: Array) -> tuple[Array, Array]:
+    """:func:`vector_to_zenith_azimuth` for vectors known to be unit and finite (no checks: hot paths)."""
+    return np.arctan2(np.hypot(s[..., 0], s[..., 2]), -s[..., 1]), np.arctan2(s[..., 0], s[..., 2])
 
 
 def zenith_azimuth_to_vector(zenith: ArrayLike, azimuth: ArrayLike) -> Array:

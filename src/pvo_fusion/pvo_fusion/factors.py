@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pvo_core.covariance import ros_to_gtsam_covariance
 from pvo_core.lie import hat, so3_inv_left_jacobian, so3_log
+from pvo_core.sun import unit_zenith_azimuth
 
 Array = NDArray[np.float64]
 
@@ -41,7 +42,7 @@ def between_measurement(transform_to_from: Array, covariance_ros: Array) -> tupl
 
 def zenith_azimuth(s: Array) -> Array:
     """[zenith, azimuth] (rad) of a camera-frame unit vector (eq. 5.7), stable at the zenith."""
-    return np.array([np.arctan2(np.hypot(s[0], s[2]), -s[1]), np.arctan2(s[0], s[2])])
+    return np.array(unit_zenith_azimuth(s))
 
 
 def zenith_azimuth_jacobian(s: Array) -> Array:
