@@ -204,9 +204,16 @@ def test_fusion_path_is_published_once_per_path_period(ros_context) -> None:
     assert [len(p.poses) for p in paths] == [2, 7, 12]  # the first state and every frame since
 
 
-def test_wrong_parameter_is_one_clear_line(ros_env) -> None:
+@pytest.mark.parametrize(
+    ("parameter", "message"),
+    [
+        ("window.lag_unit:=hours", "invalid fusion configuration: window.lag_unit must be one of frames, seconds"),
+        ("path_period:=-1.0", "path_period must be >= 0 s, got -1.0"),
+    ],
+)
+def test_wrong_parameter_is_one_clear_line(ros_env, parameter: str, message: str) -> None:
     result = subprocess.run(
-        ["pvo", "run", "pvo_fusion", "fusion", "--ros-args", "-p", "window.lag_unit:=hours"],
+        ["pvo", "run", "pvo_fusion", "fusion", "--ros-args", "-p", parameter],
         env=ros_env,
         capture_output=True,
         text=True,
@@ -214,7 +221,7 @@ def test_wrong_parameter_is_one_clear_line(ros_env) -> None:
     )
     assert result.returncode == 2
     lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert lines == ["fusion: error: invalid fusion configuration: window.lag_unit must be one of frames, seconds"]
+    assert lines == [f"fusion: error: {message}"]
 
 
 def test_missing_sun_table_is_one_clear_line(ros_env, tmp_path: Path) -> None:
