@@ -6,35 +6,60 @@ perturbation), /pvo/vo/odometry and /pvo/vo/path (pose of camera_left_optical in
 /pvo/vo/status (diagnostic_msgs/DiagnosticArray: features, inliers, iterations, stage times, lost).
 
 Parameters: every field of :class:`pvo_frontend.vo.VOConfig` under its dotted name
-(``solver.loss``, ``tracker.window`` ...; defaults in ``config/stereo_vo.yaml``), plus
-``odom_frame``, ``camera_frame``, ``max_pending_frames`` and ``publish_path``.
+(``solver.loss``, ``tracker.window`` ...) plus those of :class:`StereoVONodeConfig`; defaults in
+``config/stereo_vo.yaml``. ``publish_path`` can be changed at run time, the rest only at start-up.
 
 Stereo pairs are synchronised on exact header stamps. Time comes only from message headers.
 """
 
 from __future__ import annotations
 
-import sys
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry, Path
 from pvo_core.camera import StereoCamera
-from pvo_core.lie import se3_adjoint
-from pvo_core.msgconv import fill_pose, image_to_array, stamp_to_nanoseconds
+from pvo_core.msgconv import fill_pose, fill_stamp, image_to_array, stamp_to_nanoseconds
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from pvo_msgs.msg import RelativePose
+from pvo_ros import (
+    ERROR,
+    OK,
+    SENSOR_QUEUE_DEPTH,
+    WARN,
+    ConfigParameters,
+    ParameterPolicy,
+    ProblemLog,
+    reliable,
+    run_node,
+    status_array,
+)
 
-from .vo import FrameResult, FrameStatus, StereoVO, VOConfig, flatten, from_flat
+from .vo import FrameResult, FrameStatus, StereoVO, VOConfig
 
 STATUS_NAME = "pvo/stereo_vo"
-INPUT_QUEUE_DEPTH = 10  # messages per input topic held by DDS until the callbacks take them
+LEVELS = {FrameStatus.FIRST: OK, FrameStatus.TRACKING: OK, FrameStatus.LOST: WARN, FrameStatus.REJECTED: ERROR}
+
+
+@dataclass(frozen=True)
+class StereoVONodeConfig:
+    """The node's own parameters: output frames, how many image pairs may wait for camera_info, the path."""
+
+    odom_frame: str = "odom"
+    camera_frame: str = "camera_left_optical"
+    max_pending_frames: int = 30
+    publish_path: bool = True
+
+    def __post_init__(self) -> None:
+        if self.max_pending_frames < 1:
+            raise ValueError(f"max_pending_frames must be >= 1, got {self.max_pending_frames}")
+        if not self.odom_frame or not self.camera_frame:
+            raise ValueError("odom_frame and camera_frame must not be empty")
 
 
 class StereoPairSynchroniser:
@@ -66,53 +91,41 @@ class StereoPairSynchroniser:
 class StereoVONode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("stereo_vo", **kwargs)
-        defaults = flatten(VOConfig())
-        for name, value in defaults.items():
-            self.declare_parameter(name, value)
-        self.declare_parameter("odom_frame", "odom")
-        self.declare_parameter("camera_frame", "camera_left_optical")
-        self.declare_parameter("max_pending_frames", 30)
-        self.declare_parameter("publish_path", True)
-        values = {name: self.get_parameter(name).value for name in defaults}
-        self.config = from_flat(values)  # ValueError names the bad parameter
-        self.odom_frame = str(self.get_parameter("odom_frame").value)
-        self.camera_frame = str(self.get_parameter("camera_frame").value)
-        self.publish_path = bool(self.get_parameter("publish_path").value)
-        self.add_on_set_parameters_callback(self._refuse_runtime_changes)
+        self.config: VOConfig = ConfigParameters(self, VOConfig(), "stereo_vo").value
+        self.node_parameters = ConfigParameters(self, StereoVONodeConfig(), "stereo_vo")
+        ParameterPolicy(self, [self.node_parameters], runtime={"publish_path": lambda _: None})
 
         self.vo: StereoVO | None = None
         self.camera_info: dict[str, CameraInfo] = {}
-        self.max_pending = int(self.get_parameter("max_pending_frames").value)
         # Halves wait for their partner independently of max_pending_frames (pairs waiting for camera_info):
         # the executor may take two lefts before the first right.
-        self.sync = StereoPairSynchroniser(max(INPUT_QUEUE_DEPTH, self.max_pending))
+        self.sync = StereoPairSynchroniser(max(SENSOR_QUEUE_DEPTH, self.max_pending))
         self._waiting: list[tuple[int, Image, Image]] = []  # pairs that arrived before camera_info
-        self.pose_covariance = np.zeros((6, 6))
         self.path = Path()
-        self.path.header.frame_id = self.odom_frame
+        self.path.header.frame_id = self.settings.odom_frame
         self.counts = {"processed": 0, "lost": 0, "rejected": 0, "waiting_for_camera_info": 0}
-        self._last_problem = ""
+        self._problem = ProblemLog(self.get_logger())
         self._previous_stamp_ns: int | None = None  # exact stamp of the last frame the VO accepted
 
         # The DDS queue must not be shallower than a short burst: a frame it overwrites is lost unreported,
         # while one the node drops (beyond max_pending_frames) is reported on /pvo/vo/status.
-        depth = max(INPUT_QUEUE_DEPTH, self.max_pending)
-        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
+        qos = reliable(max(SENSOR_QUEUE_DEPTH, self.max_pending))
         self.create_subscription(Image, "/stereo/left/image_rect", lambda m: self._on_image("left", m), qos)
         self.create_subscription(Image, "/stereo/right/image_rect", lambda m: self._on_image("right", m), qos)
         self.create_subscription(CameraInfo, "/stereo/left/camera_info", lambda m: self._on_info("left", m), qos)
         self.create_subscription(CameraInfo, "/stereo/right/camera_info", lambda m: self._on_info("right", m), qos)
-        self.pub_relative = self.create_publisher(RelativePose, "/pvo/vo/relative", 50)
-        self.pub_odometry = self.create_publisher(Odometry, "/pvo/vo/odometry", 50)
-        self.pub_path = self.create_publisher(Path, "/pvo/vo/path", 10)
-        self.pub_status = self.create_publisher(DiagnosticArray, "/pvo/vo/status", 50)
+        self.pub_relative = self.create_publisher(RelativePose, "/pvo/vo/relative", reliable(50))
+        self.pub_odometry = self.create_publisher(Odometry, "/pvo/vo/odometry", reliable(50))
+        self.pub_path = self.create_publisher(Path, "/pvo/vo/path", reliable(10))
+        self.pub_status = self.create_publisher(DiagnosticArray, "/pvo/vo/status", reliable(50))
 
-    def _refuse_runtime_changes(self, params: list) -> Any:
-        from rcl_interfaces.msg import SetParametersResult
+    @property
+    def settings(self) -> StereoVONodeConfig:
+        return self.node_parameters.value
 
-        return SetParametersResult(
-            successful=False, reason="stereo_vo parameters are read at start-up; restart the node to change them"
-        )
+    @property
+    def max_pending(self) -> int:
+        return self.settings.max_pending_frames
 
     # --- inputs ---------------------------------------------------------------------------------
     def _on_info(self, side: str, msg: CameraInfo) -> None:
@@ -151,29 +164,28 @@ class StereoVONode(Node):
             self._problem(f"frame at {dropped_ns * 1e-9:.3f} s dropped: {what}")
             self._publish_status(None, dropped_ns, f"frame dropped: {what}")
             return
+        stamp = stamp_ns * 1e-9
         try:
             left = image_to_array(left_msg)
             right = image_to_array(right_msg)
         except ValueError as exc:
-            result = FrameResult(stamp_ns * 1e-9, FrameStatus.REJECTED, f"image rejected: {exc}", pose=self.vo.pose.copy())
+            result = self.vo.reject(stamp, f"image rejected: {exc}")
         else:
             expected = (self.vo.camera.height, self.vo.camera.width)
             if self.vo.camera.width and left.shape[:2] != expected:
-                result = FrameResult(
-                    stamp_ns * 1e-9,
-                    FrameStatus.REJECTED,
+                result = self.vo.reject(
+                    stamp,
                     f"image size {left.shape[1]}x{left.shape[0]} differs from camera_info {expected[1]}x{expected[0]}",
-                    pose=self.vo.pose.copy(),
                 )
             else:
-                result = self.vo.process(left, right, stamp_ns * 1e-9)
+                result = self.vo.process(left, right, stamp)
         self.counts["processed"] += 1
         if result.status is FrameStatus.REJECTED:
             self.counts["rejected"] += 1
-            self._problem(f"frame at {stamp_ns * 1e-9:.9f} s rejected: {result.message}")
+            self._problem(f"frame at {stamp:.9f} s rejected: {result.message}")
         elif result.status is FrameStatus.LOST:
             self.counts["lost"] += 1
-            self._problem(f"tracking lost at {stamp_ns * 1e-9:.9f} s: {result.message}")
+            self._problem(f"tracking lost at {stamp:.9f} s: {result.message}")
         if result.transform is not None and result.covariance is not None and self._previous_stamp_ns is not None:
             self._publish_estimate(stamp_ns, self._previous_stamp_ns, result)
         if result.status is not FrameStatus.REJECTED:
@@ -182,27 +194,24 @@ class StereoVONode(Node):
 
     def _publish_estimate(self, stamp_ns: int, reference_ns: int, result: FrameResult) -> None:
         assert result.transform is not None and result.covariance is not None
+        settings = self.settings
         rel = RelativePose()
-        rel.header.stamp.sec, rel.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        rel.header.frame_id = self.camera_frame
-        rel.reference_stamp.sec, rel.reference_stamp.nanosec = divmod(reference_ns, 1_000_000_000)
+        fill_stamp(rel.header.stamp, stamp_ns)
+        rel.header.frame_id = settings.camera_frame
+        fill_stamp(rel.reference_stamp, reference_ns)
         fill_pose(rel.pose.pose, result.transform)
         rel.pose.covariance = [float(v) for v in result.covariance.reshape(-1)]
         rel.rotation_only = False
         self.pub_relative.publish(rel)
 
-        # integrated pose: T_odom,k = T_odom,k-1 T_k,k-1^-1; a left perturbation xi of T_k,k-1 moves
-        # T_odom,k by -Ad(T_odom,k) xi, so its covariance grows by Ad Sigma Ad^T
-        adjoint = se3_adjoint(result.pose)
-        self.pose_covariance = self.pose_covariance + adjoint @ result.covariance @ adjoint.T
         odom = Odometry()
         odom.header.stamp = rel.header.stamp
-        odom.header.frame_id = self.odom_frame
-        odom.child_frame_id = self.camera_frame
+        odom.header.frame_id = settings.odom_frame
+        odom.child_frame_id = settings.camera_frame
         fill_pose(odom.pose.pose, result.pose)
-        odom.pose.covariance = [float(v) for v in self.pose_covariance.reshape(-1)]
+        odom.pose.covariance = [float(v) for v in result.pose_covariance.reshape(-1)]
         self.pub_odometry.publish(odom)
-        if self.publish_path:
+        if settings.publish_path:
             stamped = PoseStamped()
             stamped.header = odom.header
             stamped.pose = odom.pose.pose
@@ -211,21 +220,12 @@ class StereoVONode(Node):
             self.pub_path.publish(self.path)
 
     def _publish_status(self, result: FrameResult | None, stamp_ns: int, message: str) -> None:
-        status = DiagnosticStatus()
-        status.name = STATUS_NAME
-        status.hardware_id = self.camera_frame
-        status.message = message
         values: dict[str, Any] = {"stamp": f"{stamp_ns * 1e-9:.9f}", "dropped_unpaired": self.sync.dropped, **self.counts}
         if result is None:
-            status.level = DiagnosticStatus.WARN
+            level = WARN
             values["lost"] = True
         else:
-            status.level = {
-                FrameStatus.FIRST: DiagnosticStatus.OK,
-                FrameStatus.TRACKING: DiagnosticStatus.OK,
-                FrameStatus.LOST: DiagnosticStatus.WARN,
-                FrameStatus.REJECTED: DiagnosticStatus.ERROR,
-            }[result.status]
+            level = LEVELS[result.status]
             values.update(
                 status=result.status.value,
                 lost=result.status is FrameStatus.LOST,
@@ -236,17 +236,7 @@ class StereoVONode(Node):
                 gn_iterations=result.gn_iterations,
             )
             values.update({f"time_{k}_ms": f"{1e3 * v:.3f}" for k, v in result.timings.items()})
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        array = DiagnosticArray()
-        array.header.stamp.sec, array.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
-        array.status = [status]
-        self.pub_status.publish(array)
-
-    def _problem(self, text: str) -> None:
-        # one line per distinct problem, not one per frame
-        if text.split(" at ")[0] != self._last_problem.split(" at ")[0]:
-            self.get_logger().warning(text)
-        self._last_problem = text
+        self.pub_status.publish(status_array(stamp_ns, STATUS_NAME, self.settings.camera_frame, level, message, values))
 
 
 def camera_from_infos(left: CameraInfo, right: CameraInfo) -> StereoCamera:
@@ -265,20 +255,7 @@ def camera_from_infos(left: CameraInfo, right: CameraInfo) -> StereoCamera:
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    try:
-        node = StereoVONode()
-    except ValueError as exc:
-        print(f"stereo_vo: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(StereoVONode, "stereo_vo", args)
 
 
 if __name__ == "__main__":

@@ -7,33 +7,31 @@ ephemeris) and, when asked, ``/ground_truth/odometry`` for the first pose. Publi
 ``/pvo/fusion/path`` (final fixed-lag estimates plus the live window; at most once per ``path_period``
 seconds of message time, since the message grows with the trajectory: 32 ms to publish at KITTI 00's
 4541 poses) and ``/pvo/fusion/status`` (window size, factors per type, counted outcomes, update time).
-Parameters: the dotted fields of :class:`~pvo_fusion.config.FusionConfig` plus ``map_frame``,
-``camera_frame``, ``publish_path``, ``path_period`` (s; 0: every frame),
-``initial_pose`` (x y z qx qy qz qw, used when ``prior.source`` is ``given``) and
-``initial_pose_from_ground_truth``.
+Parameters: the dotted fields of :class:`~pvo_fusion.config.FusionConfig` plus those of
+:class:`FusionNodeConfig`; defaults in ``config/fusion.yaml``. ``publish_path`` and ``path_period`` can be
+changed at run time, the rest only at start-up.
 """
 
 from __future__ import annotations
 
-import sys
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry, Path
 from pvo_core.ephemeris import GeodeticOrigin
 from pvo_core.lie import make_transform, quaternion_to_rotation
-from pvo_core.msgconv import covariance_to_matrix, fill_pose, pose_to_matrix, stamp_to_nanoseconds
+from pvo_core.msgconv import covariance_to_matrix, fill_pose, fill_stamp, pose_to_matrix, stamp_to_nanoseconds
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from pvo_msgs.msg import RelativePose, SunDirection
+from pvo_ros import OK, WARN, ConfigParameters, ParameterPolicy, every_message, reliable, run_node, status_array
 
-from .config import FusionConfig, flatten, from_flat
+from .config import FusionConfig
 from .graph import ACCEPTED, BUFFERED, FusionGraph
 from .measurements import RelativeMeasurement, SunMeasurement
 from .sun_reference import EphemerisSunReference, FixedSunReference, SunReference, TabulatedSunReference
@@ -59,25 +57,38 @@ def sun_from_msg(msg: SunDirection) -> SunMeasurement:
     )
 
 
+@dataclass(frozen=True)
+class FusionNodeConfig:
+    """The node's own parameters.
+
+    path_period: seconds of message time between two ``/pvo/fusion/path`` messages (0: every frame).
+    initial_pose: x y z qx qy qz qw of the first camera in ``map``, used when ``prior.source`` is
+    ``given`` and ``initial_pose_from_ground_truth`` is false (then the first ``/ground_truth/odometry``
+    at the first VO frame is used instead).
+    """
+
+    map_frame: str = "map"
+    camera_frame: str = "camera_left_optical"
+    publish_path: bool = True
+    path_period: float = 1.0
+    initial_pose: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+    initial_pose_from_ground_truth: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.path_period >= 0.0:
+            raise ValueError(f"path_period must be >= 0 s, got {self.path_period}")
+        if not self.map_frame or not self.camera_frame:
+            raise ValueError("map_frame and camera_frame must not be empty")
+        _pose_from_parameter(self.initial_pose)  # ValueError naming the problem
+
+
 class FusionNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("fusion", **kwargs)
-        defaults = flatten(FusionConfig())
-        for name, value in defaults.items():
-            self.declare_parameter(name, value)
-        self.declare_parameter("map_frame", "map")
-        self.declare_parameter("camera_frame", "camera_left_optical")
-        self.declare_parameter("publish_path", True)
-        self.declare_parameter("path_period", 1.0)
-        self.declare_parameter("initial_pose", [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
-        self.declare_parameter("initial_pose_from_ground_truth", False)
-        self.config = from_flat({n: self.get_parameter(n).value for n in defaults})
-        self.map_frame = str(self.get_parameter("map_frame").value)
-        self.camera_frame = str(self.get_parameter("camera_frame").value)
-        self.publish_path = bool(self.get_parameter("publish_path").value)
-        self.path_period_ns = int(1e9 * float(self.get_parameter("path_period").value))
-        if self.path_period_ns < 0:
-            raise ValueError(f"path_period must be >= 0 s, got {self.get_parameter('path_period').value}")
+        self.config: FusionConfig = ConfigParameters(self, FusionConfig(), "fusion").value
+        self.node_parameters = ConfigParameters(self, FusionNodeConfig(), "fusion")
+        ParameterPolicy(self, [self.node_parameters], runtime={"publish_path": lambda _: None, "path_period": lambda _: None})
+        settings = self.settings
         self._last_path_stamp: int | None = None
         self.graph = FusionGraph(self.config, self._static_sun_reference())
         self.latencies_ms: list[float] = []
@@ -86,14 +97,13 @@ class FusionNode(Node):
         self._initial_known = self.config.prior.source == "identity"
         self._gps_fixes = 0
         self._final_path: list[PoseStamped] = []
-        if self.config.prior.source == "given" and not bool(self.get_parameter("initial_pose_from_ground_truth").value):
-            self.graph.set_initial_pose(_pose_from_parameter(self.get_parameter("initial_pose").value))
+        if self.config.prior.source == "given" and not settings.initial_pose_from_ground_truth:
+            self.graph.set_initial_pose(_pose_from_parameter(settings.initial_pose))
             self._initial_known = True
 
         # Inputs keep every message: a lagging fusion must not silently lose VO frames (a lost frame
         # would become a gap); outputs keep the last 200.
-        inputs = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
-        qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+        inputs = every_message()
         self.create_subscription(RelativePose, "/pvo/vo/relative", self._on_vo, inputs)
         self.create_subscription(SunDirection, "/pvo/sun/direction", self._on_sun, inputs)
         self.create_subscription(RelativePose, "/pvo/dpc/correction", self._on_correction, inputs)
@@ -101,11 +111,14 @@ class FusionNode(Node):
         self.create_subscription(NavSatFix, "/gps/fix", self._on_gps, inputs)
         if not self._initial_known:
             self.create_subscription(Odometry, "/ground_truth/odometry", self._on_ground_truth, inputs)
-        self.pub_odometry = self.create_publisher(Odometry, "/pvo/fusion/odometry", qos)
-        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "/pvo/fusion/pose", qos)
-        self.pub_path = self.create_publisher(Path, "/pvo/fusion/path", 10)
-        self.pub_status = self.create_publisher(DiagnosticArray, "/pvo/fusion/status", qos)
-        self.add_on_set_parameters_callback(self._refuse_runtime_changes)
+        self.pub_odometry = self.create_publisher(Odometry, "/pvo/fusion/odometry", reliable(200))
+        self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "/pvo/fusion/pose", reliable(200))
+        self.pub_path = self.create_publisher(Path, "/pvo/fusion/path", reliable(10))
+        self.pub_status = self.create_publisher(DiagnosticArray, "/pvo/fusion/status", reliable(200))
+
+    @property
+    def settings(self) -> FusionNodeConfig:
+        return self.node_parameters.value
 
     def _static_sun_reference(self) -> SunReference | None:
         sun = self.config.inputs.sun
@@ -116,11 +129,6 @@ class FusionNode(Node):
                 raise ValueError("inputs.sun.reference is table but inputs.sun.reference_table is empty")
             return TabulatedSunReference.read(sun.reference_table)
         return None  # ephemeris: set at the first GPS fix
-
-    def _refuse_runtime_changes(self, params: list) -> Any:
-        from rcl_interfaces.msg import SetParametersResult
-
-        return SetParametersResult(successful=False, reason="fusion parameters are read at start-up; restart the node")
 
     # --- inputs ---------------------------------------------------------------------------------
     def _on_gps(self, msg: NavSatFix) -> None:
@@ -178,8 +186,9 @@ class FusionNode(Node):
         if outcome == ACCEPTED:
             self._publish_estimate(stamp)
             self.latencies_ms.append(1e3 * (time.perf_counter() - received))
-            due = self._last_path_stamp is None or stamp - self._last_path_stamp >= self.path_period_ns
-            if self.publish_path and due:
+            period_ns = int(1e9 * self.settings.path_period)
+            due = self._last_path_stamp is None or stamp - self._last_path_stamp >= period_ns
+            if self.settings.publish_path and due:
                 self._publish_path(stamp)
                 self._last_path_stamp = stamp
         self._publish_status(stamp, outcome)
@@ -200,14 +209,12 @@ class FusionNode(Node):
 
     # --- outputs --------------------------------------------------------------------------------
     def _publish_estimate(self, stamp: int) -> None:
-        pose = self.graph.pose()
-        covariance = self.graph.covariance()
         odom = Odometry()
-        odom.header.stamp.sec, odom.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-        odom.header.frame_id = self.map_frame
-        odom.child_frame_id = self.camera_frame
-        fill_pose(odom.pose.pose, pose)
-        odom.pose.covariance = [float(v) for v in covariance.reshape(-1)]
+        fill_stamp(odom.header.stamp, stamp)
+        odom.header.frame_id = self.settings.map_frame
+        odom.child_frame_id = self.settings.camera_frame
+        fill_pose(odom.pose.pose, self.graph.pose())
+        odom.pose.covariance = [float(v) for v in self.graph.covariance().reshape(-1)]
         self.pub_odometry.publish(odom)
         stamped = PoseWithCovarianceStamped()
         stamped.header = odom.header
@@ -216,26 +223,22 @@ class FusionNode(Node):
 
     def _stamped(self, stamp: int, pose: np.ndarray) -> PoseStamped:
         out = PoseStamped()
-        out.header.stamp.sec, out.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-        out.header.frame_id = self.map_frame
+        fill_stamp(out.header.stamp, stamp)
+        out.header.frame_id = self.settings.map_frame
         fill_pose(out.pose, pose)
         return out
 
     def _publish_path(self, stamp: int) -> None:
         self._final_path.extend(self._stamped(p.stamp, p.pose) for p in self.graph.drain_finished())
         path = Path()
-        path.header.stamp.sec, path.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-        path.header.frame_id = self.map_frame
+        fill_stamp(path.header.stamp, stamp)
+        path.header.frame_id = self.settings.map_frame
         path.poses = self._final_path + [self._stamped(p.stamp, p.pose) for p in self.graph.window()]
         self.pub_path.publish(path)
 
     def _publish_status(self, stamp: int, message: str) -> None:
-        status = DiagnosticStatus()
-        status.name = STATUS_NAME
-        status.hardware_id = self.map_frame
         problems = any(k.startswith(("solver.", "vo.gap", "vo.lost")) for k in self.graph.counts)
-        status.level = DiagnosticStatus.WARN if (problems or message not in (ACCEPTED, BUFFERED)) else DiagnosticStatus.OK
-        status.message = message
+        level = WARN if (problems or message not in (ACCEPTED, BUFFERED)) else OK
         values: dict[str, Any] = {
             "stamp": f"{stamp * 1e-9:.9f}",
             "window_size": self.graph.window_size,
@@ -246,11 +249,7 @@ class FusionNode(Node):
         }
         values.update({f"factors.{k}": v for k, v in sorted(self.graph.factor_counts.items())})
         values.update({f"count.{k}": v for k, v in sorted(self.graph.counts.items()) if v})
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        array = DiagnosticArray()
-        array.header.stamp.sec, array.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-        array.status = [status]
-        self.pub_status.publish(array)
+        self.pub_status.publish(status_array(stamp, STATUS_NAME, self.settings.map_frame, level, message, values))
 
 
 def _pose_from_parameter(values: Any) -> np.ndarray:
@@ -262,20 +261,7 @@ def _pose_from_parameter(values: Any) -> np.ndarray:
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    try:
-        node = FusionNode()
-    except ValueError as exc:
-        print(f"fusion: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(FusionNode, "fusion", args)
 
 
 if __name__ == "__main__":

@@ -1,22 +1,20 @@
 """simulated_sun: /ground_truth/sun_direction -> /pvo/sun/direction (GT-Sun-N, every N-th frame).
 
 Parameters mirror :class:`~pvo_pseudosensors.simulated_sun.SimulatedSunConfig` (``mean_error_deg``,
-``every_n``, ``covariance_floor_deg``, ``seed``).
+``every_n``, ``covariance_floor_deg``, ``seed``); defaults in ``config/simulated_sun.yaml``. They are read
+at start-up (the sensor's noise stream is seeded from them).
 """
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
 import numpy as np
-import rclpy
-from pvo_core.config import flatten, from_flat
 from pvo_core.sun import vector_to_zenith_azimuth
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from pvo_msgs.msg import SunDirection
+from pvo_ros import ConfigParameters, ParameterPolicy, ProblemLog, reliable, run_node
 
 from .simulated_sun import SimulatedSunConfig, SimulatedSunSensor
 
@@ -24,14 +22,14 @@ from .simulated_sun import SimulatedSunConfig, SimulatedSunSensor
 class SimulatedSunNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("simulated_sun", **kwargs)
-        defaults = flatten(SimulatedSunConfig())
-        for name, value in defaults.items():
-            self.declare_parameter(name, value)
-        config = from_flat({n: self.get_parameter(n).value for n in defaults}, SimulatedSunConfig(), what="simulated_sun")
+        parameters = ConfigParameters(self, SimulatedSunConfig(), "simulated_sun")
+        ParameterPolicy(self, [parameters])
+        config = parameters.value
         self.sensor = SimulatedSunSensor(config)
         self.published = 0
         self.rejected = 0
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self._problem = ProblemLog(self.get_logger())
+        qos = reliable(100)
         self.publisher = self.create_publisher(SunDirection, "/pvo/sun/direction", qos)
         self.create_subscription(SunDirection, "/ground_truth/sun_direction", self._on_truth, qos)
         self.get_logger().info(f"GT-Sun-{config.mean_error_deg:g}: every {config.every_n} frame(s), seed {config.seed}")
@@ -42,9 +40,7 @@ class SimulatedSunNode(Node):
             result = self.sensor.measure(truth)
         except ValueError as exc:
             self.rejected += 1
-            self.get_logger().warning(
-                f"/ground_truth/sun_direction at {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: {exc}"
-            )
+            self._problem(f"/ground_truth/sun_direction rejected at {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: {exc}")
             return
         if result is None:
             return
@@ -61,20 +57,7 @@ class SimulatedSunNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    try:
-        node = SimulatedSunNode()
-    except ValueError as exc:
-        print(f"simulated_sun: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        sys.exit(2)
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(SimulatedSunNode, "simulated_sun", args)
 
 
 if __name__ == "__main__":

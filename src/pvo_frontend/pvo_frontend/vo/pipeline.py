@@ -18,10 +18,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 from pvo_core.camera import StereoCamera
-from pvo_core.lie import se3_exp, se3_inverse, se3_log
+from pvo_core.lie import se3_adjoint, se3_exp, se3_inverse, se3_log
 
 from .config import VOConfig
-from .features import Pyramid, StereoFeatures, StereoMatcher
+from .features import Image, StereoFeatures, StereoMatcher
 from .ransac import ransac_motion
 from .solver import RobustLoss, SolveResult, feature_information, quadratic_form, solve_motion
 
@@ -42,7 +42,8 @@ class FrameResult:
 
     stamp: image time (s). status / message: what happened, in words for ``REJECTED``/``LOST``.
     transform: T_cur,prev (4, 4), None for FIRST and REJECTED. covariance: (6, 6) over [rho; phi]
-    (m^2, rad^2), lost_covariance * I when LOST. pose: T_odom,cur (4, 4) after this frame.
+    (m^2, rad^2), lost_covariance * I when LOST. pose: T_odom,cur (4, 4) after this frame, and
+    pose_covariance its (6, 6) covariance (ROS order, left perturbation) accumulated over the motions.
     reference_stamp: the previous frame's stamp. Counts: features tracked around the circle,
     RANSAC/GN inliers, features alive after replenishment. timings: seconds per stage.
     """
@@ -53,6 +54,7 @@ class FrameResult:
     transform: Array | None = None
     covariance: Array | None = None
     pose: Array = field(default_factory=lambda: np.eye(4))
+    pose_covariance: Array = field(default_factory=lambda: np.zeros((6, 6)))
     reference_stamp: float | None = None
     tracked: int = 0
     inliers: int = 0
@@ -69,8 +71,8 @@ class FrameResult:
 @dataclass
 class _Frame:
     stamp: float
-    left: Pyramid
-    right: Pyramid
+    left: Image
+    right: Image
     features: StereoFeatures
 
 
@@ -217,11 +219,14 @@ class StereoVO:
         self._motion = np.eye(4)  # last good T_cur,prev, for the KLT prediction
         self._velocity_dt = 0.0
         self.pose = np.eye(4)
+        self.pose_covariance = np.zeros((6, 6))
         self.frames = 0
 
-    def reset(self) -> None:
-        """Forget the tracked features and the pose (the next frame starts a new odom frame)."""
-        self.__init__(self.camera, self.config, self.feature_noise)  # type: ignore[misc]
+    def reject(self, stamp: float, message: str) -> FrameResult:
+        """A REJECTED result for an input refused before or by :meth:`process`: the state is unchanged."""
+        return FrameResult(
+            stamp, FrameStatus.REJECTED, message, pose=self.pose.copy(), pose_covariance=self.pose_covariance.copy()
+        )
 
     def process(self, left: NDArray, right: NDArray, stamp: float) -> FrameResult:
         """Process one rectified stereo pair taken at ``stamp`` (s)."""
@@ -231,41 +236,20 @@ class StereoVO:
             left_img = as_grey(left, "left")
             right_img = as_grey(right, "right")
         except ValueError as exc:
-            return FrameResult(stamp, FrameStatus.REJECTED, str(exc), pose=self.pose.copy())
+            return self.reject(stamp, str(exc))
         if left_img.shape != right_img.shape:
-            return FrameResult(
-                stamp,
-                FrameStatus.REJECTED,
-                f"stereo images differ in size: left {_size(left_img)}, right {_size(right_img)}",
-                pose=self.pose.copy(),
-            )
+            return self.reject(stamp, f"stereo images differ in size: left {_size(left_img)}, right {_size(right_img)}")
         if not np.isfinite(stamp):
-            return FrameResult(stamp, FrameStatus.REJECTED, "stamp is not finite", pose=self.pose.copy())
+            return self.reject(stamp, "stamp is not finite")
         prev = self._previous
         if prev is not None:
             if stamp == prev.stamp:
-                return FrameResult(
-                    stamp, FrameStatus.REJECTED, f"repeated frame: stamp {stamp:.9f} s already processed", pose=self.pose.copy()
-                )
+                return self.reject(stamp, f"repeated frame: stamp {stamp:.9f} s already processed")
             if stamp < prev.stamp:
-                return FrameResult(
-                    stamp,
-                    FrameStatus.REJECTED,
-                    f"stamp goes backwards: {stamp:.9f} s after {prev.stamp:.9f} s",
-                    pose=self.pose.copy(),
-                )
+                return self.reject(stamp, f"stamp goes backwards: {stamp:.9f} s after {prev.stamp:.9f} s")
             if (prev.left.shape[0], prev.left.shape[1]) != left_img.shape:
-                return FrameResult(
-                    stamp,
-                    FrameStatus.REJECTED,
-                    f"image size changed from {_size(prev.left)} to {_size(left_img)}",
-                    pose=self.pose.copy(),
-                )
+                return self.reject(stamp, f"image size changed from {_size(prev.left)} to {_size(left_img)}")
 
-        tic = time.perf_counter()
-        pyr_l = self.matcher.pyramid(left_img)
-        pyr_r = self.matcher.pyramid(right_img)
-        timings["pyramids"] = time.perf_counter() - tic
         shape = left_img.shape
 
         result: FrameResult
@@ -273,7 +257,7 @@ class StereoVO:
             result = FrameResult(stamp, FrameStatus.FIRST, "first frame", pose=self.pose.copy())
             tracked = StereoFeatures.empty()
         else:
-            result, tracked = self._estimate(prev, pyr_l, pyr_r, shape, stamp, timings)
+            result, tracked = self._estimate(prev, left_img, right_img, shape, stamp, timings)
 
         tic = time.perf_counter()
         fresh_points = self.matcher.detect(left_img, tracked.left)
@@ -281,10 +265,10 @@ class StereoVO:
         tic = time.perf_counter()
         fallback = float(np.median(tracked.observations()[:, 2])) if len(tracked) else 10.0
         prior = self.matcher.disparity_prior(left_img, right_img) if fresh_points.shape[0] else np.zeros((1, 1))
-        fresh = self.matcher.match_stereo(pyr_l, pyr_r, fresh_points, shape, prior, fallback)
+        fresh = self.matcher.match_stereo(left_img, right_img, fresh_points, shape, prior, fallback)
         timings["stereo_matching"] = time.perf_counter() - tic
         features = StereoFeatures.concatenate(tracked, fresh)
-        self._previous = _Frame(stamp, pyr_l, pyr_r, features)
+        self._previous = _Frame(stamp, left_img, right_img, features)
         self.frames += 1
         result.features = len(features)
         timings["total"] = time.perf_counter() - t_start
@@ -294,8 +278,8 @@ class StereoVO:
     def _estimate(
         self,
         prev: _Frame,
-        pyr_l: Pyramid,
-        pyr_r: Pyramid,
+        left_img: Image,
+        right_img: Image,
         shape: tuple[int, int],
         stamp: float,
         timings: dict[str, float],
@@ -306,7 +290,7 @@ class StereoVO:
         prediction = self._predicted_motion(dt)
         tic = time.perf_counter()
         flow = self._predicted_flow(prev.features, prediction)
-        before, after = self.matcher.track(prev.features, prev.left, prev.right, pyr_l, pyr_r, shape, flow)
+        before, after = self.matcher.track(prev.features, prev.left, prev.right, left_img, right_img, shape, flow)
         timings["tracking"] = time.perf_counter() - tic
         n = len(after)
         base = FrameResult(stamp, FrameStatus.TRACKING, reference_stamp=prev.stamp, tracked=n)
@@ -330,8 +314,9 @@ class StereoVO:
         inliers = motion.inliers
         base.transform = solve.transform
         base.covariance = solve.covariance
-        self.pose = self.pose @ se3_inverse(solve.transform)
+        self._integrate(solve.transform, solve.covariance)
         base.pose = self.pose.copy()
+        base.pose_covariance = self.pose_covariance.copy()
         self._motion = solve.transform
         self._velocity_dt = dt
         # keep only the features that agreed with the motion as tracks for the next frame
@@ -343,9 +328,17 @@ class StereoVO:
         result.message = why
         result.transform = prediction
         result.covariance = self.config.tracking.lost_covariance * np.eye(6)
-        self.pose = self.pose @ se3_inverse(prediction)
+        self._integrate(prediction, result.covariance)
         result.pose = self.pose.copy()
+        result.pose_covariance = self.pose_covariance.copy()
         return result
+
+    def _integrate(self, transform: Array, covariance: Array) -> None:
+        """T_odom,k = T_odom,k-1 T_k,k-1^-1. A left perturbation xi of T_k,k-1 moves T_odom,k by
+        -Ad(T_odom,k) xi, so the pose covariance grows by Ad Sigma Ad^T."""
+        self.pose = self.pose @ se3_inverse(transform)
+        adjoint = se3_adjoint(self.pose)
+        self.pose_covariance = self.pose_covariance + adjoint @ covariance @ adjoint.T
 
     def _predicted_motion(self, dt: float) -> Array:
         """Constant-velocity T_cur,prev over ``dt`` from the last good motion (identity at start)."""

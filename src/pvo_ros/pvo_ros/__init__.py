@@ -1,0 +1,32 @@
+"""What every pvo node shares on the rclpy side (runner, typed parameters, diagnostics, stamps, QoS).
+
+Stamps: :func:`pvo_core.msgconv.fill_stamp` / ``stamp_to_nanoseconds`` work on rclpy messages and are
+re-exported here so that a node imports its ROS plumbing from one place.
+"""
+
+from pvo_core.msgconv import fill_stamp, stamp_to_nanoseconds
+
+from .diagnostics import ERROR, OK, WARN, ProblemLog, status_array, status_values
+from .parameters import ConfigParameters, ParameterPolicy, config_fields, declare_config, declared_parameter_names
+from .qos import SENSOR_QUEUE_DEPTH, every_message, reliable
+from .runner import run_node
+
+__all__ = [
+    "ERROR",
+    "OK",
+    "SENSOR_QUEUE_DEPTH",
+    "WARN",
+    "ConfigParameters",
+    "ParameterPolicy",
+    "ProblemLog",
+    "config_fields",
+    "declare_config",
+    "declared_parameter_names",
+    "every_message",
+    "fill_stamp",
+    "reliable",
+    "run_node",
+    "stamp_to_nanoseconds",
+    "status_array",
+    "status_values",
+]

@@ -1,0 +1,41 @@
+"""``main()`` of every pvo node: init, spin, a clean shutdown on SIGINT/SIGTERM, one error line for bad parameters."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from typing import Any
+
+EXIT_BAD_PARAMETER = 2
+
+
+def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = None) -> int:
+    """Build the node with ``factory`` after ``rclpy.init(args)`` and spin it until shutdown.
+
+    A ``ValueError`` while building (a wrong parameter, a missing file named by one) prints
+    ``<name>: error: <reason>`` on stderr and exits with status 2. SIGINT and SIGTERM stop the spin
+    (rclpy's signal handlers shut the context down); the node's ``close()`` runs, if it has one, before
+    the node is destroyed. Returns 0 after a clean shutdown.
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.ALL)
+    try:
+        node = factory()
+    except ValueError as exc:
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        sys.exit(EXIT_BAD_PARAMETER)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        close = getattr(node, "close", None)
+        if callable(close):
+            close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

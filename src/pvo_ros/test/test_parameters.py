@@ -1,0 +1,126 @@
+"""pvo_ros: parameters declared from config dataclasses, refused or applied at run time, and the runner."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import dataclass
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+
+@dataclass(frozen=True)
+class Inner:
+    gain: float = 1.5
+    names: tuple[str, ...] = ("a", "b")
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    inner: Inner = Inner()
+    iterations: int = 3
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1:
+            raise ValueError(f"iterations must be >= 1, got {self.iterations}")
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    frame: str = "odom"
+    publish: bool = True
+
+
+def _node(context, overrides=None, runtime=None):
+    from rclpy.node import Node
+
+    from pvo_ros import ConfigParameters, ParameterPolicy
+
+    node = Node("toy", context=context, parameter_overrides=overrides or [])
+    algorithm = ConfigParameters(node, Algorithm(), "toy")
+    settings = ConfigParameters(node, NodeSettings(), "toy")
+    ParameterPolicy(node, [algorithm, settings], runtime=runtime)
+    return node, algorithm, settings
+
+
+def test_every_leaf_becomes_a_typed_dotted_parameter(ros_context) -> None:
+    from rclpy.parameter import Parameter
+
+    from pvo_ros import config_fields, declared_parameter_names
+
+    node, algorithm, settings = _node(ros_context, [Parameter("inner.gain", value=2.5), Parameter("frame", value="map")])
+    assert (
+        declared_parameter_names(node)
+        == config_fields(Algorithm, NodeSettings)
+        == {
+            "inner.gain",
+            "inner.names",
+            "iterations",
+            "frame",
+            "publish",
+        }
+    )
+    assert algorithm.value == Algorithm(Inner(2.5, ("a", "b")), 3)
+    assert settings.value.frame == "map"
+    node.destroy_node()
+
+
+def test_a_wrong_start_up_value_names_the_parameter(ros_context) -> None:
+    from rclpy.parameter import Parameter
+
+    with pytest.raises(ValueError, match="iterations must be >= 1, got 0"):
+        _node(ros_context, [Parameter("iterations", value=0)])
+
+
+def test_runtime_changes_are_refused_with_a_reason_or_applied_when_declared_safe(ros_context) -> None:
+    from rclpy.parameter import Parameter
+
+    applied: list[NodeSettings] = []
+    node, algorithm, settings = _node(ros_context, runtime={"publish": applied.append})
+    refused = node.set_parameters([Parameter("iterations", value=5)])[0]
+    assert not refused.successful
+    assert refused.reason == "toy: iterations is read at start-up; restart the node to change it"
+    assert algorithm.value.iterations == 3
+    ok = node.set_parameters([Parameter("publish", value=False)])[0]
+    assert ok.successful
+    assert settings.value.publish is False and applied == [settings.value]
+    node.destroy_node()
+
+
+def test_runner_prints_one_error_line_and_exits_2_for_a_bad_parameter(ros_env) -> None:
+    code = (
+        "from pvo_ros import run_node\n"
+        "def make():\n"
+        "    raise ValueError('gain must be positive, got -1')\n"
+        "run_node(make, 'toy')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.strip() == "toy: error: gain must be positive, got -1"
+
+
+def test_runner_shuts_down_cleanly_on_sigterm(ros_env) -> None:
+    import signal
+    import time
+
+    code = (
+        "from pvo_ros import run_node\n"
+        "from rclpy.node import Node\n"
+        "class Toy(Node):\n"
+        "    def __init__(self):\n"
+        "        super().__init__('toy')\n"
+        "        print('ready', flush=True)\n"
+        "    def close(self):\n"
+        "        print('closed', flush=True)\n"
+        "run_node(Toy, 'toy')\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    assert proc.stdout.readline().strip() == "ready"
+    time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert out.strip() == "closed"

@@ -1,0 +1,83 @@
+"""Every node declares exactly its configs' fields, and its YAML defaults file lists the same names and values."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+pytestmark = pytest.mark.ros
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _nodes():
+    from pvo_frontend.stereo_vo_node import StereoVONode, StereoVONodeConfig
+    from pvo_frontend.vo import VOConfig
+    from pvo_fusion.fusion_node import FusionNode, FusionNodeConfig
+    from pvo_pseudosensors.simulated_sun import SimulatedSunConfig
+    from pvo_pseudosensors.simulated_sun_node import SimulatedSunNode
+
+    from pvo_fusion.config import FusionConfig
+
+    return {
+        "stereo_vo": (StereoVONode, (VOConfig(), StereoVONodeConfig()), ROOT / "src/pvo_frontend/config/stereo_vo.yaml"),
+        "fusion": (FusionNode, (FusionConfig(), FusionNodeConfig()), ROOT / "src/pvo_fusion/config/fusion.yaml"),
+        "simulated_sun": (SimulatedSunNode, (SimulatedSunConfig(),), ROOT / "src/pvo_pseudosensors/config/simulated_sun.yaml"),
+    }
+
+
+def _plain(value):
+    return list(value) if hasattr(value, "__len__") and not isinstance(value, str) else value
+
+
+@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun"])
+def test_declared_parameters_equal_the_config_fields_and_the_yaml(name: str, ros_context) -> None:
+    from pvo_core.config import flatten
+
+    from pvo_ros import config_fields, declared_parameter_names
+
+    cls, configs, yaml_path = _nodes()[name]
+    node = cls(context=ros_context)
+    try:
+        declared = declared_parameter_names(node)
+        assert declared == config_fields(*configs)
+        defaults = {k: v for c in configs for k, v in flatten(c).items()}
+        assert {n: _plain(node.get_parameter(n).value) for n in declared} == defaults
+        params = yaml.safe_load(yaml_path.read_text())[name]["ros__parameters"]
+        assert set(params) == declared
+        for key, value in params.items():
+            assert value == defaults[key], key
+    finally:
+        node.destroy_node()
+
+
+@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun"])
+def test_runtime_change_of_an_algorithm_parameter_is_refused_with_the_reason(name: str, ros_context) -> None:
+    from pvo_core.config import flatten
+    from rclpy.parameter import Parameter
+
+    cls, configs, _ = _nodes()[name]
+    node = cls(context=ros_context)
+    try:
+        first = next(iter(flatten(configs[0]).items()))
+        result = node.set_parameters([Parameter(first[0], value=first[1])])[0]
+        assert not result.successful
+        assert result.reason == f"{name}: {first[0]} is read at start-up; restart the node to change it"
+    finally:
+        node.destroy_node()
+
+
+def test_fusion_applies_path_period_at_run_time_and_validates_it(ros_context) -> None:
+    from pvo_fusion.fusion_node import FusionNode
+    from rclpy.parameter import Parameter
+
+    node = FusionNode(context=ros_context)
+    try:
+        assert node.set_parameters([Parameter("path_period", value=0.25)])[0].successful
+        assert node.settings.path_period == 0.25
+        bad = node.set_parameters([Parameter("path_period", value=-1.0)])[0]
+        assert not bad.successful and "path_period must be >= 0 s, got -1.0" in bad.reason
+        assert node.settings.path_period == 0.25
+    finally:
+        node.destroy_node()
