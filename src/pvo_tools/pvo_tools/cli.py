@@ -294,7 +294,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
             start=args.start,
             count=args.count,
         )
-        from .sim.sidecars import read_gps_csv, read_imu_csv
+        from pvo_core.readers import read_gps_csv, read_imu_csv
 
         summary = convert_kitti(
             sequence,
@@ -438,7 +438,7 @@ def main(argv: list[str] | None = None) -> int:
             run_eval(args.gt, args.est, args.align, args.out, args.gt_start, args.relative)
             return 0
         if args.command == "bench" and args.bench == "sim":
-            from .sim.cli import cmd_bench_sim
+            from .sim_cli import cmd_bench_sim
 
             return cmd_bench_sim(args)
         if args.command == "bench" and args.bench == "fusion":
@@ -450,7 +450,7 @@ def main(argv: list[str] | None = None) -> int:
 
             return cmd_bench_vo(args)
         if args.command == "sim":
-            from .sim.cli import cmd_sim
+            from .sim_cli import cmd_sim
 
             return cmd_sim(args)
         if args.command == "experiment":

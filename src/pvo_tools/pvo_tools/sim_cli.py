@@ -6,11 +6,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..progress import Progress
-from .degrade import Degradations
-from .simulate import ImuNoise, SimConfig, simulate
+from pvo_sim import KITTI_FOCAL_PER_PIXEL_WIDTH, Degradations, ImuNoise, SimConfig, simulate
 
-KITTI_FOCAL_PER_PIXEL_WIDTH = 718.856 / 1241.0
+from .progress import Progress
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -73,11 +71,11 @@ def cmd_sim(args: Any) -> int:
     if args.bag is not None:
         from pvo_core.readers import KittiSequence
 
-        from ..convert import convert_kitti
+        from .convert import convert_kitti
 
         out = Path(args.out)
         sequence = KittiSequence(out, colour=config.colour, poses_file=out / "poses.txt", sun_file=out / "sun.csv")
-        from .sidecars import read_gps_csv, read_imu_csv
+        from pvo_core.readers import read_gps_csv, read_imu_csv
 
         summary = convert_kitti(
             sequence,
@@ -98,8 +96,7 @@ def cmd_bench_sim(args: Any) -> int:
     import tempfile
     import time
 
-    from .paths import procedural_path
-    from .world import WorldSpec, build_world
+    from pvo_sim import WorldSpec, build_world, procedural_path
 
     with tempfile.TemporaryDirectory() as tmp:
         for width, height in ((620, 188), (1241, 376)):

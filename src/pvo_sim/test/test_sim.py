@@ -9,8 +9,8 @@ import pytest
 from pvo_core.ephemeris import GeodeticOrigin, sun_direction_enu
 from pvo_core.lie import so3_exp
 from pvo_core.trajectory import read_kitti_poses
-from pvo_tools.sim.paths import procedural_path
-from pvo_tools.sim.simulate import SimConfig, camera_trajectory, imu_from_trajectory, simulate
+from pvo_sim.paths import procedural_path
+from pvo_sim.render import SimConfig, camera_trajectory, imu_from_trajectory, simulate
 
 SMALL = {"width": 320, "height": 120, "focal": 185.4, "path": "straight", "speed": 6.0}
 
@@ -136,7 +136,7 @@ def test_bad_input_is_one_clear_error(tmp_path: Path) -> None:
 
 def test_degradations_are_what_they_say(tmp_path: Path) -> None:
     import cv2
-    from pvo_tools.sim.degrade import Degradations, ImageDegrader, distortion_maps, exposure_gains
+    from pvo_sim.degrade import Degradations, ImageDegrader, distortion_maps, exposure_gains
 
     mx, my = distortion_maps(320, 120, 185.4, 0.0)
     v, u = np.mgrid[0:120, 0:320]
@@ -170,7 +170,7 @@ def test_a_pole_casts_its_shadow_away_from_the_sun_azimuth() -> None:
 
     os.environ.setdefault("MUJOCO_GL", "egl")
     mujoco = pytest.importorskip("mujoco")
-    from pvo_tools.sim.simulate import open_renderer, place_rig, place_sun
+    from pvo_sim.render import open_renderer, place_rig, place_sun
 
     origin = GeodeticOrigin(49.011, 8.4245, 115.0)
     when = SimConfig(start_time="2011-09-30T14:00:00Z").epoch  # afternoon: sun in the south-west
@@ -223,63 +223,13 @@ def test_a_pole_casts_its_shadow_away_from_the_sun_azimuth() -> None:
     assert abs(difference) < 3.0, (shadow_azimuth, sun_azimuth)
 
 
-def test_the_bag_carries_imu_and_gps_from_the_sidecars(sequence, tmp_path: Path) -> None:
-    from pvo_core.errors import DataFormatError
-    from pvo_core.readers import KittiSequence
-    from pvo_tools.bagio import iter_messages, open_bag
-    from pvo_tools.convert import convert_kitti
-    from pvo_tools.sim.sidecars import read_gps_csv, read_imu_csv
-    from pvo_tools.typesys import project_typestore
-
-    out, config = sequence
-    imu, gps = read_imu_csv(out / "imu.csv"), read_gps_csv(out / "gps.csv")
-    kitti = KittiSequence(out, poses_file=out / "poses.txt", sun_file=out / "sun.csv")
-    summary = convert_kitti(kitti, tmp_path / "bag", epoch=config.epoch, show_progress=False, imu=imu, gps=gps)
-    assert summary.counts["/imu/data"] == 8 and summary.counts["/gps/fix"] == 8
-    store = project_typestore()
-    with open_bag(tmp_path / "bag") as reader:
-        messages = {
-            c.topic: store.deserialize_cdr(raw, c.msgtype)
-            for c, _, raw in iter_messages(reader)
-            if c.topic in ("/imu/data", "/gps/fix")
-        }
-    last_imu, last_fix = messages["/imu/data"], messages["/gps/fix"]
-    np.testing.assert_allclose([last_imu.angular_velocity.x, last_imu.linear_acceleration.z], [imu[-1, 1], imu[-1, 6]])
-    assert last_imu.orientation_covariance[0] == -1.0
-    assert last_fix.latitude == pytest.approx(gps[-1, 1]) and last_fix.status.status == 0
-    bad = tmp_path / "imu.csv"
-    bad.write_text("time,wx\n0,1\n")
-    with pytest.raises(DataFormatError, match="expected the header"):
-        read_imu_csv(bad)
-
-
-def test_a_missing_renderer_backend_is_one_line(tmp_path: Path) -> None:
-    import os
-    import subprocess
-
-    env = dict(os.environ, MUJOCO_GL="osmesa", PYOPENGL_PLATFORM="osmesa")
-    try:
-        import ctypes.util
-
-        if ctypes.util.find_library("OSMesa"):
-            pytest.skip("libosmesa6 is installed here: the osmesa back-end works")
-    except ImportError:
-        pass
-    result = subprocess.run(
-        ["pvo", "sim", str(tmp_path / "x"), "--frames", "2", "-q"], env=env, capture_output=True, text=True, timeout=120
-    )
-    assert result.returncode == 2
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and "no offscreen renderer (MUJOCO_GL=osmesa): install libosmesa6" in lines[0]
-
-
 def test_rig_and_light_placement_match_the_truth() -> None:
     import os
 
     os.environ.setdefault("MUJOCO_GL", "egl")
     mujoco = pytest.importorskip("mujoco")
-    from pvo_tools.sim.simulate import place_rig, place_sun
-    from pvo_tools.sim.world import WorldSpec, build_world
+    from pvo_sim.render import place_rig, place_sun
+    from pvo_sim.world import WorldSpec, build_world
 
     poses = camera_trajectory(SimConfig(**SMALL, frames=30))
     model = mujoco.MjModel.from_xml_string(build_world(WorldSpec(), poses, 1.65).xml)
@@ -309,7 +259,7 @@ def test_kitti_ground_truth_replay(pvo_data: Path, tmp_path: Path) -> None:
 
 
 def test_a_failed_render_keeps_the_previous_output(tmp_path: Path, monkeypatch) -> None:
-    import pvo_tools.sim.simulate as sim
+    import pvo_sim.render as sim
 
     out = tmp_path / "keep"
     render(out, frames=2)

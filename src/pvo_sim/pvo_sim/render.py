@@ -29,6 +29,7 @@ from .world import PRESETS, WorldSpec, build_world
 
 Array = NDArray[np.float64]
 GRAVITY_ENU = np.array([0.0, 0.0, -9.80665])
+KITTI_FOCAL_PER_PIXEL_WIDTH = 718.856 / 1241.0  # KITTI's focal length scales with the image width
 
 
 @dataclass(frozen=True)

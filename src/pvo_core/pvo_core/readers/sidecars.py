@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+
 from pvo_core.errors import DataFormatError
 
 Array = NDArray[np.float64]

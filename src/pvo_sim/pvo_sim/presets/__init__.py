@@ -1,0 +1,1 @@
+"""One module per world preset; each has ``build(spec, area, rng) -> WorldParts``."""

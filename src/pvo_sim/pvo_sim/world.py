@@ -1,0 +1,168 @@
+"""Procedural worlds as MuJoCo models (MJCF), generated along the camera path.
+
+Presets: ``urban`` (textured ground and road, buildings, poles, parked and moving vehicles) and
+``planetary`` (rough height-field terrain and rocks, no man-made structure). Every object is placed
+from a seeded generator along the path (cost linear in the path length); nothing is placed within
+``clearance`` metres of the path so the rig never drives through geometry. The rig is a mocap body
+carrying the left and right cameras (MuJoCo cameras look along their -z with y up, so the body's
+axes are the optical axes with y and z flipped); the sun is a directional light.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+MOVING_VEHICLES = 3
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    preset: str = "urban"
+    seed: int = 0
+    baseline: float = 0.54
+    fovy_deg: float = 35.0
+    overcast: bool = False
+    clearance: float = 3.0
+    terrain_resolution: float = 2.0  # planetary: metres per height-field sample
+    shadow_map: int = 1024  # texels; the map covers 60 m around the camera
+    image_size: tuple[int, int] = (640, 480)  # the offscreen framebuffer must hold the images
+    texture_poor: float = 0.0  # fraction of buildings with plain walls
+    moving_vehicles: int = MOVING_VEHICLES
+
+
+@dataclass(frozen=True)
+class WorldArea:
+    """Where a preset builds: the extended path (M, 2), the driven path (N, 2) and the ground's bounds (m)."""
+
+    path_xy: Array
+    driven_xy: Array
+    lo: Array
+    hi: Array
+    centre: Array
+    half: Array
+
+
+@dataclass
+class WorldParts:
+    """What a preset contributes to the MJCF: assets, world-body elements and moving things."""
+
+    assets: list[str] = field(default_factory=list)
+    bodies: list[str] = field(default_factory=list)
+    hfield: Array | None = None
+    moving_paths: list[Array] = field(default_factory=list)
+    moving_headings: list[Array] = field(default_factory=list)
+
+
+@dataclass
+class World:
+    xml: str
+    hfield: Array | None  # planetary: (rows, cols) heights in [0, 1] to copy into the model
+    moving_paths: list[Array]  # per moving vehicle: (N, 3) positions per frame
+    moving_headings: list[Array]
+    extent: float
+
+
+def texture(name: str, builtin: str, rgb1: str, rgb2: str, size: int, random: float, mark: str = "random") -> str:
+    return (
+        f'<texture name="{name}" type="2d" builtin="{builtin}" rgb1="{rgb1}" rgb2="{rgb2}" width="{size}" height="{size}" '
+        f'mark="{mark}" random="{random}" markrgb="0.95 0.95 0.9"/>'
+    )
+
+
+def distance_to_path(points: Array, path_xy: Array) -> Array:
+    """Horizontal distance of each point (M, 2) to the polyline of path samples (N, 2), chunked."""
+    out = np.empty(len(points))
+    for i in range(0, len(points), 256):
+        d = np.linalg.norm(points[i : i + 256, None, :] - path_xy[None, :, :], axis=2)
+        out[i : i + 256] = d.min(axis=1)
+    return out
+
+
+def along_path(path_xy: Array, spacing: float) -> tuple[Array, Array]:
+    """Points every ``spacing`` metres along the path and the unit tangents there."""
+    seg = np.diff(path_xy, axis=0)
+    lengths = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(lengths)])
+    if cum[-1] < 1e-6:
+        return path_xy[:1], np.array([[0.0, 1.0]])
+    s = np.arange(0.0, cum[-1], spacing)
+    idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    frac = (s - cum[idx]) / np.maximum(lengths[idx], 1e-9)
+    points = path_xy[idx] + frac[:, None] * seg[idx]
+    tangents = seg[idx] / np.maximum(lengths[idx], 1e-9)[:, None]
+    return points, tangents
+
+
+def _extended(path_xy: Array, length: float = 80.0) -> Array:
+    """The path with straight extensions at both ends, so that the world continues beyond what the camera drives."""
+    if len(path_xy) < 2:
+        return path_xy
+
+    def direction(a: Array, b: Array) -> Array:
+        d = b - a
+        norm = float(np.linalg.norm(d))
+        return d / norm if norm > 1e-9 else np.array([0.0, 1.0])
+
+    steps = np.linspace(2.0, length, 40)[:, None]
+    head = path_xy[-1] + steps * direction(path_xy[-2], path_xy[-1])
+    tail = path_xy[0] + steps[::-1] * direction(path_xy[1], path_xy[0])
+    return np.vstack([tail, path_xy, head])
+
+
+def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> World:
+    """The MJCF of a world around the camera path (camera_poses: (N, 4, 4) T_world,cam)."""
+    builder = _builders().get(spec.preset)
+    if builder is None:
+        raise ValueError(f"unknown preset {spec.preset!r}: choose one of {', '.join(PRESETS)}")
+    rng = np.random.default_rng(spec.seed)
+    path_xy = _extended(camera_poses[:, :2, 3])
+    lo, hi = path_xy.min(axis=0) - 80.0, path_xy.max(axis=0) + 80.0
+    centre = 0.5 * (lo + hi)
+    half = 0.5 * (hi - lo)
+    extent = float(np.linalg.norm(half)) + 10.0
+    area = WorldArea(path_xy, camera_poses[:, :2, 3], lo, hi, centre, half)
+    parts = builder(spec, area, rng)
+    assets, bodies = parts.assets, parts.bodies
+    ambient = "0.75 0.75 0.75" if spec.overcast else "0.38 0.38 0.40"
+    diffuse = "0.35 0.35 0.35" if spec.overcast else "0.95 0.93 0.88"
+    shadows = "false" if spec.overcast else "true"
+    xml = f"""<mujoco model={quoteattr("pvo-" + spec.preset)}>
+  <compiler angle="degree"/>
+  <statistic extent="{extent:.1f}" center="{centre[0]:.1f} {centre[1]:.1f} 0"/>
+  <visual>
+    <headlight ambient="0 0 0" diffuse="0 0 0" specular="0 0 0"/>
+    <global offwidth="{max(spec.image_size[0], 64)}" offheight="{max(spec.image_size[1], 64)}"/>
+    <quality shadowsize="{spec.shadow_map}" offsamples="0" numslices="12" numstacks="6"/>
+    <map znear="{0.3 / extent:.6f}" zfar="{3.0:.1f}" shadowclip="{60.0 / extent:.4f}" haze="0.05"/>
+    <rgba haze="0.65 0.72 0.82 1" fog="0.7 0.75 0.82 1"/>
+  </visual>
+  <asset>
+    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.68 0.85" rgb2="0.85 0.88 0.92" width="256" height="256"/>
+    {chr(10).join("    " + a for a in assets).strip()}
+  </asset>
+  <worldbody>
+    <light name="sun" directional="true" castshadow="{shadows}" pos="0 0 100" dir="0 0 -1"
+           ambient="{ambient}" diffuse="{diffuse}" specular="0.1 0.1 0.1"/>
+    <body name="rig" mocap="true">
+      <camera name="left" pos="0 0 0" fovy="{spec.fovy_deg:.6f}"/>
+      <camera name="right" pos="{spec.baseline:.6f} 0 0" fovy="{spec.fovy_deg:.6f}"/>
+    </body>
+    {chr(10).join("    " + b for b in bodies).strip()}
+  </worldbody>
+</mujoco>"""
+    return World(xml, parts.hfield, parts.moving_paths, parts.moving_headings, extent)
+
+
+def _builders() -> dict[str, Callable[[WorldSpec, WorldArea, np.random.Generator], WorldParts]]:
+    from .presets import planetary, urban
+
+    return {"urban": urban.build, "planetary": planetary.build}
+
+
+PRESETS = ("urban", "planetary")

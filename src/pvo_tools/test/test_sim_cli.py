@@ -1,0 +1,72 @@
+"""`pvo sim` as a command: the bag it writes carries the sidecars; a missing renderer is one line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pvo_sim import SimConfig, simulate
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory) -> tuple[Path, SimConfig]:
+    out = tmp_path_factory.mktemp("sim") / "urban"
+    config = SimConfig(width=320, height=120, focal=185.4, path="straight", speed=6.0, frames=8)
+    try:
+        simulate(config, out, overwrite=True)
+    except ValueError as exc:
+        if "no offscreen renderer" in str(exc):
+            pytest.skip(str(exc))
+        raise
+    return out, config
+
+
+def test_the_bag_carries_imu_and_gps_from_the_sidecars(sequence, tmp_path: Path) -> None:
+    from pvo_core.errors import DataFormatError
+    from pvo_core.readers import KittiSequence, read_gps_csv, read_imu_csv
+    from pvo_tools.bagio import iter_messages, open_bag
+    from pvo_tools.convert import convert_kitti
+    from pvo_tools.typesys import project_typestore
+
+    out, config = sequence
+    imu, gps = read_imu_csv(out / "imu.csv"), read_gps_csv(out / "gps.csv")
+    kitti = KittiSequence(out, poses_file=out / "poses.txt", sun_file=out / "sun.csv")
+    summary = convert_kitti(kitti, tmp_path / "bag", epoch=config.epoch, show_progress=False, imu=imu, gps=gps)
+    assert summary.counts["/imu/data"] == 8 and summary.counts["/gps/fix"] == 8
+    store = project_typestore()
+    with open_bag(tmp_path / "bag") as reader:
+        messages = {
+            c.topic: store.deserialize_cdr(raw, c.msgtype)
+            for c, _, raw in iter_messages(reader)
+            if c.topic in ("/imu/data", "/gps/fix")
+        }
+    last_imu, last_fix = messages["/imu/data"], messages["/gps/fix"]
+    np.testing.assert_allclose([last_imu.angular_velocity.x, last_imu.linear_acceleration.z], [imu[-1, 1], imu[-1, 6]])
+    assert last_imu.orientation_covariance[0] == -1.0
+    assert last_fix.latitude == pytest.approx(gps[-1, 1]) and last_fix.status.status == 0
+    bad = tmp_path / "imu.csv"
+    bad.write_text("time,wx\n0,1\n")
+    with pytest.raises(DataFormatError, match="expected the header"):
+        read_imu_csv(bad)
+
+
+def test_a_missing_renderer_backend_is_one_line(tmp_path: Path) -> None:
+    import os
+    import subprocess
+
+    env = dict(os.environ, MUJOCO_GL="osmesa", PYOPENGL_PLATFORM="osmesa")
+    try:
+        import ctypes.util
+
+        if ctypes.util.find_library("OSMesa"):
+            pytest.skip("libosmesa6 is installed here: the osmesa back-end works")
+    except ImportError:
+        pass
+    result = subprocess.run(
+        ["pvo", "sim", str(tmp_path / "x"), "--frames", "2", "-q"], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "no offscreen renderer (MUJOCO_GL=osmesa): install libosmesa6" in lines[0]
