@@ -14,8 +14,7 @@ import os
 from pathlib import Path
 
 import numpy as np
-import scipy.io
-from pvo_core.readers import KittiSequence
+from pvo_core.readers import KittiSequence, read_viso2s_sequence
 from pvo_frontend.vo import StereoVO, from_flat
 
 from pvo_core import metrics
@@ -27,9 +26,8 @@ def main() -> None:
     root = DATA / "kitti/sequences/06"
     sequence = KittiSequence(root, rate_hz=10.0, poses_file=root / "poses_frames000-050.txt")
     n = len(sequence)
-    mat = scipy.io.loadmat(DATA / "kitti/viso2s-vo/baseline/2011_09_30_drive_0020.mat")  # = odometry 06
-    viso_gt = np.moveaxis(mat["poses_gt"], 2, 0)[:n]
-    viso_est = np.moveaxis(mat["poses_est"], 2, 0)[:n]
+    viso = read_viso2s_sequence(DATA, "06", project_rotations=False)
+    viso_gt, viso_est = viso.ground_truth[:n], viso.vo_poses[:n]
     viso_errors = metrics.relative_motion_errors(viso_gt, np.linalg.inv(viso_est[1:]) @ viso_est[:-1])
     images = [sequence.load_pair(i) for i in range(n)]
     print(f"{'pixel sigma (u, v, d)':<24} {'ANEES':>7} {'+GT noise':>10} {'median':>7}  rotation-error correlation with viso2-s")

@@ -55,31 +55,32 @@ def sun_msg(stamp: int, direction: np.ndarray, covariance: np.ndarray) -> SunDir
 
 
 def test_sun_sim_sequence_through_the_fusion_node_equals_the_ros_free_run(pvo_data: Path, tmp_path: Path, domain_id: int) -> None:
-    from pvo_tools.sun_experiment import (
-        SEQUENCE_DRIVES,
-        armse,
-        calibrate_vo,
-        clip_sequence,
+    from pvo_core.readers import SEQUENCE_DRIVES, read_kitti_sun_sequence
+    from pvo_tools.experiments.sun_sim import (
+        calibration_input,
         experiment_config,
-        load_sun_sequence,
         run_fusion,
+        sequence_vo,
         sun_measurements,
         sun_seed,
-        vo_measurements,
     )
-    from pvo_tools.sun_experiment_nodes import run_through_nodes
+    from pvo_tools.experiments.sun_sim_nodes import run_through_nodes
 
-    seq = load_sun_sequence(pvo_data, "05")
-    calibration = calibrate_vo(load_sun_sequence(pvo_data, n) for n in SEQUENCE_DRIVES if n not in ("05", "00", "02", "08"))
-    seq = clip_sequence(seq, 200)
-    vo = vo_measurements(seq, calibration)
+    from pvo_core import metrics
+    from pvo_fusion import calibrate_vo
+
+    seq = read_kitti_sun_sequence(pvo_data, "05")
+    train = (read_kitti_sun_sequence(pvo_data, n) for n in SEQUENCE_DRIVES if n not in ("05", "00", "02", "08"))
+    calibration = calibrate_vo((calibration_input(s) for s in train), span=10)
+    seq = seq.clipped(200)
+    vo = sequence_vo(seq, calibration)
     sun = sun_measurements(seq, 10.0, sun_seed(0, "05", 10.0))
     ros_free = run_fusion(seq, vo, sun, experiment_config())
     nodes = run_through_nodes(seq, vo, sun, tmp_path, rate=20.0, domain_id=domain_id, timeout_s=120.0)
     assert nodes.odometry_messages == len(vo) == 199
     assert np.all(np.isfinite(nodes.poses))
     np.testing.assert_allclose(nodes.poses, ros_free.poses, atol=1e-7)
-    a, b = armse(seq.ground_truth, ros_free.poses), armse(seq.ground_truth, nodes.poses)
+    a, b = metrics.armse(seq.ground_truth, ros_free.poses), metrics.armse(seq.ground_truth, nodes.poses)
     for key in ("trans", "trans_en", "rot"):
         assert b[key] == pytest.approx(a[key], rel=1e-7)
     # Every 10th frame carried a sun factor, and it moved the estimate away from the VO alone.

@@ -11,6 +11,7 @@ and triangulated back by ``p = (b / d) [u - cu, v - cv, f]``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -58,6 +59,22 @@ class StereoCamera:
             raise ValueError(f"projection matrix has non-positive focal length {f}")
         baseline = -(pr[0, 3] - pl[0, 3]) / f
         return cls(f=f, cu=pl[0, 2], cv=pl[1, 2], baseline=baseline, width=width, height=height)
+
+    @classmethod
+    def from_camera_infos(cls, left: Any, right: Any) -> StereoCamera:
+        """The rectified stereo model from two ``sensor_msgs/CameraInfo``-shaped messages (``width``,
+        ``height``, ``p``; rclpy or rosbags); ``ValueError`` naming the problem."""
+        if (left.width, left.height) != (right.width, right.height):
+            raise ValueError(f"left camera_info is {left.width}x{left.height} but right is {right.width}x{right.height}")
+        p_left = np.asarray(left.p, dtype=float).reshape(3, 4)
+        p_right = np.asarray(right.p, dtype=float).reshape(3, 4)
+        if not (np.all(np.isfinite(p_left)) and np.all(np.isfinite(p_right))):
+            raise ValueError("projection matrix P contains NaN")
+        if p_left[0, 0] <= 0.0:
+            raise ValueError("left camera_info P has no focal length (P[0] = 0): is the camera calibrated?")
+        if p_right[0, 3] >= 0.0:
+            raise ValueError(f"right camera_info P[3] = {p_right[0, 3]} must be -fx * baseline < 0 for a rectified stereo pair")
+        return cls.from_projection_matrices(p_left, p_right, int(left.width), int(left.height))
 
     @property
     def matrix(self) -> Array:

@@ -351,3 +351,102 @@ def shared_error_covariance(errors_a: ArrayLike, errors_b: ArrayLike) -> Array:
     sym = 0.5 * (cross + cross.T)
     w, v = np.linalg.eigh(sym)
     return (v * np.maximum(w, 0.0)) @ v.T
+
+
+# --------------------------------------------------------------------------- ARMSE / CRMSE (thesis ch. 5)
+ARMSE_DEFINITION = (
+    "ARMSE = mean over frames k of CRMSE(k) = sqrt(mean_{i<=k} e_i^2), e_k the error against ground truth in the map "
+    "frame: trans |r_k - r_gt,k| (m); EN-plane: first two map (ENU) axes only; rot |Log(C_k C_gt,k^T)| (axis-angle, "
+    "x1e-3). Estimates are the fixed-lag smoother's final ones."
+)
+
+
+def crmse(errors: ArrayLike) -> Array:
+    """Cumulative RMSE curve sqrt(mean_{i<=k} e_i^2) of per-frame errors (N,)."""
+    e = np.asarray(errors, dtype=float)
+    return np.sqrt(np.cumsum(e**2) / np.arange(1, len(e) + 1))
+
+
+def map_frame_errors(gt: ArrayLike, est: ArrayLike) -> dict[str, Array]:
+    """Per-frame map-frame errors (N,): translation ``trans`` (m), its first-two-axes part ``trans_en`` (m,
+    the east-north plane of an ENU map) and the rotation angle ``rot`` (rad) of C_est C_gt^T."""
+    from scipy.spatial.transform import Rotation
+
+    g, e = _check_pair(gt, est)
+    diff = e[:, :3, 3] - g[:, :3, 3]
+    relative = np.einsum("nij,nkj->nik", e[:, :3, :3], g[:, :3, :3])
+    return {
+        "trans": np.linalg.norm(diff, axis=1),
+        "trans_en": np.linalg.norm(diff[:, :2], axis=1),
+        # the rotation vector's norm, not arccos of the trace: exact to ~1e-16 rad for small angles
+        "rot": np.linalg.norm(Rotation.from_matrix(relative).as_rotvec(), axis=1),
+    }
+
+
+def armse(gt: ArrayLike, est: ArrayLike) -> dict[str, float]:
+    """Translational, EN-plane translational (m) and rotational (rad) ARMSE (:data:`ARMSE_DEFINITION`),
+    plus the plain RMSEs (``<name>_rmse``)."""
+    errors = map_frame_errors(gt, est)
+    out = {name: float(crmse(e).mean()) for name, e in errors.items()}
+    out.update({f"{name}_rmse": float(np.sqrt(np.mean(e**2))) for name, e in errors.items()})
+    return out
+
+
+def pose_anees(gt: ArrayLike, est: ArrayLike, covariances: ArrayLike, skip_first: bool = True) -> float:
+    """ANEES per dof of absolute poses: left errors Log(T_gt T_est^-1) ([rho; phi]) against ROS-order left
+    covariances (N, 6, 6). Frames whose covariance is NaN (not queried) are skipped, and so is frame 0
+    (a prior, not an estimate) unless ``skip_first`` is False."""
+    g = np.asarray(gt, dtype=float)
+    e = np.asarray(est, dtype=float)
+    c = np.asarray(covariances, dtype=float)
+    if g.ndim != 3 or g.shape[1:] != (4, 4) or e.shape != g.shape:
+        raise ValueError(f"trajectories must be (N, 4, 4) of equal length, got {g.shape} and {e.shape}")
+    if c.shape != (len(g), 6, 6):
+        raise ValueError(f"need one 6x6 covariance per pose ({len(g)}), got {c.shape}")
+    first = 1 if skip_first else 0
+    idx = [k for k in range(first, len(g)) if np.all(np.isfinite(c[k])) and np.all(np.isfinite(e[k]))]
+    if not idx:
+        raise ValueError("no frame has a finite covariance")
+    errors = np.array([se3_log(g[k] @ se3_inverse(e[k])) for k in idx])
+    return anees(errors, c[idx])
+
+
+def mean_relative_change(values: ArrayLike, baseline: ArrayLike) -> float:
+    """Mean over items of value / baseline - 1 (negative: better than the baseline)."""
+    v = np.asarray(values, dtype=float)
+    b = np.asarray(baseline, dtype=float)
+    return float(np.mean(v / b - 1.0))
+
+
+def average_figures(runs: list[dict[str, float]]) -> dict[str, float]:
+    """Key-wise mean of several runs' figures (a key missing from some runs is averaged over the others)."""
+    if not runs:
+        raise ValueError("no runs to average")
+    keys = dict.fromkeys(k for run in runs for k in run)
+    return {k: float(np.mean([run[k] for run in runs if k in run])) for k in keys}
+
+
+def max_pose_difference(a: ArrayLike, b: ArrayLike) -> float:
+    """Largest absolute element difference of two pose stacks (N, 4, 4), ignoring NaN (frames one lacks)."""
+    d = np.abs(np.asarray(a, dtype=float) - np.asarray(b, dtype=float))
+    return float(np.nanmax(d)) if np.any(np.isfinite(d)) else float("nan")
+
+
+def max_position_difference(a: ArrayLike, b: ArrayLike) -> float:
+    """Largest distance (m) between the positions of two pose stacks (N, 4, 4), ignoring NaN."""
+    d = np.linalg.norm(np.asarray(a, dtype=float)[:, :3, 3] - np.asarray(b, dtype=float)[:, :3, 3], axis=1)
+    return float(np.nanmax(d)) if np.any(np.isfinite(d)) else float("nan")
+
+
+def latency_summary(milliseconds: ArrayLike) -> dict[str, float]:
+    """Median, 95th percentile and maximum of latencies (ms); empty input gives NaN."""
+    v = np.asarray(milliseconds, dtype=float)
+    if v.size == 0:
+        return {"median_ms": float("nan"), "p95_ms": float("nan"), "max_ms": float("nan")}
+    return {"median_ms": float(np.median(v)), "p95_ms": float(np.percentile(v, 95)), "max_ms": float(v.max())}
+
+
+def count_finite_poses(poses: ArrayLike) -> int:
+    """How many poses of a stack (N, 4, 4) are finite (NaN marks a frame without an estimate)."""
+    p = np.asarray(poses, dtype=float)
+    return int(np.all(np.isfinite(p.reshape(len(p), -1)), axis=1).sum())

@@ -56,6 +56,25 @@ def pose_to_matrix(pose: Any) -> Array:
     return out
 
 
+def pose_to_xyz_xyzw(transform: Array) -> list[float]:
+    """``[x, y, z, qx, qy, qz, qw]`` of a 4x4 transform (the order of ROS pose parameters)."""
+    t = np.asarray(transform, dtype=float)
+    w, x, y, z = rotation_to_quaternion(t[:3, :3])
+    return [float(v) for v in (*t[:3, 3], x, y, z, w)]
+
+
+def xyz_xyzw_to_pose(values: Any) -> Array:
+    """4x4 transform of ``[x, y, z, qx, qy, qz, qw]``; ``ValueError`` unless 7 finite numbers with a non-zero quaternion."""
+    v = np.asarray(list(values), dtype=float)
+    if v.shape != (7,) or not np.all(np.isfinite(v)) or np.linalg.norm(v[3:]) < 1e-9:
+        raise ValueError(f"a pose needs 7 finite numbers x y z qx qy qz qw with a non-zero quaternion, got {list(values)}")
+    q = v[3:] / np.linalg.norm(v[3:])
+    out = np.eye(4)
+    out[:3, :3] = quaternion_to_rotation([q[3], q[0], q[1], q[2]])
+    out[:3, 3] = v[:3]
+    return out
+
+
 def covariance_to_matrix(values: Any) -> Array:
     """6x6 matrix from a row-major 36-element covariance field."""
     c = np.asarray(values, dtype=float)

@@ -143,3 +143,22 @@ def write_tum_trajectory(path: str | Path, trajectory: Trajectory) -> None:
         w, x, y, z = rotation_to_quaternion(pose[:3, :3])
         rows.append([stamp, *pose[:3, 3], x, y, z, w])
     np.savetxt(Path(path), np.asarray(rows).reshape(-1, 8), fmt="%.9f")
+
+
+def read_estimate_with_ground_truth(
+    gt_path: str | Path, est_path: str | Path, gt_start: int = 0
+) -> tuple[Array, Array, NDArray[np.int64]]:
+    """Ground truth (full), estimate, and the estimate's ground-truth frame numbers.
+
+    An estimate with frame numbers (13 columns) is placed by them; otherwise its k-th pose is frame
+    ``gt_start + k``.
+    """
+    gt = read_kitti_poses(gt_path)
+    frames, est = read_kitti_poses_indexed(est_path)
+    if est.shape[0] and np.array_equal(frames, np.arange(len(frames))):
+        frames = frames + gt_start
+    if frames.max() >= len(gt):
+        raise ValueError(f"{est_path}: the estimate reaches frame {int(frames.max())} but {gt_path} has only {len(gt)} poses")
+    if len(frames) < 2:
+        raise ValueError(f"{est_path}: need at least 2 poses to evaluate")
+    return gt, est, frames

@@ -6,16 +6,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.io
 from pvo_core.lie import se3_exp
+from pvo_core.readers import read_viso2s
 from pvo_core.trajectory import read_kitti_poses, read_kitti_poses_indexed
 
 from pvo_core import metrics
 
 
 def viso2s(pvo_data: Path, drive: str) -> tuple[np.ndarray, np.ndarray]:
-    mat = scipy.io.loadmat(pvo_data / f"kitti/viso2s-vo/baseline/{drive}.mat")
-    return np.moveaxis(mat["poses_gt"], 2, 0), np.moveaxis(mat["poses_est"], 2, 0)
+    run = read_viso2s(pvo_data / f"kitti/viso2s-vo/baseline/{drive}.mat", project_rotations=False)
+    return run.ground_truth, run.vo_poses
 
 
 @pytest.mark.parametrize(
@@ -114,3 +114,45 @@ def test_shared_error_covariance_recovers_the_common_noise() -> None:
     a = common + rng.normal(size=(20000, 3)) * 2.0
     b = common + rng.normal(size=(20000, 3)) * 3.0
     assert np.allclose(metrics.shared_error_covariance(a, b), common_cov, atol=0.15)
+
+
+def test_armse_is_the_mean_of_the_cumulative_rmse() -> None:
+    errors = np.array([1.0, 2.0, 3.0, 4.0])
+    expected_curve = [1.0, np.sqrt(2.5), np.sqrt(14 / 3), np.sqrt(7.5)]
+    np.testing.assert_allclose(metrics.crmse(errors), expected_curve)
+    gt = np.repeat(np.eye(4)[None], 4, axis=0)
+    est = gt.copy()
+    est[:, 0, 3] = errors  # east error only
+    est[:, 2, 3] = 1.0  # and 1 m up, invisible in the EN plane
+    figures = metrics.armse(gt, est)
+    assert figures["trans_en"] == pytest.approx(np.mean(expected_curve))
+    assert figures["trans"] == pytest.approx(np.mean(metrics.crmse(np.sqrt(errors**2 + 1.0))))
+    assert figures["rot"] == 0.0
+
+
+def test_pose_anees_is_one_for_errors_drawn_from_the_covariances() -> None:
+    rng = np.random.default_rng(3)
+    n = 4000
+    sigma = np.diag([0.1, 0.2, 0.3, 0.01, 0.02, 0.03]) ** 2
+    gt = np.array([se3_exp(np.concatenate([rng.normal(size=3) * 5, rng.normal(size=3)])) for _ in range(n)])
+    xi = rng.multivariate_normal(np.zeros(6), sigma, size=n)
+    est = np.array([np.linalg.inv(se3_exp(x)) @ g for x, g in zip(xi, gt, strict=True)])  # Log(T_gt T_est^-1) = xi
+    covariances = np.broadcast_to(sigma, (n, 6, 6)).copy()
+    covariances[5] = np.nan  # a frame whose covariance was not queried is skipped
+    assert metrics.pose_anees(gt, est, covariances) == pytest.approx(1.0, abs=0.05)
+    with pytest.raises(ValueError, match="one 6x6 covariance per pose"):
+        metrics.pose_anees(gt, est, covariances[:-1])
+
+
+def test_relative_change_and_averaging_of_figures() -> None:
+    assert metrics.mean_relative_change([0.5, 3.0], [1.0, 2.0]) == pytest.approx(0.0)
+    assert metrics.average_figures([{"a": 1.0, "b": 2.0}, {"a": 3.0}]) == {"a": 2.0, "b": 2.0}
+    with pytest.raises(ValueError, match="no runs"):
+        metrics.average_figures([])
+    a = np.repeat(np.eye(4)[None], 3, axis=0)
+    b = a.copy()
+    b[1, :3, 3] = [3.0, 4.0, 0.0]
+    b[2] = np.nan
+    assert metrics.max_position_difference(a, b) == 5.0
+    assert metrics.count_finite_poses(b) == 2
+    assert metrics.latency_summary([1.0, 2.0, 3.0])["median_ms"] == 2.0

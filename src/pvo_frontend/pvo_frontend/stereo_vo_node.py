@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry, Path
@@ -132,7 +131,7 @@ class StereoVONode(Node):
         self.camera_info[side] = msg
         if self.vo is None and len(self.camera_info) == 2:
             try:
-                camera = camera_from_infos(self.camera_info["left"], self.camera_info["right"])
+                camera = StereoCamera.from_camera_infos(self.camera_info["left"], self.camera_info["right"])
             except ValueError as exc:
                 self._problem(f"camera_info rejected: {exc}")
                 return
@@ -237,21 +236,6 @@ class StereoVONode(Node):
             )
             values.update({f"time_{k}_ms": f"{1e3 * v:.3f}" for k, v in result.timings.items()})
         self.pub_status.publish(status_array(stamp_ns, STATUS_NAME, self.settings.camera_frame, level, message, values))
-
-
-def camera_from_infos(left: CameraInfo, right: CameraInfo) -> StereoCamera:
-    """The rectified stereo model from both camera_info messages; ``ValueError`` naming the problem."""
-    if (left.width, left.height) != (right.width, right.height):
-        raise ValueError(f"left camera_info is {left.width}x{left.height} but right is {right.width}x{right.height}")
-    p_left = np.asarray(left.p, dtype=float).reshape(3, 4)
-    p_right = np.asarray(right.p, dtype=float).reshape(3, 4)
-    if not (np.all(np.isfinite(p_left)) and np.all(np.isfinite(p_right))):
-        raise ValueError("projection matrix P contains NaN")
-    if p_left[0, 0] <= 0.0:
-        raise ValueError("left camera_info P has no focal length (P[0] = 0): is the camera calibrated?")
-    if p_right[0, 3] >= 0.0:
-        raise ValueError(f"right camera_info P[3] = {p_right[0, 3]} must be -fx * baseline < 0 for a rectified stereo pair")
-    return StereoCamera.from_projection_matrices(p_left, p_right, int(left.width), int(left.height))
 
 
 def main(args: list[str] | None = None) -> None:

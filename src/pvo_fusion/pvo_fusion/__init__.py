@@ -1,7 +1,24 @@
-"""pvo_fusion: the sliding-window GTSAM smoother (ROS-free :class:`FusionGraph`) and the ``fusion`` node."""
+"""pvo_fusion: the sliding-window GTSAM smoother (ROS-free :class:`FusionGraph`), its offline runner, the
+VO-covariance calibration, and the ``fusion`` node."""
 
+from .calibration import CalibrationSequence, VOCalibration, calibrate_vo, vo_measurements
 from .config import FusionConfig
-from .graph import FusedPose, FusionGraph, run_measurements
+from .graph import FusedPose, FusionGraph
 from .measurements import RelativeMeasurement, SunMeasurement
+from .offline import OfflineResult, ordered_events, run_offline, sun_events
 
-__all__ = ["FusedPose", "FusionConfig", "FusionGraph", "RelativeMeasurement", "SunMeasurement", "run_measurements"]
+__all__ = [
+    "CalibrationSequence",
+    "FusedPose",
+    "FusionConfig",
+    "FusionGraph",
+    "OfflineResult",
+    "RelativeMeasurement",
+    "SunMeasurement",
+    "VOCalibration",
+    "calibrate_vo",
+    "ordered_events",
+    "run_offline",
+    "sun_events",
+    "vo_measurements",
+]

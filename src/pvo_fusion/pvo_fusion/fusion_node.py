@@ -23,8 +23,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry, Path
 from pvo_core.ephemeris import GeodeticOrigin
-from pvo_core.lie import make_transform, quaternion_to_rotation
-from pvo_core.msgconv import covariance_to_matrix, fill_pose, fill_stamp, pose_to_matrix, stamp_to_nanoseconds
+from pvo_core.msgconv import covariance_to_matrix, fill_pose, fill_stamp, pose_to_matrix, stamp_to_nanoseconds, xyz_xyzw_to_pose
 from rclpy.node import Node
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
@@ -79,7 +78,10 @@ class FusionNodeConfig:
             raise ValueError(f"path_period must be >= 0 s, got {self.path_period}")
         if not self.map_frame or not self.camera_frame:
             raise ValueError("map_frame and camera_frame must not be empty")
-        _pose_from_parameter(self.initial_pose)  # ValueError naming the problem
+        try:
+            xyz_xyzw_to_pose(self.initial_pose)
+        except ValueError as exc:
+            raise ValueError(f"initial_pose: {exc}") from None
 
 
 class FusionNode(Node):
@@ -98,7 +100,7 @@ class FusionNode(Node):
         self._gps_fixes = 0
         self._final_path: list[PoseStamped] = []
         if self.config.prior.source == "given" and not settings.initial_pose_from_ground_truth:
-            self.graph.set_initial_pose(_pose_from_parameter(settings.initial_pose))
+            self.graph.set_initial_pose(xyz_xyzw_to_pose(settings.initial_pose))
             self._initial_known = True
 
         # Inputs keep every message: a lagging fusion must not silently lose VO frames (a lost frame
@@ -250,14 +252,6 @@ class FusionNode(Node):
         values.update({f"factors.{k}": v for k, v in sorted(self.graph.factor_counts.items())})
         values.update({f"count.{k}": v for k, v in sorted(self.graph.counts.items()) if v})
         self.pub_status.publish(status_array(stamp, STATUS_NAME, self.settings.map_frame, level, message, values))
-
-
-def _pose_from_parameter(values: Any) -> np.ndarray:
-    v = np.asarray(list(values), dtype=float)
-    if v.shape != (7,) or not np.all(np.isfinite(v)) or np.linalg.norm(v[3:]) < 1e-9:
-        raise ValueError(f"initial_pose needs 7 finite numbers x y z qx qy qz qw with a non-zero quaternion, got {list(values)}")
-    q = v[3:] / np.linalg.norm(v[3:])
-    return make_transform(quaternion_to_rotation([q[3], q[0], q[1], q[2]]), v[:3])
 
 
 def main(args: list[str] | None = None) -> None:

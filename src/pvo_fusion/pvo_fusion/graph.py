@@ -25,7 +25,6 @@ from __future__ import annotations
 import bisect
 import time
 from collections import Counter, deque
-from collections.abc import Iterable
 from dataclasses import dataclass
 
 import gtsam
@@ -128,6 +127,11 @@ class FusionGraph:
         self._initial_covariance = None if covariance is None else np.asarray(covariance, dtype=float).reshape(6, 6)
 
     # ------------------------------------------------------------------ state look-up
+    @property
+    def initial_pose(self) -> Array:
+        """The first state's prior mean T_map,cam (the identity unless set)."""
+        return np.eye(4) if self._initial_pose is None else self._initial_pose.copy()
+
     @property
     def started(self) -> bool:
         return bool(self._stamps)
@@ -486,14 +490,3 @@ class _Estimates:
     def refresh(self, values: gtsam.Values) -> None:
         self._values = values
         self._added.clear()
-
-
-def run_measurements(graph: FusionGraph, events: Iterable[tuple[str, RelativeMeasurement | SunMeasurement]]) -> list[FusedPose]:
-    """Feed ``(kind, measurement)`` events in order (kind: vo, sun, correction, rotation); the full trajectory."""
-    add = {"vo": graph.add_vo, "sun": graph.add_sun, "correction": graph.add_correction, "rotation": graph.add_rotation}
-    out: list[FusedPose] = []
-    for kind, m in events:
-        add[kind](m)  # type: ignore[arg-type]
-        out.extend(graph.drain_finished())
-    out.extend(graph.trajectory())
-    return out

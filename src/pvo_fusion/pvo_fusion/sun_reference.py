@@ -80,6 +80,24 @@ class TabulatedSunReference:
         self._directions = dirs / norms[:, None]
         self._slack = int(slack_ns)
 
+    @classmethod
+    def from_ground_truth(cls, stamps_ns: ArrayLike, poses: ArrayLike, sun_camera: ArrayLike) -> TabulatedSunReference:
+        """The stand-in for the ephemeris where no GPS exists: s_map(t_k) = C_map,k s_k from ground-truth poses
+        T_map,cam (N, 4, 4) and camera-frame sun vectors (N, 3) at the same stamps."""
+        p = np.asarray(poses, dtype=float)
+        s = np.asarray(sun_camera, dtype=float)
+        if p.ndim != 3 or p.shape[1:] != (4, 4) or s.shape != (len(p), 3):
+            raise ValueError(f"need poses (N, 4, 4) and sun vectors (N, 3), got {p.shape} and {s.shape}")
+        return cls(stamps_ns, np.einsum("nij,nj->ni", p[:, :3, :3], s))
+
+    @property
+    def stamps(self) -> NDArray[np.int64]:
+        return np.asarray(self._stamps, dtype=np.int64)
+
+    @property
+    def directions(self) -> Array:
+        return self._directions.copy()
+
     def direction(self, stamp_ns: int) -> Array | None:
         stamps = self._stamps
         i = bisect.bisect_left(stamps, stamp_ns)

@@ -1,105 +1,18 @@
-"""`pvo eval`: trajectory metrics against ground truth, a printed table, PNG plots and metrics.json."""
+"""`pvo eval`: a trajectory against ground truth — the printed table, PNG plots and the run-result record."""
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pvo_core.trajectory import read_kitti_poses, read_kitti_poses_indexed
-
-from pvo_core import metrics
+from pvo_core.evaluation import Evaluation, aligned_estimate, evaluate, thesis_per_length
+from pvo_core.results import RunResult
+from pvo_core.trajectory import read_estimate_with_ground_truth
 
 from .errors import PvoError
 
 Array = NDArray[np.float64]
-
-
-@dataclass
-class Evaluation:
-    """Every figure of one evaluation, ready for JSON (floats, lists)."""
-
-    figures: dict[str, Any] = field(default_factory=dict)
-    per_frame: dict[str, Array] = field(default_factory=dict)
-    segments: metrics.SegmentErrors | None = None
-    thesis: metrics.ThesisSegmentErrors | None = None
-
-
-def load_pair(gt_path: Path, est_path: Path, gt_start: int = 0) -> tuple[Array, Array, NDArray[np.int64]]:
-    """Ground truth (full), estimate, and the estimate's ground-truth frame numbers.
-
-    An estimate with frame numbers (13 columns) is placed by them; otherwise its k-th pose is frame
-    ``gt_start + k``.
-    """
-    gt = read_kitti_poses(gt_path)
-    frames, est = read_kitti_poses_indexed(est_path)
-    if est.shape[0] and np.array_equal(frames, np.arange(len(frames))):
-        frames = frames + gt_start
-    if frames.max() >= len(gt):
-        raise PvoError(f"{est_path}: the estimate reaches frame {int(frames.max())} but {gt_path} has only {len(gt)} poses")
-    if len(frames) < 2:
-        raise PvoError(f"{est_path}: need at least 2 poses to evaluate")
-    return gt, est, frames
-
-
-def evaluate(
-    gt_full: Array, est: Array, frames: NDArray[np.int64], align: str = "none", relative: dict[str, Array] | None = None
-) -> Evaluation:
-    """All metrics of the estimate at ``frames`` against ``gt_full``.
-
-    ``relative`` (optional): ``transforms`` (K, 4, 4) T_k,k-1, ``covariances`` (K, 6, 6) and ``ok``
-    (K,) per frame after the first, for NEES/ANEES of the reported covariances.
-    """
-    gt = gt_full[frames]
-    rebased_est = np.linalg.inv(est[0]) @ est
-    rebased_gt = np.linalg.inv(gt[0]) @ gt
-    aligned = metrics.align_trajectory(rebased_gt, rebased_est, align)
-    ev = Evaluation()
-    f = ev.figures
-    dist = metrics.path_distances(rebased_gt)
-    f["frames"] = len(frames)
-    f["path_length_m"] = float(dist[-1])
-    f["alignment"] = align
-    end_error = float(np.linalg.norm(aligned[-1, :3, 3] - rebased_gt[-1, :3, 3]))
-    f["end_point_error_m"] = end_error
-    f["end_drift_percent"] = 100.0 * end_error / dist[-1] if dist[-1] > 0 else float("nan")
-    ate = metrics.absolute_trajectory_error(rebased_gt, aligned)
-    f["ate_rmse_m"] = float(np.sqrt(np.mean(ate**2)))
-    f["ate_mean_m"] = float(ate.mean())
-    traj = metrics.mean_trajectory_errors(rebased_gt, aligned)
-    f["m_ate_translation_m"] = traj.mean_translation
-    f["m_ate_rotation_deg"] = float(np.degrees(traj.mean_rotation))
-    f["c_ate_translation_m"] = float(traj.cumulative_translation[-1])
-    f["c_ate_rotation_deg"] = float(np.degrees(traj.cumulative_rotation[-1]))
-    rpe_t, rpe_r = metrics.relative_pose_errors(rebased_gt, aligned)
-    f["rpe_translation_mean_m"] = float(rpe_t.mean())
-    f["rpe_translation_rmse_m"] = float(np.sqrt(np.mean(rpe_t**2)))
-    f["rpe_rotation_mean_deg"] = float(np.degrees(rpe_r.mean()))
-    f["rpe_rotation_rmse_deg"] = float(np.degrees(np.sqrt(np.mean(rpe_r**2))))
-    ev.segments = metrics.kitti_odom_eval(gt_full, frames, est, align)
-    t, r = metrics.devkit_score(ev.segments)
-    f["devkit_segments"] = len(ev.segments)
-    f["devkit_translation_percent"] = t
-    f["devkit_rotation_deg_per_100m"] = 100.0 * r
-    ev.thesis = metrics.thesis_segment_errors(rebased_gt, aligned)
-    f["thesis_translation_percent"] = ev.thesis.translation_percent
-    f["thesis_rotation_deg_per_m"] = ev.thesis.rotation_deg_per_m
-    ev.per_frame = {"ate_m": ate, "rotation_error_deg": np.degrees(traj.rotation), "distance_m": dist}
-    if relative is not None:
-        transforms, covariances, ok = relative["transforms"], relative["covariances"], relative["ok"].astype(bool)
-        if len(transforms) != len(frames) - 1:
-            raise PvoError(f"relative motions: {len(transforms)} for {len(frames)} poses (need one per frame after the first)")
-        errors = metrics.relative_motion_errors(gt, transforms)
-        n = metrics.nees(errors[ok], covariances[ok])
-        f["nees_frames"] = int(ok.sum())
-        f["anees"] = float(n.mean() / 6.0)
-        f["nees_median_per_dof"] = float(np.median(n) / 6.0)
-        f["anees_translation"] = float(metrics.nees(errors[ok][:, :3], covariances[ok][:, :3, :3]).mean() / 3.0)
-        f["anees_rotation"] = float(metrics.nees(errors[ok][:, 3:], covariances[ok][:, 3:, 3:]).mean() / 3.0)
-    return ev
 
 
 def format_table(ev: Evaluation) -> str:
@@ -141,8 +54,8 @@ def format_table(ev: Evaluation) -> str:
     return "\n".join(f"{name:<{width}}  {value}" for name, value in rows)
 
 
-def write_report(ev: Evaluation, gt: Array, est_aligned: Array, out_dir: Path) -> list[Path]:
-    """metrics.json and the PNG plots into ``out_dir``; returns the files written."""
+def write_plots(ev: Evaluation, gt: Array, est_aligned: Array, out_dir: Path) -> list[Path]:
+    """The PNG plots of one evaluation into ``out_dir``; returns the files written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -150,19 +63,6 @@ def write_report(ev: Evaluation, gt: Array, est_aligned: Array, out_dir: Path) -
 
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
-    metrics_path = out_dir / "metrics.json"
-    figures = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in ev.figures.items()}
-    if ev.thesis is not None:
-        figures["thesis_per_length"] = {
-            str(int(length)): {"translation_percent": 100 * t, "rotation_deg_per_m": float(np.degrees(r)), "count": int(c)}
-            for length, t, r, c in zip(
-                ev.thesis.lengths, ev.thesis.translation, ev.thesis.rotation, ev.thesis.counts, strict=True
-            )
-            if c > 0
-        }
-    metrics_path.write_text(json.dumps(figures, indent=2) + "\n")
-    written.append(metrics_path)
-
     fig, ax = plt.subplots(figsize=(6, 6))
     ax.plot(gt[:, 0, 3], gt[:, 2, 3], "k-", label="ground truth")
     ax.plot(est_aligned[:, 0, 3], est_aligned[:, 2, 3], "b-", label="estimate")
@@ -210,10 +110,21 @@ def write_report(ev: Evaluation, gt: Array, est_aligned: Array, out_dir: Path) -
     return written
 
 
+def eval_record(ev: Evaluation, name: str, inputs: dict[str, str]) -> RunResult:
+    """The run-result record of one evaluation (figures, the thesis's per-length table)."""
+    return RunResult(
+        "eval",
+        name,
+        figures=dict(ev.figures),
+        tables={"thesis_per_length": thesis_per_length(ev)},
+        inputs=inputs,
+    )
+
+
 def run_eval(
     gt_path: Path, est_path: Path, align: str, out_dir: Path | None, gt_start: int = 0, relative_path: Path | None = None
 ) -> Evaluation:
-    gt_full, est, frames = load_pair(gt_path, est_path, gt_start)
+    gt_full, est, frames = read_estimate_with_ground_truth(gt_path, est_path, gt_start)
     relative = None
     if relative_path is not None:
         if not relative_path.is_file():
@@ -223,8 +134,11 @@ def run_eval(
     ev = evaluate(gt_full, est, frames, align, relative)
     print(format_table(ev))
     if out_dir is not None:
-        gt = np.linalg.inv(gt_full[frames[0]]) @ gt_full[frames]
-        aligned = metrics.align_trajectory(gt, np.linalg.inv(est[0]) @ est, align)
-        for path in write_report(ev, gt, aligned, out_dir):
+        gt, aligned = aligned_estimate(gt_full, est, frames, align)
+        inputs = {"gt": str(gt_path), "est": str(est_path), "align": align, "gt_start": str(gt_start)}
+        if relative_path is not None:
+            inputs["relative"] = str(relative_path)
+        print(f"wrote {eval_record(ev, est_path.stem, inputs).write(out_dir)}")
+        for path in write_plots(ev, gt, aligned, out_dir):
             print(f"wrote {path}")
     return ev

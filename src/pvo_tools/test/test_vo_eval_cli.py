@@ -40,7 +40,9 @@ def test_pvo_eval_matches_the_devkit_and_writes_plots(pvo_data: Path, tmp_path: 
     code = main(["eval", "--gt", str(gt), "--est", str(est), "-o", str(tmp_path / "eval")])
     assert code == 0
     assert "KITTI devkit segments" in capsys.readouterr().out
-    figures = json.loads((tmp_path / "eval/metrics.json").read_text())
+    record = json.loads((tmp_path / "eval/metrics.json").read_text())
+    assert record["kind"] == "eval" and record["schema"] == "pvo.run-result/1"
+    figures = record["figures"]
     assert figures["devkit_translation_percent"] == pytest.approx(100 * reference[:, 2].mean(), rel=1e-9)
     assert figures["devkit_segments"] == len(reference)
     for name in ("trajectory.png", "errors_per_frame.png", "errors_vs_length.png"):

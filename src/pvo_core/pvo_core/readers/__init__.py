@@ -4,16 +4,32 @@ results and the Devon Island rover navigation dataset."""
 from .devon import DevonDataset, SunSensorReading, read_devon_sun_sensor, read_devon_sun_sensor_sampled
 from .kitti import KittiSequence, read_kitti_calibration, read_kitti_sun_csv, read_kitti_times
 from .sidecars import read_gps_csv, read_imu_csv
+from .viso2s import (
+    SEQUENCE_DRIVES,
+    KittiSunSequence,
+    Viso2sRun,
+    read_kitti_sun_sequence,
+    read_viso2s,
+    read_viso2s_sequence,
+    viso2s_path,
+)
 
 __all__ = [
+    "SEQUENCE_DRIVES",
     "DevonDataset",
     "KittiSequence",
+    "KittiSunSequence",
     "SunSensorReading",
+    "Viso2sRun",
     "read_devon_sun_sensor",
     "read_devon_sun_sensor_sampled",
     "read_gps_csv",
     "read_imu_csv",
     "read_kitti_calibration",
     "read_kitti_sun_csv",
+    "read_kitti_sun_sequence",
     "read_kitti_times",
+    "read_viso2s",
+    "read_viso2s_sequence",
+    "viso2s_path",
 ]

@@ -1,5 +1,5 @@
 """The sun experiment end to end through the nodes: a bag of VO and sun messages -> ``fusion`` over
-DDS -> a recorded bag, compared with the ROS-free :func:`~pvo_tools.sun_experiment.run_fusion`.
+DDS -> a recorded bag, compared with the ROS-free :func:`~pvo_tools.experiments.sun_sim.run_fusion`.
 """
 
 from __future__ import annotations
@@ -7,23 +7,28 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from pvo_core.config import flatten
-from pvo_core.lie import rotation_to_quaternion
+from pvo_core.msgconv import pose_to_xyz_xyzw
+from pvo_core.readers import KittiSunSequence
 from pvo_fusion.sun_reference import TabulatedSunReference
 
-from pvo_fusion import RelativeMeasurement, SunMeasurement
+from pvo_core import metrics
+from pvo_fusion import RelativeMeasurement, SunMeasurement, ordered_events, sun_events
 from pvo_fusion.config import FusionConfig, from_flat
 
-from . import rosmsgs
-from .bagio import SafeBagWriter, iter_messages, open_bag
-from .sun_experiment import SunSequence, ordered_events
+from .. import rosmsgs
+from ..bagio import SafeBagWriter
+from ..errors import PvoError
+from ..overrides import parse_overrides
+from ..recorded import read_recorded
+from .sun_sim import experiment_config, prepare_sequence, run_fusion
 
 Array = NDArray[np.float64]
 FRAME = "camera_left_optical"
-INPUT_TOPICS = ("/pvo/vo/relative", "/pvo/sun/direction")
 OUTPUT_TOPICS = ["/pvo/fusion/odometry", "/pvo/fusion/path", "/pvo/fusion/status"]
 
 
@@ -33,7 +38,7 @@ def write_input_bag(path: Path, vo: list[RelativeMeasurement], sun: list[SunMeas
     with SafeBagWriter(path, overwrite=overwrite) as writer:
         writer.add_topic("/pvo/vo/relative", "pvo_msgs/msg/RelativePose")
         writer.add_topic("/pvo/sun/direction", "pvo_msgs/msg/SunDirection")
-        for kind, m in ordered_events(vo, sun):
+        for kind, m in ordered_events(vo, sun_events(sun)):
             if kind == "vo":
                 assert isinstance(m, RelativeMeasurement)
                 msg = rosmsgs.relative_pose(m.stamp, m.reference_stamp, FRAME, m.transform, m.covariance)
@@ -54,13 +59,8 @@ class NodeRun:
     wall_seconds: float
 
 
-def initial_pose_parameter(pose: Array) -> list[float]:
-    w, x, y, z = rotation_to_quaternion(pose[:3, :3])
-    return [float(v) for v in (*pose[:3, 3], x, y, z, w)]
-
-
 def run_through_nodes(
-    seq: SunSequence,
+    seq: KittiSunSequence,
     vo: list[RelativeMeasurement],
     sun: list[SunMeasurement],
     work_dir: Path,
@@ -76,9 +76,9 @@ def run_through_nodes(
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
-    from .player import BagPlayer, PlayOptions
-    from .recorder import BagRecorder, RecordOptions
-    from .testing import Spinner
+    from ..player import BagPlayer, PlayOptions
+    from ..recorder import BagRecorder, RecordOptions
+    from ..testing import Spinner
 
     work_dir.mkdir(parents=True, exist_ok=True)
     input_bag = work_dir / "input"
@@ -88,7 +88,7 @@ def run_through_nodes(
     TabulatedSunReference.write(table, seq.stamps, seq.sun_map())
     values = {
         "prior.source": "given",
-        "initial_pose": initial_pose_parameter(seq.ground_truth[0]),
+        "initial_pose": pose_to_xyz_xyzw(seq.ground_truth[0]),
         "inputs.sun.reference": "table",
         "inputs.sun.reference_table": str(table),
         "path_period": 0.0,  # a path per frame: the last one carries every final estimate
@@ -128,33 +128,43 @@ def run_through_nodes(
     finally:
         rclpy.shutdown(context=context)
     wall = time.perf_counter() - start
-    poses, online, count = read_fusion_output(output_bag, seq.stamps)
-    return NodeRun(poses, online, latencies, count, wall)
+    recorded = read_recorded(output_bag, ["/pvo/fusion/path", "/pvo/fusion/odometry"])
+    if "/pvo/fusion/path" not in recorded or "/pvo/fusion/odometry" not in recorded:
+        raise PvoError(f"{output_bag}: the fusion node published no path or no odometry")
+    poses, _ = recorded["/pvo/fusion/path"].at(seq.stamps)
+    online, _ = recorded["/pvo/fusion/odometry"].at(seq.stamps)
+    online[0] = poses[0]
+    return NodeRun(poses, online, latencies, len(recorded["/pvo/fusion/odometry"].stamps), wall)
 
 
-def read_fusion_output(bag: Path, stamps: NDArray[np.int64]) -> tuple[Array, Array, int]:
-    """Final poses from the last path message and online poses from the odometry, indexed by frame."""
-    from pvo_core.msgconv import pose_to_matrix, stamp_to_nanoseconds
+def compare_through_nodes(args: Any, data: Path) -> int:
+    """`pvo experiment sun-sim --through-nodes SEQ`: the node's figures against the ROS-free run's."""
 
-    from .typesys import project_typestore
-
-    store = project_typestore()
-    index = {int(s): i for i, s in enumerate(stamps)}
-    final = np.full((len(stamps), 4, 4), np.nan)
-    online = np.full((len(stamps), 4, 4), np.nan)
-    last_path = None
-    count = 0
-    with open_bag(bag) as reader:
-        for connection, _, raw in iter_messages(reader):
-            if connection.topic == "/pvo/fusion/path":
-                last_path = (connection, raw)
-            elif connection.topic == "/pvo/fusion/odometry":
-                msg = store.deserialize_cdr(raw, connection.msgtype)
-                online[index[stamp_to_nanoseconds(msg.header.stamp)]] = pose_to_matrix(msg.pose.pose)
-                count += 1
-        if last_path is not None:
-            path = store.deserialize_cdr(last_path[1], last_path[0].msgtype)
-            for stamped in path.poses:
-                final[index[stamp_to_nanoseconds(stamped.header.stamp)]] = pose_to_matrix(stamped.pose)
-    online[0] = final[0]
-    return final, online, count
+    name = args.through_nodes
+    seq, vo, sun = prepare_sequence(data, name, 10.0, args.seed, args.frames)
+    overrides = parse_overrides(args.param)
+    ros_free = run_fusion(seq, vo, sun, experiment_config(overrides))
+    print(f"sequence {name}: {len(seq.stamps)} frames, {len(sun)} GT-Sun-10 measurements; playing at {args.rate:g}x", flush=True)
+    nodes = run_through_nodes(seq, vo, sun, args.out / f"nodes_{name}", overrides, rate=args.rate)
+    a, b = metrics.armse(seq.ground_truth, ros_free.poses), metrics.armse(seq.ground_truth, nodes.poses)
+    print(f"{'':<12}{'trans [m]':>12}{'EN [m]':>12}{'rot [1e-3]':>12}")
+    for label, m in (("ROS-free", a), ("nodes", b)):
+        print(f"{label:<12}{m['trans']:>12.6f}{m['trans_en']:>12.6f}{1e3 * m['rot']:>12.6f}")
+    diff = metrics.max_pose_difference(nodes.poses, ros_free.poses)
+    # Online (newest-state) estimates match where no sun measurement shares the frame: when a frame's sun
+    # message reaches the node before its VO, the node publishes after fusing both (the ROS-free run before).
+    sun_frames = {int(m.stamp) for m in sun}
+    plain = [k for k in range(1, len(seq.stamps)) if int(seq.stamps[k]) not in sun_frames]
+    online = metrics.max_pose_difference(nodes.online_poses[plain], ros_free.online_poses[plain])
+    print(
+        f"max |pose difference|: final {diff:.2e}, online (frames without sun) {online:.2e}; "
+        f"odometry messages {nodes.odometry_messages}/{len(vo)}"
+    )
+    if nodes.latencies_ms:
+        lat = metrics.latency_summary(nodes.latencies_ms)
+        print(
+            f"node latency VO in -> odometry out: median {lat['median_ms']:.2f} ms, "
+            f"p95 {lat['p95_ms']:.2f} ms, max {lat['max_ms']:.2f} ms"
+        )
+    print(f"wall time {nodes.wall_seconds:.1f} s; bags in {args.out / f'nodes_{name}'}")
+    return 0 if nodes.odometry_messages == len(vo) and diff < 1e-6 else 1

@@ -1,0 +1,170 @@
+"""`pvo bench vo|sim|fusion`: benchmarks that print figures (speed, memory, accuracy)."""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pvo_frontend.offline import STAGES, run_sequence, summarise
+from pvo_frontend.vo import from_flat
+
+from ..overrides import parse_overrides
+from ..paths import data_directory
+from .vo import add_sequence_arguments, open_sequence
+
+
+def register(sub: Any) -> None:
+    bench = sub.add_parser("bench", help="benchmarks: vo | sim | fusion")
+    kinds = bench.add_subparsers(dest="bench", required=True, metavar="WHAT")
+    bvo = kinds.add_parser("vo", help="stereo VO per-stage timings and accuracy on a KITTI clip")
+    bvo.set_defaults(handler=bench_vo)
+    add_sequence_arguments(bvo)
+    bvo.add_argument("--count", type=int, help="number of frames (default: all)")
+    bvo.add_argument("--repeat", type=int, default=3, help="runs per variant; the fastest is reported (default 3)")
+    bvo.add_argument("--threads", type=int, default=1, help="OpenCV threads (default 1: one core)")
+    bvo.add_argument("--compare", action="store_true", help="also run the alternative detector/tracker/solver variants")
+    bvo.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter for every variant")
+    bvo.add_argument("--json", type=Path, help="write the figures as YAML/JSON to this file")
+
+    bs = kinds.add_parser("sim", help="synthetic world: stereo frames/s at 620x188 and 1241x376, world generation vs length")
+    bs.set_defaults(handler=bench_sim)
+    bs.add_argument("--preset", default="urban", help="urban | planetary")
+    bs.add_argument("--frames", type=int, default=30, help="frames rendered per size (default 30)")
+
+    bf = kinds.add_parser("fusion", help="FusionGraph over a whole KITTI sequence (viso2-s VO + GT-Sun-10): time and memory")
+    bf.set_defaults(handler=bench_fusion)
+    bf.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
+    bf.add_argument("--sequence", default="00", help="KITTI sequence (default 00: 4541 frames)")
+    bf.add_argument("--repeat", type=int, default=3, help="runs; the fastest is reported (default 3)")
+    bf.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="fusion parameter")
+
+
+BENCH_VARIANTS: dict[str, dict[str, Any]] = {
+    "default": {},
+    "gftt detector": {"detector.method": "gftt"},
+    "forward-backward check": {"tracker.forward_backward": True},
+    "KLT 21x21, 3 levels": {"tracker.window": 21, "tracker.levels": 3, "tracker.iterations": 30},
+    "L2 loss": {"solver.loss": "l2"},
+    "no reference-noise propagation": {"solver.propagate_reference_noise": False},
+    "pixel sigma 2, 2, 4 (calibrated)": {"solver.pixel_sigma": [2.0, 2.0, 4.0]},
+}
+
+
+def bench_vo(args: argparse.Namespace) -> int:
+    """Per-stage timings and accuracy of the stereo VO (and its variants) on a KITTI clip."""
+    import cv2
+
+    cv2.setNumThreads(args.threads)
+    sequence = open_sequence(args.sequence_dir, args.rate, None, False, 0, args.count, args.poses)
+    images = [sequence.load_pair(i) for i in range(len(sequence))]
+    base = parse_overrides(args.param, None, node="stereo_vo")
+    variants = BENCH_VARIANTS if args.compare else {"default": {}}
+    print(
+        f"pvo bench vo: {sequence.root} frames {len(sequence)}, "
+        f"{images[0][0].shape[1]}x{images[0][0].shape[0]}, OpenCV threads {args.threads}"
+    )
+    header = (
+        f"{'variant':<34} {'median':>7} {'p95':>7} "
+        + " ".join(f"{s[:8]:>8}" for s in STAGES[:-1])
+        + f" {'drift%':>7} {'ATE m':>6} {'ANEES':>6} {'inl':>5} lost"
+    )
+    print(header)
+    summaries = {}
+    for name, overrides in variants.items():
+        best: dict[str, Any] | None = None
+        for _ in range(args.repeat):
+            vo_run = run_sequence(sequence, from_flat({**base, **overrides}), images=images)
+            s = summarise(vo_run, sequence.poses)
+            if best is None or s["median_ms"] < best["median_ms"]:
+                best = s
+        assert best is not None
+        summaries[name] = best
+        st = best["stages_ms"]
+        acc = (
+            f"{best['end_drift_percent']:7.3f} {best['ate_mean_m']:6.3f} {best['anees']:6.2f}"
+            if "anees" in best
+            else f"{'-':>7} {'-':>6} {'-':>6}"
+        )
+        print(
+            f"{name:<34} {best['median_ms']:7.2f} {best['p95_ms']:7.2f} "
+            + " ".join(f"{st[s]:8.2f}" for s in STAGES[:-1])
+            + f" {acc} {best['inliers']:5.0f} {best['lost']}"
+        )
+    print("times in ms per stereo frame (median over frames, best of repeats); drift = end-point error / path length;")
+    print("ATE = mean position error, no alignment; ANEES = mean NEES / 6 of the per-frame motions against ground truth")
+    if args.json is not None:
+        args.json.write_text(yaml.safe_dump(summaries, sort_keys=False))
+    return 0
+
+
+def bench_sim(args: argparse.Namespace) -> int:
+    """Rendering throughput at two sizes and world-generation time against path length."""
+    from pvo_sim import KITTI_FOCAL_PER_PIXEL_WIDTH, SimConfig, WorldSpec, build_world, procedural_path, simulate
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for width, height in ((620, 188), (1241, 376)):
+            config = SimConfig(
+                frames=args.frames, width=width, height=height, focal=KITTI_FOCAL_PER_PIXEL_WIDTH * width, preset=args.preset
+            )
+            result = simulate(config, Path(tmp) / f"{width}", overwrite=True)
+            print(
+                f"{args.preset} {width}x{height}: {result.frames / result.seconds_render:.2f} stereo frames/s "
+                f"({1e3 * result.seconds_render / result.frames:.1f} ms per stereo pair incl. PNG writing)"
+            )
+    for frames in (250, 500, 1000, 2000):
+        poses = procedural_path("s-curve", frames, 10.0, 8.0, 1.65)
+        start = time.perf_counter()
+        world = build_world(WorldSpec(args.preset), poses, 1.65)
+        seconds = time.perf_counter() - start
+        print(f"world generation, {frames} frames ({frames * 0.8:.0f} m): {seconds:.3f} s, {world.xml.count('<geom')} geoms")
+    return 0
+
+
+def bench_fusion(args: argparse.Namespace) -> int:
+    """Whole-sequence FusionGraph throughput and memory (VO + GT-Sun-10, no covariance queries)."""
+    from ..experiments.sun_sim import experiment_config, prepare_sequence, run_fusion
+
+    data = data_directory(args.data)
+    seq, vo, sun = prepare_sequence(data, args.sequence, 10.0, seed=0)
+    config = experiment_config(parse_overrides(args.param))
+    times = []
+    for _ in range(max(args.repeat, 1)):
+        result = run_fusion(seq, vo, sun, config)
+        times.append(result.seconds)
+    frames = len(seq.stamps)
+    best = min(times)
+    print(
+        f"sequence {args.sequence}: {frames} frames, {len(sun)} sun measurements, "
+        f"smoother {config.solver.smoother}/{config.solver.linear_solver}, lag {config.window.lag:g} {config.window.lag_unit}"
+    )
+    print(
+        f"  whole sequence: best {best:.2f} s of {len(times)} ({1e3 * best / frames:.3f} ms/frame), "
+        f"runs: {', '.join(f'{t:.2f}' for t in times)}"
+    )
+    print(f"  factors: {result.factors}")
+    # Memory over the sequence: the live Python heap at each quarter of the run must stay flat.
+    quarter = max(frames // 4, 1)
+    marks: list[tuple[int, float, int]] = []
+
+    def sample(done: int, graph: Any) -> None:
+        graph.drain_finished()
+        if done % quarter == 0:
+            marks.append((done, tracemalloc.get_traced_memory()[0] / 1e6, graph.window_size))
+
+    tracemalloc.start()
+    rss_start = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    run_fusion(seq, vo, sun, config, on_vo=sample)
+    current, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    rss_end = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    print("  memory (live Python heap, MB) by frame: " + ", ".join(f"{i}: {mb:.3f} (window {w})" for i, mb, w in marks))
+    print(
+        f"  end: {current / 1e6:.2f} MB live, peak {peak / 1e6:.2f} MB; max RSS {rss_start / 1024:.0f} -> {rss_end / 1024:.0f} MB"
+    )
+    return 0

@@ -1,0 +1,17 @@
+"""Thesis experiments, one module per table: each has ``TITLE``, ``register(parser)`` and ``run(args)``.
+
+Adding an experiment is adding a module and one line to :data:`EXPERIMENTS`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+EXPERIMENTS: dict[str, str] = {
+    "sun-sim": "pvo_tools.experiments.sun_sim",
+}
+
+
+def load(name: str) -> ModuleType:
+    return importlib.import_module(EXPERIMENTS[name])
