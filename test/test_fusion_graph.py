@@ -16,7 +16,7 @@ from pvo_core.msgconv import covariance_to_matrix, fill_pose, pose_to_matrix, st
 from pvo_fusion.fusion_node import FusionNode
 from pvo_pseudosensors.simulated_sun import SimulatedSunConfig, SimulatedSunSensor
 from pvo_pseudosensors.simulated_sun_node import SimulatedSunNode
-from pvo_tools.testing import Spinner
+from pvo_tools.testing import Spinner, wait_for
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -28,12 +28,6 @@ from pvo_msgs.msg import RelativePose, SunDirection
 
 pytestmark = pytest.mark.ros
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-
-
-def wait_for(predicate, timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and not predicate():
-        time.sleep(0.02)
 
 
 def relative_msg(stamp: int, reference: int, transform: np.ndarray, covariance: np.ndarray) -> RelativePose:

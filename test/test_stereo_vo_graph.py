@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +15,7 @@ from pvo_core.readers import KittiSequence
 from pvo_frontend.stereo_vo_node import StereoVONode
 from pvo_frontend.vo import StereoVO
 from pvo_tools.player import BagPlayer, PlayOptions
-from pvo_tools.testing import Spinner
+from pvo_tools.testing import Spinner, wait_for
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -26,12 +25,6 @@ from pvo_msgs.msg import RelativePose
 
 pytestmark = pytest.mark.ros
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-
-
-def wait_for(predicate, timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline and not predicate():
-        time.sleep(0.05)
 
 
 def test_sample_bag_through_stereo_vo(ros_context, sample_bag: Path, pvo_data: Path) -> None:

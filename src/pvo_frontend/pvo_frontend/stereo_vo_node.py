@@ -17,31 +17,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry, Path
 from pvo_core.camera import StereoCamera
 from pvo_core.msgconv import fill_pose, fill_stamp, image_to_array, stamp_to_nanoseconds
-from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 from pvo_msgs.msg import RelativePose
-from pvo_ros import (
-    ERROR,
-    OK,
-    SENSOR_QUEUE_DEPTH,
-    WARN,
-    ConfigParameters,
-    ParameterPolicy,
-    ProblemLog,
-    reliable,
-    run_node,
-    status_array,
-)
+from pvo_ros import ERROR, OK, SENSOR_QUEUE_DEPTH, WARN, PvoNode, reliable, run_node
 
 from .vo import FrameResult, FrameStatus, StereoVO, VOConfig
 
-STATUS_NAME = "pvo/stereo_vo"
 LEVELS = {FrameStatus.FIRST: OK, FrameStatus.TRACKING: OK, FrameStatus.LOST: WARN, FrameStatus.REJECTED: ERROR}
 
 
@@ -87,12 +73,16 @@ class StereoPairSynchroniser:
         return None
 
 
-class StereoVONode(Node):
+class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("stereo_vo", **kwargs)
-        self.config: VOConfig = ConfigParameters(self, VOConfig(), "stereo_vo").value
-        self.node_parameters = ConfigParameters(self, StereoVONodeConfig(), "stereo_vo")
-        ParameterPolicy(self, [self.node_parameters], runtime={"publish_path": lambda _: None})
+        super().__init__(
+            "stereo_vo",
+            VOConfig(),
+            StereoVONodeConfig(),
+            runtime={"publish_path": lambda _: None},
+            status_topic="/pvo/vo/status",
+            **kwargs,
+        )
 
         self.vo: StereoVO | None = None
         self.camera_info: dict[str, CameraInfo] = {}
@@ -103,7 +93,6 @@ class StereoVONode(Node):
         self.path = Path()
         self.path.header.frame_id = self.settings.odom_frame
         self.counts = {"processed": 0, "lost": 0, "rejected": 0, "waiting_for_camera_info": 0}
-        self._problem = ProblemLog(self.get_logger())
         self._previous_stamp_ns: int | None = None  # exact stamp of the last frame the VO accepted
 
         # The DDS queue must not be shallower than a short burst: a frame it overwrites is lost unreported,
@@ -116,11 +105,6 @@ class StereoVONode(Node):
         self.pub_relative = self.create_publisher(RelativePose, "/pvo/vo/relative", reliable(50))
         self.pub_odometry = self.create_publisher(Odometry, "/pvo/vo/odometry", reliable(50))
         self.pub_path = self.create_publisher(Path, "/pvo/vo/path", reliable(10))
-        self.pub_status = self.create_publisher(DiagnosticArray, "/pvo/vo/status", reliable(50))
-
-    @property
-    def settings(self) -> StereoVONodeConfig:
-        return self.node_parameters.value
 
     @property
     def max_pending(self) -> int:
@@ -133,7 +117,7 @@ class StereoVONode(Node):
             try:
                 camera = StereoCamera.from_camera_infos(self.camera_info["left"], self.camera_info["right"])
             except ValueError as exc:
-                self._problem(f"camera_info rejected: {exc}")
+                self.problem(f"camera_info rejected: {exc}")
                 return
             self.vo = StereoVO(camera, self.config)
             waiting, self._waiting = self._waiting, []
@@ -160,7 +144,7 @@ class StereoVONode(Node):
             missing = [f"/stereo/{s}/camera_info" for s in ("left", "right") if s not in self.camera_info]
             what = f"no camera_info on {' and '.join(missing)}" if missing else "camera_info was rejected"
             self.counts["waiting_for_camera_info"] += 1
-            self._problem(f"frame at {dropped_ns * 1e-9:.3f} s dropped: {what}")
+            self.problem(f"frame at {dropped_ns * 1e-9:.3f} s dropped: {what}")
             self._publish_status(None, dropped_ns, f"frame dropped: {what}")
             return
         stamp = stamp_ns * 1e-9
@@ -181,10 +165,10 @@ class StereoVONode(Node):
         self.counts["processed"] += 1
         if result.status is FrameStatus.REJECTED:
             self.counts["rejected"] += 1
-            self._problem(f"frame at {stamp:.9f} s rejected: {result.message}")
+            self.problem(f"frame at {stamp:.9f} s rejected: {result.message}")
         elif result.status is FrameStatus.LOST:
             self.counts["lost"] += 1
-            self._problem(f"tracking lost at {stamp:.9f} s: {result.message}")
+            self.problem(f"tracking lost at {stamp:.9f} s: {result.message}")
         if result.transform is not None and result.covariance is not None and self._previous_stamp_ns is not None:
             self._publish_estimate(stamp_ns, self._previous_stamp_ns, result)
         if result.status is not FrameStatus.REJECTED:
@@ -235,7 +219,7 @@ class StereoVONode(Node):
                 gn_iterations=result.gn_iterations,
             )
             values.update({f"time_{k}_ms": f"{1e3 * v:.3f}" for k, v in result.timings.items()})
-        self.pub_status.publish(status_array(stamp_ns, STATUS_NAME, self.settings.camera_frame, level, message, values))
+        self.publish_status(stamp_ns, self.settings.camera_frame, level, message, values)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -19,23 +19,19 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry, Path
 from pvo_core.ephemeris import GeodeticOrigin
 from pvo_core.msgconv import covariance_to_matrix, fill_pose, fill_stamp, pose_to_matrix, stamp_to_nanoseconds, xyz_xyzw_to_pose
-from rclpy.node import Node
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from pvo_msgs.msg import RelativePose, SunDirection
-from pvo_ros import OK, WARN, ConfigParameters, ParameterPolicy, every_message, reliable, run_node, status_array
+from pvo_ros import OK, WARN, PvoNode, every_message, reliable, run_node
 
 from .config import FusionConfig
 from .graph import ACCEPTED, BUFFERED, FusionGraph
 from .measurements import RelativeMeasurement, SunMeasurement
 from .sun_reference import EphemerisSunReference, FixedSunReference, SunReference, TabulatedSunReference
-
-STATUS_NAME = "pvo fusion"
 
 
 def relative_from_msg(msg: RelativePose) -> RelativeMeasurement:
@@ -84,12 +80,16 @@ class FusionNodeConfig:
             raise ValueError(f"initial_pose: {exc}") from None
 
 
-class FusionNode(Node):
+class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("fusion", **kwargs)
-        self.config: FusionConfig = ConfigParameters(self, FusionConfig(), "fusion").value
-        self.node_parameters = ConfigParameters(self, FusionNodeConfig(), "fusion")
-        ParameterPolicy(self, [self.node_parameters], runtime={"publish_path": lambda _: None, "path_period": lambda _: None})
+        super().__init__(
+            "fusion",
+            FusionConfig(),
+            FusionNodeConfig(),
+            runtime={"publish_path": lambda _: None, "path_period": lambda _: None},
+            status_depth=200,
+            **kwargs,
+        )
         settings = self.settings
         self._last_path_stamp: int | None = None
         self.graph = FusionGraph(self.config, self._static_sun_reference())
@@ -116,11 +116,6 @@ class FusionNode(Node):
         self.pub_odometry = self.create_publisher(Odometry, "/pvo/fusion/odometry", reliable(200))
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "/pvo/fusion/pose", reliable(200))
         self.pub_path = self.create_publisher(Path, "/pvo/fusion/path", reliable(10))
-        self.pub_status = self.create_publisher(DiagnosticArray, "/pvo/fusion/status", reliable(200))
-
-    @property
-    def settings(self) -> FusionNodeConfig:
-        return self.node_parameters.value
 
     def _static_sun_reference(self) -> SunReference | None:
         sun = self.config.inputs.sun
@@ -251,7 +246,7 @@ class FusionNode(Node):
         }
         values.update({f"factors.{k}": v for k, v in sorted(self.graph.factor_counts.items())})
         values.update({f"count.{k}": v for k, v in sorted(self.graph.counts.items()) if v})
-        self.pub_status.publish(status_array(stamp, STATUS_NAME, self.settings.map_frame, level, message, values))
+        self.publish_status(stamp, self.settings.map_frame, level, message, values)
 
 
 def main(args: list[str] | None = None) -> None:

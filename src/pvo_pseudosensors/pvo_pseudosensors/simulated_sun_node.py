@@ -2,7 +2,8 @@
 
 Parameters mirror :class:`~pvo_pseudosensors.simulated_sun.SimulatedSunConfig` (``mean_error_deg``,
 ``every_n``, ``covariance_floor_deg``, ``seed``); defaults in ``config/simulated_sun.yaml``. They are read
-at start-up (the sensor's noise stream is seeded from them).
+at start-up (the sensor's noise stream is seeded from them). Status (published/rejected counts) on
+``/pvo/simulated_sun/status``.
 """
 
 from __future__ import annotations
@@ -11,24 +12,20 @@ from typing import Any
 
 import numpy as np
 from pvo_core.sun import vector_to_zenith_azimuth
-from rclpy.node import Node
 
 from pvo_msgs.msg import SunDirection
-from pvo_ros import ConfigParameters, ParameterPolicy, ProblemLog, reliable, run_node
+from pvo_ros import OK, WARN, PvoNode, reliable, run_node, stamp_to_nanoseconds
 
 from .simulated_sun import SimulatedSunConfig, SimulatedSunSensor
 
 
-class SimulatedSunNode(Node):
+class SimulatedSunNode(PvoNode[SimulatedSunConfig, None]):
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__("simulated_sun", **kwargs)
-        parameters = ConfigParameters(self, SimulatedSunConfig(), "simulated_sun")
-        ParameterPolicy(self, [parameters])
-        config = parameters.value
+        super().__init__("simulated_sun", SimulatedSunConfig(), **kwargs)
+        config = self.config
         self.sensor = SimulatedSunSensor(config)
         self.published = 0
         self.rejected = 0
-        self._problem = ProblemLog(self.get_logger())
         qos = reliable(100)
         self.publisher = self.create_publisher(SunDirection, "/pvo/sun/direction", qos)
         self.create_subscription(SunDirection, "/ground_truth/sun_direction", self._on_truth, qos)
@@ -40,7 +37,8 @@ class SimulatedSunNode(Node):
             result = self.sensor.measure(truth)
         except ValueError as exc:
             self.rejected += 1
-            self._problem(f"/ground_truth/sun_direction rejected at {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: {exc}")
+            self.problem(f"/ground_truth/sun_direction rejected at {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: {exc}")
+            self._status(msg, WARN, f"rejected: {exc}")
             return
         if result is None:
             return
@@ -54,6 +52,11 @@ class SimulatedSunNode(Node):
         out.covariance = [float(v) for v in covariance.reshape(-1)]
         self.publisher.publish(out)
         self.published += 1
+        self._status(msg, OK, "published")
+
+    def _status(self, truth: SunDirection, level: int, message: str) -> None:
+        values = {"published": self.published, "rejected": self.rejected, "every_n": self.config.every_n}
+        self.publish_status(stamp_to_nanoseconds(truth.header.stamp), truth.header.frame_id, level, message, values)
 
 
 def main(args: list[str] | None = None) -> None:

@@ -7,6 +7,7 @@ re-exported here so that a node imports its ROS plumbing from one place.
 from pvo_core.msgconv import fill_stamp, stamp_to_nanoseconds
 
 from .diagnostics import ERROR, OK, WARN, ProblemLog, status_array, status_values
+from .node import PvoNode
 from .parameters import ConfigParameters, ParameterPolicy, config_fields, declare_config, declared_parameter_names
 from .qos import SENSOR_QUEUE_DEPTH, every_message, reliable
 from .runner import run_node
@@ -19,6 +20,7 @@ __all__ = [
     "ConfigParameters",
     "ParameterPolicy",
     "ProblemLog",
+    "PvoNode",
     "config_fields",
     "declare_config",
     "declared_parameter_names",

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import threading
+import time
+from collections.abc import Callable
 
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
@@ -31,3 +33,11 @@ class Spinner:
         self._stop.set()
         self._thread.join(timeout=5)
         self.executor.shutdown()
+
+
+def wait_for(predicate: Callable[[], bool], timeout: float = 30.0, poll: float = 0.02) -> bool:
+    """Poll ``predicate`` until it holds or ``timeout`` seconds pass; returns its last value."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not predicate():
+        time.sleep(poll)
+    return bool(predicate())

@@ -1,0 +1,61 @@
+"""``PvoNode``: the base of every pvo node — typed parameters from its configs, one runtime-change rule,
+a ``/pvo/<node>/status`` publisher and one warning line per distinct problem."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any, Generic, TypeVar
+
+from rclpy.node import Node
+
+from .diagnostics import ProblemLog, status_array
+from .parameters import ConfigParameters, ParameterPolicy
+from .qos import reliable
+
+CoreConfig = TypeVar("CoreConfig")
+NodeConfig = TypeVar("NodeConfig")
+
+
+class PvoNode(Node, Generic[CoreConfig, NodeConfig]):
+    """A node whose parameters are the fields of ``core_defaults`` (the algorithm's config) and of
+    ``node_defaults`` (frames, publishing options), with dotted names.
+
+    runtime: node parameters that may change while running (applied after validation; the others are
+    refused with the reason). ``config`` is the core config read at start-up, ``settings`` the node's current one.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        core_defaults: CoreConfig,
+        node_defaults: NodeConfig | None = None,
+        runtime: Mapping[str, Callable[[Any], None]] | None = None,
+        status_topic: str | None = None,
+        status_depth: int = 50,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(name, **kwargs)
+        self._core = ConfigParameters(self, core_defaults, name)
+        self._node_parameters = ConfigParameters(self, node_defaults, name) if node_defaults is not None else None
+        bindings = [b for b in (self._core, self._node_parameters) if b is not None]
+        ParameterPolicy(self, bindings, runtime=dict(runtime or {}))
+        self.problem = ProblemLog(self.get_logger())
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.status_name = f"pvo/{name}"
+        topic = status_topic or f"/pvo/{name}/status"
+        self.pub_status = self.create_publisher(DiagnosticArray, topic, reliable(status_depth))
+
+    @property
+    def config(self) -> CoreConfig:
+        return self._core.value
+
+    @property
+    def settings(self) -> NodeConfig:
+        if self._node_parameters is None:
+            raise AttributeError(f"{self.get_name()} has no node settings")
+        return self._node_parameters.value
+
+    def publish_status(self, stamp_ns: int, hardware_id: str, level: int, message: str, values: Mapping[str, Any]) -> None:
+        """One ``DiagnosticArray`` on ``/pvo/<node>/status``, stamped with the message time it reports on."""
+        self.pub_status.publish(status_array(stamp_ns, self.status_name, hardware_id, level, message, values))

@@ -1,0 +1,48 @@
+"""`pvo demo` (the main job) on the real KITTI sample: the graph over DDS equals the ROS-free objects."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+
+def test_demo_on_the_kitti_sample_matches_the_ros_free_objects(sample_bag: Path, tmp_path: Path, ros_env) -> None:
+    out = tmp_path / "demo"
+    result = subprocess.run(
+        ["pvo", "demo", str(sample_bag), "-o", str(out)], env=ros_env, capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "VO (stereo_vo)" in result.stdout and "fused smoothed (/pvo/fusion/path)" in result.stdout
+    sample = out / "kitti06_sample"
+    record = json.loads((sample / "metrics.json").read_text())
+    assert record["schema"] == "pvo.run-result/1" and record["kind"] == "demo"
+    agreement = record["figures"]
+    for key in ("vo", "fused_smoothed", "fused_online"):
+        assert agreement[f"agreement_with_ros_free.{key}_max_position_difference_m"] < 1e-6
+    estimates = record["tables"]["estimates"]
+    assert estimates["vo"]["frames"] == estimates["fused_smoothed"]["frames"] == 51
+    # the stereo VO's figure on the 06 clip, through the nodes
+    assert estimates["vo"]["end_drift_percent"] == pytest.approx(1.006, abs=5e-4)
+    assert 0.0 < estimates["fused_online"]["pose_anees"]
+    for name in ("report.md", "trajectory.png", "errors.png", "params.yaml", "sun_reference.csv"):
+        assert (sample / name).stat().st_size > 100, name
+    assert (out / "report.md").read_text().count("kitti06_sample") >= 2
+    bag_info = subprocess.run(["pvo", "bag", "info", str(sample / "recorded")], capture_output=True, text=True, timeout=60)
+    assert "Topic: /pvo/vo/relative" in bag_info.stdout and "Count: 50" in bag_info.stdout
+
+
+def test_demo_on_a_missing_bag_is_one_clear_line(tmp_path: Path, ros_env) -> None:
+    result = subprocess.run(
+        ["pvo", "demo", str(tmp_path / "none"), "-o", str(tmp_path / "out")],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1] == f"pvo: error: {tmp_path / 'none'}: no such bag"
