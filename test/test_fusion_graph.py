@@ -199,26 +199,6 @@ def test_fusion_path_is_published_once_per_path_period(ros_context) -> None:
     assert [len(p.poses) for p in paths] == [2, 7, 12]  # the first state and every frame since
 
 
-@pytest.mark.parametrize(
-    ("parameter", "message"),
-    [
-        ("window.lag_unit:=hours", "invalid fusion configuration: window.lag_unit must be one of frames, seconds"),
-        ("path_period:=-1.0", "path_period must be >= 0 s, got -1.0"),
-    ],
-)
-def test_wrong_parameter_is_one_clear_line(ros_env, parameter: str, message: str) -> None:
-    result = subprocess.run(
-        ["pvo", "run", "pvo_fusion", "fusion", "--ros-args", "-p", parameter],
-        env=ros_env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert result.returncode == 2
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert lines == [f"fusion: error: {message}"]
-
-
 def test_missing_sun_table_is_one_clear_line(ros_env, tmp_path: Path) -> None:
     missing = tmp_path / "none.csv"
     command = ["pvo", "run", "pvo_fusion", "fusion", "--ros-args", "-p", "inputs.sun.reference:=table"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -81,3 +82,33 @@ def test_fusion_applies_path_period_at_run_time_and_validates_it(ros_context) ->
         assert node.settings.path_period == 0.25
     finally:
         node.destroy_node()
+
+
+@pytest.mark.parametrize(
+    ("package", "node", "parameter", "message"),
+    [
+        (
+            "pvo_frontend",
+            "stereo_vo",
+            "solver.loss:=tukey",
+            "invalid VO configuration: solver.loss must be one of l2, huber, cauchy, geman_mcclure, student_t",
+        ),
+        ("pvo_frontend", "stereo_vo", "max_pending_frames:=0", "max_pending_frames must be >= 1, got 0"),
+        (
+            "pvo_fusion",
+            "fusion",
+            "window.lag_unit:=hours",
+            "invalid fusion configuration: window.lag_unit must be one of frames, seconds",
+        ),
+        ("pvo_fusion", "fusion", "path_period:=-1.0", "path_period must be >= 0 s, got -1.0"),
+        ("pvo_fusion", "fusion", "initial_pose:=[0.0,0.0]", "initial_pose: a pose needs 7 finite numbers"),
+        ("pvo_pseudosensors", "simulated_sun", "every_n:=0", "invalid simulated sun configuration: every_n must be >= 1, got 0"),
+    ],
+)
+def test_a_wrong_parameter_is_one_clear_line_and_exit_2(ros_env, package: str, node: str, parameter: str, message: str) -> None:
+    result = subprocess.run(
+        ["pvo", "run", package, node, "--ros-args", "-p", parameter], env=ros_env, capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"{node}: error: {message}"), lines

@@ -168,11 +168,9 @@ def validate(config: FusionConfig) -> None:
             raise ValueError(f"invalid fusion configuration: {message}")
 
 
-def flatten(config: FusionConfig) -> dict[str, Any]:
-    """``{"window.lag": 10.0, "inputs.sun.huber_k": 1.345, ...}``."""
-    return _flatten(config)
+flatten = _flatten  # {"section.leaf": value, ...} of a config; tuples become lists
 
 
 def from_flat(values: Mapping[str, Any], base: FusionConfig | None = None) -> FusionConfig:
-    """A :class:`FusionConfig` from dotted names over ``base`` (defaults); unknown names are an error."""
+    """A :class:`FusionConfig` from dotted names over ``base`` (defaults); unknown names and bad values are errors."""
     return _from_flat(values, base or FusionConfig(), what="fusion")

@@ -169,11 +169,9 @@ def validate(config: VOConfig) -> None:
             raise ValueError(f"invalid VO configuration: {message}")
 
 
-def flatten(config: Any) -> dict[str, Any]:
-    """``{"detector.bucket_size": 48, ...}`` for a (nested) config dataclass; tuples become lists."""
-    return _flatten(config)
+flatten = _flatten  # {"section.leaf": value, ...} of a config; tuples become lists
 
 
 def from_flat(values: Mapping[str, Any], base: VOConfig | None = None) -> VOConfig:
-    """A :class:`VOConfig` from dotted names over ``base`` (defaults); unknown names are an error."""
+    """A :class:`VOConfig` from dotted names over ``base`` (defaults); unknown names and bad values are errors."""
     return _from_flat(values, base or VOConfig(), what="VO")
