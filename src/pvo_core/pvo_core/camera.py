@@ -76,6 +76,13 @@ class StereoCamera:
             raise ValueError(f"right camera_info P[3] = {p_right[0, 3]} must be -fx * baseline < 0 for a rectified stereo pair")
         return cls.from_projection_matrices(p_left, p_right, int(left.width), int(left.height))
 
+    def projection_matrices(self) -> tuple[Array, Array]:
+        """The rectified 3x4 ``P`` of the left and right camera (ROS camera_info; right ``P[0, 3] = -f * baseline``)."""
+        left = np.array([[self.f, 0.0, self.cu, 0.0], [0.0, self.f, self.cv, 0.0], [0.0, 0.0, 1.0, 0.0]])
+        right = left.copy()
+        right[0, 3] = -self.f * self.baseline
+        return left, right
+
     @property
     def matrix(self) -> Array:
         """The 3x4 matrix M of eq. 3.1 with ``y = M [x, y, z, 1]^T / z``."""

@@ -450,3 +450,17 @@ def count_finite_poses(poses: ArrayLike) -> int:
     """How many poses of a stack (N, 4, 4) are finite (NaN marks a frame without an estimate)."""
     p = np.asarray(poses, dtype=float)
     return int(np.all(np.isfinite(p.reshape(len(p), -1)), axis=1).sum())
+
+
+def interval_statistics(times: ArrayLike) -> dict[str, float]:
+    """Rate (Hz) of events at ``times`` (s, increasing) from their mean interval, and the intervals' min, max, std (s)."""
+    deltas = np.diff(np.asarray(times, dtype=float))
+    if deltas.size == 0:
+        raise ValueError("a rate needs at least two event times")
+    mean = float(deltas.mean())
+    return {
+        "rate_hz": 1.0 / mean if mean > 0 else float("inf"),
+        "min_s": float(deltas.min()),
+        "max_s": float(deltas.max()),
+        "std_s": float(deltas.std()),
+    }

@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
-from pvo_core.lie import quaternion_to_rotation
+from pvo_core.msgconv import pose_to_matrix
 from pvo_core.trajectory import Trajectory
 
 from .bagio import iter_messages, open_bag
@@ -99,10 +99,10 @@ def bag_trajectory(path: str | Path, topic: str = "/ground_truth/odometry") -> T
             ensure_type(store, connection.msgtype)
             msg = store.deserialize_cdr(raw, connection.msgtype)
             pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-            q = pose.orientation
-            transform = np.eye(4)
-            transform[:3, :3] = quaternion_to_rotation([q.w, q.x, q.y, q.z])
-            transform[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
+            try:
+                transform = pose_to_matrix(pose)
+            except ValueError as exc:
+                raise BagError(f"{path}: {topic} at {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: {exc}") from None
             stamps.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
             poses.append(transform)
     if not poses:

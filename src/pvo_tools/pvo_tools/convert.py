@@ -218,10 +218,7 @@ def convert_devon(
             )
         stamps = {index: start_time + k / rate_hz for k, index in enumerate(indices)}
     camera = dataset.camera()
-    fb = camera.f * camera.baseline
-    p_left = np.array([[camera.f, 0, camera.cu, 0], [0, camera.f, camera.cv, 0], [0, 0, 1, 0]], dtype=float)
-    p_right = p_left.copy()
-    p_right[0, 3] = -fb
+    p_left, p_right = camera.projection_matrices()
     gps = dataset.gps_topocentric()
     with SafeBagWriter(out, storage=storage, overwrite=overwrite) as writer:
         writer.add_topic(TOPIC_LEFT_INFO, "sensor_msgs/msg/CameraInfo")

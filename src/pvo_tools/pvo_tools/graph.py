@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 import rclpy
+from pvo_core.metrics import interval_statistics
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -179,12 +180,11 @@ def topic_hz(node: Node, topic: str, window: int, duration: float | None, wait: 
         if time.monotonic() >= next_print:
             next_print += 1.0
             if len(times) >= 2:
-                deltas = np.diff(np.asarray(times))
-                rate = 1.0 / float(np.mean(deltas)) if np.mean(deltas) > 0 else float("inf")
-                rates.append(rate)
+                stats = interval_statistics(list(times))
+                rates.append(stats["rate_hz"])
                 print(
-                    f"average rate: {rate:.3f}\n\tmin: {deltas.min():.3f}s max: {deltas.max():.3f}s "
-                    f"std dev: {deltas.std():.5f}s window: {len(times)}",
+                    f"average rate: {stats['rate_hz']:.3f}\n\tmin: {stats['min_s']:.3f}s max: {stats['max_s']:.3f}s "
+                    f"std dev: {stats['std_s']:.5f}s window: {len(times)}",
                     flush=True,
                 )
             else:

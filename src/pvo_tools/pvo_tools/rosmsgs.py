@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from pvo_core.lie import rotation_to_quaternion
-from pvo_core.sun import vector_to_zenith_azimuth
+from pvo_core.sun import unit_vector, vector_to_zenith_azimuth
 
 from .typesys import project_typestore
 
@@ -101,7 +101,7 @@ def sun_direction(
     """pvo_msgs/SunDirection; zenith/azimuth from thesis eq. 5.7; covariance zeros = unknown."""
     types = project_typestore().types
     zenith, azimuth = vector_to_zenith_azimuth(direction)
-    d = direction / np.linalg.norm(direction)
+    d = unit_vector(direction)
     return types["pvo_msgs/msg/SunDirection"](
         header=header(stamp_ns, frame_id),
         direction=types["geometry_msgs/msg/Vector3"](x=float(d[0]), y=float(d[1]), z=float(d[2])),
