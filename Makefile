@@ -21,7 +21,7 @@ help:
 	@echo "make test    build, then run the whole test suite (what CI runs)"
 	@echo "make demo    build, then run the main job on the embedded sample bag"
 	@echo "make lint    ruff over the sources"
-	@echo "make bench   conversion, bag-play, stereo VO and fusion benchmarks"
+	@echo "make bench   conversion, bag-play, stereo VO, simulator, fusion and demo benchmarks"
 	@echo "make clean   remove build products (keeps .venv); make distclean also removes .venv"
 
 venv: $(VENV_STAMP)
@@ -55,6 +55,7 @@ bench: build
 	$(ENV) && pvo bench sim --preset urban && pvo bench sim --preset planetary
 	$(ENV) && pvo bench fusion --data $(PVO_DATA_DIR) --sequence 00
 	$(ENV) && pvo experiment sun-sim --data $(PVO_DATA_DIR) --through-nodes 05 --frames 1000 --rate 5 -o runs/bench-fusion-nodes
+	$(ENV) && pvo demo -o runs/bench-demo   # the main job's wall time (target: under 2 minutes for both samples)
 
 clean:
 	rm -rf build install log runs .pytest_cache
