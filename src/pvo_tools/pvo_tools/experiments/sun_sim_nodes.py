@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from pvo_core.config import flatten
 from pvo_core.msgconv import pose_to_xyz_xyzw
 from pvo_core.readers import KittiSunSequence
+from pvo_core.results import RunResult
 from pvo_fusion.sun_reference import TabulatedSunReference
 
 from pvo_core import metrics
@@ -166,5 +167,27 @@ def compare_through_nodes(args: Any, data: Path) -> int:
             f"node latency VO in -> odometry out: median {lat['median_ms']:.2f} ms, "
             f"p95 {lat['p95_ms']:.2f} ms, max {lat['max_ms']:.2f} ms"
         )
-    print(f"wall time {nodes.wall_seconds:.1f} s; bags in {args.out / f'nodes_{name}'}")
+    record = RunResult(
+        "experiment/sun-sim-through-nodes",
+        name,
+        figures={
+            **{f"ros_free.{k}": v for k, v in a.items()},
+            **{f"nodes.{k}": v for k, v in b.items()},
+            "max_pose_difference_final": diff,
+            "max_pose_difference_online_without_sun": online,
+            "odometry_messages": nodes.odometry_messages,
+            "vo_messages": len(vo),
+            "wall_s": nodes.wall_seconds,
+            **({f"latency.{k}": v for k, v in metrics.latency_summary(nodes.latencies_ms).items()}),
+        },
+        inputs={
+            "data": str(data),
+            "frames": str(len(seq.stamps)),
+            "rate": str(args.rate),
+            "parameters": " ".join(args.param or []),
+        },
+        notes={"armse": metrics.ARMSE_DEFINITION},
+    )
+    path = record.write(args.out / f"nodes_{name}")
+    print(f"wall time {nodes.wall_seconds:.1f} s; bags and {path.name} in {args.out / f'nodes_{name}'}")
     return 0 if nodes.odometry_messages == len(vo) and diff < 1e-6 else 1
