@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import rclpy
+from pvo_core.msgconv import fill_stamp
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -106,7 +107,7 @@ class BagPlayer:
                         time.sleep(delay)
                     if self.clock_publisher is not None:
                         clock = Clock()
-                        clock.clock.sec, clock.clock.nanosec = divmod(stamp_ns, 1_000_000_000)
+                        fill_stamp(clock.clock, stamp_ns)
                         self.clock_publisher.publish(clock)
                     self.publishers[connection.topic].publish(bytes(raw))
                     stats.messages += 1
