@@ -41,14 +41,33 @@ def fill_pose(pose: Any, transform: Array) -> Any:
     return pose
 
 
-def pose_to_matrix(pose: Any) -> Array:
-    """4x4 transform of a ``geometry_msgs/Pose``; ``ValueError`` for NaN or a zero quaternion."""
+QUATERNION_NORM_TOLERANCE = 1e-3
+
+
+def pose_problem(pose: Any) -> str | None:
+    """Why a ``geometry_msgs/Pose`` is unusable — ``non_finite_pose``, ``zero_quaternion`` or
+    ``quaternion_not_unit`` (|q| off 1 by more than 1e-3) — or ``None``."""
     q = np.array([pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z], dtype=float)
     p = np.array([pose.position.x, pose.position.y, pose.position.z], dtype=float)
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(p))):
+        return "non_finite_pose"
+    norm = float(np.linalg.norm(q))
+    if norm < 1e-12:
+        return "zero_quaternion"
+    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+        return "quaternion_not_unit"
+    return None
+
+
+def pose_to_matrix(pose: Any) -> Array:
+    """4x4 transform of a ``geometry_msgs/Pose``; ``ValueError`` naming what is wrong (:func:`pose_problem`)."""
+    q = np.array([pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z], dtype=float)
+    p = np.array([pose.position.x, pose.position.y, pose.position.z], dtype=float)
+    problem = pose_problem(pose)
+    if problem == "non_finite_pose":
         raise ValueError("pose contains NaN or infinite values")
     norm = np.linalg.norm(q)
-    if abs(norm - 1.0) > 1e-3:
+    if problem is not None:
         raise ValueError(f"pose quaternion is not unit length (norm {norm:.6g})")
     out = np.eye(4)
     out[:3, :3] = quaternion_to_rotation(q / norm)

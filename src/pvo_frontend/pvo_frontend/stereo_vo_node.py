@@ -155,7 +155,11 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
             result = self.vo.reject(stamp, f"image rejected: {exc}")
         else:
             expected = (self.vo.camera.height, self.vo.camera.width)
-            if self.vo.camera.width and left.shape[:2] != expected:
+            if left.shape != right.shape:
+                result = self.vo.reject(
+                    stamp, f"stereo images differ in size: left {_describe(left_msg)}, right {_describe(right_msg)}"
+                )
+            elif self.vo.camera.width and left.shape[:2] != expected:
                 result = self.vo.reject(
                     stamp,
                     f"image size {left.shape[1]}x{left.shape[0]} differs from camera_info {expected[1]}x{expected[0]}",
@@ -220,6 +224,10 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
             )
             values.update({f"time_{k}_ms": f"{1e3 * v:.3f}" for k, v in result.timings.items()})
         self.publish_status(stamp_ns, self.settings.camera_frame, level, message, values)
+
+
+def _describe(msg: Image) -> str:
+    return f"{msg.width}x{msg.height} {msg.encoding}"
 
 
 def main(args: list[str] | None = None) -> None:

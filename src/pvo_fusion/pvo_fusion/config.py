@@ -64,6 +64,10 @@ class VOInputConfig:
     The VO creates the states, so its gate tests each motion against the previous one (constant
     velocity): innovation ``Log(T_k,k-1 T_k-1,k-2^-1)`` against ``Σ_k + Σ_k-1 + diag(motion_change_sigma²)``
     (m, m, m, rad, rad, rad per frame). A gated motion is dropped; the next frame bridges the gap.
+    Whatever the gate, a motion faster than ``max_speed`` (m/s) or ``max_angular_rate`` (rad/s) over its
+    interval is physically impossible for a vehicle and rejected (``implausible_motion``); one spanning more
+    than ``max_interval`` seconds is no frame-to-frame motion (a far-future or corrupt stamp:
+    ``interval_too_long``).
     """
 
     enabled: bool = True
@@ -71,6 +75,9 @@ class VOInputConfig:
     lost_variance: float = 1000.0
     gate_probability: float = 0.0
     motion_change_sigma: tuple[float, ...] = (0.5, 0.5, 1.0, 0.05, 0.1, 0.05)
+    max_speed: float = 100.0
+    max_angular_rate: float = 10.0
+    max_interval: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -151,6 +158,9 @@ def validate(config: FusionConfig) -> None:
             "inputs.vo.covariance_scale needs 6 positive values",
         ),
         (config.inputs.vo.lost_variance > 0.0, "inputs.vo.lost_variance must be positive"),
+        (config.inputs.vo.max_speed > 0.0, "inputs.vo.max_speed must be positive (m/s)"),
+        (config.inputs.vo.max_angular_rate > 0.0, "inputs.vo.max_angular_rate must be positive (rad/s)"),
+        (config.inputs.vo.max_interval > 0.0, "inputs.vo.max_interval must be positive (s)"),
         (
             len(config.inputs.vo.motion_change_sigma) == 6 and min(config.inputs.vo.motion_change_sigma) > 0.0,
             "inputs.vo.motion_change_sigma needs 6 positive values",

@@ -22,7 +22,15 @@ import numpy as np
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry, Path
 from pvo_core.ephemeris import GeodeticOrigin
-from pvo_core.msgconv import covariance_to_matrix, fill_pose, fill_stamp, pose_to_matrix, stamp_to_nanoseconds, xyz_xyzw_to_pose
+from pvo_core.msgconv import (
+    covariance_to_matrix,
+    fill_pose,
+    fill_stamp,
+    pose_problem,
+    pose_to_matrix,
+    stamp_to_nanoseconds,
+    xyz_xyzw_to_pose,
+)
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from pvo_msgs.msg import RelativePose, SunDirection
@@ -35,6 +43,10 @@ from .sun_reference import EphemerisSunReference, FixedSunReference, SunReferenc
 
 
 def relative_from_msg(msg: RelativePose) -> RelativeMeasurement:
+    """The measurement of a message; ``ValueError`` whose text is the reason key (``pose_problem``)."""
+    problem = pose_problem(msg.pose.pose)
+    if problem is not None:
+        raise ValueError(problem)
     return RelativeMeasurement(
         stamp=stamp_to_nanoseconds(msg.header.stamp),
         reference_stamp=stamp_to_nanoseconds(msg.reference_stamp),
@@ -147,8 +159,18 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
     def _on_ground_truth(self, msg: Odometry) -> None:
         if self._initial_known:
             return
+        problem = pose_problem(msg.pose.pose)
+        if problem is not None:
+            self._reject("ground_truth", stamp_to_nanoseconds(msg.header.stamp), problem)
+            return
         self._ground_truth[stamp_to_nanoseconds(msg.header.stamp)] = pose_to_matrix(msg.pose.pose)
         self._try_start()
+
+    def _reject(self, name: str, stamp: int, reason: str) -> None:
+        """Count an input refused before it reached the graph (as the graph counts its own rejections)."""
+        self.graph.count(name, f"rejected.{reason}")
+        self.problem(f"{name} message at {stamp * 1e-9:.9f} s rejected: {reason}")
+        self._publish_status(stamp, f"{name}: rejected.{reason}")
 
     def _try_start(self) -> None:
         if self._initial_known or not self._waiting_vo:
@@ -179,7 +201,12 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
             self._try_start()
             return
         stamp = stamp_to_nanoseconds(msg.header.stamp)
-        outcome = self.graph.add_vo(relative_from_msg(msg))
+        try:
+            measurement = relative_from_msg(msg)
+        except ValueError as exc:
+            self._reject("vo", stamp, str(exc))
+            return
+        outcome = self.graph.add_vo(measurement)
         if outcome == ACCEPTED:
             self._publish_estimate(stamp)
             self.latencies_ms.append(1e3 * (time.perf_counter() - received))
@@ -194,10 +221,18 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         self._other("sun", self.graph.add_sun, sun_from_msg(msg))
 
     def _on_correction(self, msg: RelativePose) -> None:
-        self._other("correction", self.graph.add_correction, relative_from_msg(msg))
+        self._relative_other("correction", self.graph.add_correction, msg)
 
     def _on_rotation(self, msg: RelativePose) -> None:
-        self._other("rotation", self.graph.add_rotation, relative_from_msg(msg))
+        self._relative_other("rotation", self.graph.add_rotation, msg)
+
+    def _relative_other(self, name: str, add: Any, msg: RelativePose) -> None:
+        try:
+            measurement = relative_from_msg(msg)
+        except ValueError as exc:
+            self._reject(name, stamp_to_nanoseconds(msg.header.stamp), str(exc))
+            return
+        self._other(name, add, measurement)
 
     def _other(self, name: str, add: Any, measurement: Any) -> None:
         outcome = add(measurement)

@@ -159,6 +159,10 @@ class FusionGraph:
         assert self._first_stamp is not None
         return (stamp - self._first_stamp) * 1e-9
 
+    def count(self, name: str, outcome: str) -> str:
+        """Count an input's outcome (``accepted``, ``buffered``, ``rejected.<reason>`` ...); returns it."""
+        return self._count(name, outcome)
+
     def _count(self, name: str, outcome: str) -> str:
         self.counts[f"{name}.{outcome}"] += 1
         if outcome not in (ACCEPTED, BUFFERED):
@@ -173,6 +177,10 @@ class FusionGraph:
         problem = relative_problem(m)
         if problem is not None or m.rotation_only:
             return self._count("vo", f"rejected.{problem or 'rotation_only'}")
+        if (m.stamp - m.reference_stamp) * 1e-9 > self.config.inputs.vo.max_interval:
+            return self._count("vo", "rejected.interval_too_long")
+        if not self._motion_plausible(m):
+            return self._count("vo", "rejected.implausible_motion")
         if not self._stamps:
             self._start(m.reference_stamp)
         newest = self._stamps[-1]
@@ -214,6 +222,14 @@ class FusionGraph:
         if late.size() > 0:
             self._update(late, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
         return self._count("vo", ACCEPTED)
+
+    def _motion_plausible(self, m: RelativeMeasurement) -> bool:
+        """Speed and angular rate of T_k,k-1 over its interval within what a vehicle can do."""
+        seconds = (m.stamp - m.reference_stamp) * 1e-9
+        xi = se3_log(np.asarray(m.transform, dtype=float))
+        vo = self.config.inputs.vo
+        translation = float(np.linalg.norm(np.asarray(m.transform, dtype=float)[:3, 3]))
+        return translation <= vo.max_speed * seconds and float(np.linalg.norm(xi[3:])) <= vo.max_angular_rate * seconds
 
     def _vo_motion_consistent(self, transform: Array, covariance: Array) -> bool:
         """Constant-velocity Mahalanobis gate on a VO motion (left errors, ROS order)."""

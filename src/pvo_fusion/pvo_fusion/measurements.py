@@ -53,6 +53,8 @@ def relative_problem(m: RelativeMeasurement) -> str | None:
         return "covariance_not_positive_definite"
     if m.stamp == m.reference_stamp:
         return "zero_interval"
+    if m.reference_stamp > m.stamp:
+        return "time_reversed"
     return None
 
 

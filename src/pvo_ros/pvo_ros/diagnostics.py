@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from typing import Any
 
 from pvo_core.msgconv import fill_stamp
+
+_STAMP = re.compile(r"-?\d+(\.\d+)?(e[-+]?\d+)? s\b")
 
 OK = 0  # DiagnosticStatus.OK
 WARN = 1  # DiagnosticStatus.WARN
@@ -34,13 +37,22 @@ def status_values(array: Any) -> dict[str, str]:
 
 
 class ProblemLog:
-    """Logs one warning per distinct kind of problem (the text before `` at ``), not one per frame."""
+    """Logs one warning per distinct problem: its text with the stamps (numbers followed by `` s``) taken
+    out, so a new reason is always logged and a repeated one only once in ``repeat_every`` occurrences."""
 
-    def __init__(self, logger: Any) -> None:
+    def __init__(self, logger: Any, repeat_every: int = 1000) -> None:
         self._logger = logger
+        self._seen: dict[str, int] = {}
+        self._repeat = repeat_every
         self.last = ""
 
     def __call__(self, text: str) -> None:
-        if text.split(" at ")[0] != self.last.split(" at ")[0]:
-            self._logger.warning(text)
+        key = _STAMP.sub("<t>", text)
+        count = self._seen.get(key, 0)
+        if count % self._repeat == 0:
+            suffix = f" (seen {count} times before)" if count else ""
+            self._logger.warning(text + suffix)
+        if len(self._seen) > 10_000:  # unbounded distinct texts must not grow memory without bound
+            self._seen.clear()
+        self._seen[key] = count + 1
         self.last = text

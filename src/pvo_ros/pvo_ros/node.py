@@ -3,6 +3,7 @@ a ``/pvo/<node>/status`` publisher and one warning line per distinct problem."""
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable, Mapping
 from typing import Any, Generic, TypeVar
 
@@ -40,11 +41,36 @@ class PvoNode(Node, Generic[CoreConfig, NodeConfig]):
         bindings = [b for b in (self._core, self._node_parameters) if b is not None]
         ParameterPolicy(self, bindings, runtime=dict(runtime or {}))
         self.problem = ProblemLog(self.get_logger())
+        self.callback_errors: Counter[str] = Counter()
         from diagnostic_msgs.msg import DiagnosticArray
 
         self.status_name = f"pvo/{name}"
         topic = status_topic or f"/pvo/{name}/status"
         self.pub_status = self.create_publisher(DiagnosticArray, topic, reliable(status_depth))
+
+    def create_subscription(self, msg_type: Any, topic: str, callback: Callable[[Any], None], *args: Any, **kwargs: Any) -> Any:
+        """rclpy's, with the callback guarded: no exception escapes it (it would stop the executor and the node).
+        An unexpected error is counted per topic, logged once per kind and reported on the status topic."""
+
+        def guarded(msg: Any) -> None:
+            try:
+                callback(msg)
+            except Exception as exc:  # noqa: BLE001 - a callback must never take the node down
+                self._callback_failed(topic, msg, exc)
+
+        return super().create_subscription(msg_type, topic, guarded, *args, **kwargs)
+
+    def _callback_failed(self, topic: str, msg: Any, exc: Exception) -> None:
+        self.callback_errors[topic] += 1
+        reason = f"{type(exc).__name__}: {exc}".splitlines()[0]
+        self.problem(f"{topic}: message dropped by an unexpected error at {_stamp_text(msg)}: {reason}")
+        try:
+            from .diagnostics import ERROR
+
+            values = {f"callback_errors.{t}": n for t, n in sorted(self.callback_errors.items())}
+            self.publish_status(_stamp_ns(msg), topic, ERROR, f"{topic}: unexpected error: {reason}", values)
+        except Exception:  # noqa: BLE001 - reporting must not fail the guard either
+            pass
 
     @property
     def config(self) -> CoreConfig:
@@ -59,3 +85,12 @@ class PvoNode(Node, Generic[CoreConfig, NodeConfig]):
     def publish_status(self, stamp_ns: int, hardware_id: str, level: int, message: str, values: Mapping[str, Any]) -> None:
         """One ``DiagnosticArray`` on ``/pvo/<node>/status``, stamped with the message time it reports on."""
         self.pub_status.publish(status_array(stamp_ns, self.status_name, hardware_id, level, message, values))
+
+
+def _stamp_ns(msg: Any) -> int:
+    stamp = getattr(getattr(msg, "header", None), "stamp", None)
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec) if stamp is not None else 0
+
+
+def _stamp_text(msg: Any) -> str:
+    return f"{_stamp_ns(msg) * 1e-9:.9f} s"

@@ -124,3 +124,65 @@ def test_runner_shuts_down_cleanly_on_sigterm(ros_env) -> None:
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
     assert out.strip() == "closed"
+
+
+def test_no_exception_escapes_a_callback_and_it_is_counted_and_reported(ros_context) -> None:
+    from diagnostic_msgs.msg import DiagnosticArray
+    from pvo_tools.testing import Spinner, wait_for
+    from rclpy.node import Node
+    from std_msgs.msg import Header
+
+    from pvo_ros import PvoNode, reliable
+
+    received: list[int] = []
+
+    class Toy(PvoNode[Algorithm, None]):
+        def __init__(self) -> None:
+            super().__init__("toy", Algorithm(), context=ros_context)
+            self.create_subscription(Header, "/toy/in", self._on, reliable(10))
+
+        def _on(self, msg: Header) -> None:
+            if msg.frame_id == "bad":
+                raise RuntimeError("boom")
+            received.append(msg.stamp.sec)
+
+    toy = Toy()
+    io = Node("io", context=ros_context)
+    statuses: list[DiagnosticArray] = []
+    io.create_subscription(DiagnosticArray, "/pvo/toy/status", statuses.append, reliable(10))
+    pub = io.create_publisher(Header, "/toy/in", reliable(10))
+    try:
+        with Spinner(ros_context, toy, io):
+            assert wait_for(lambda: pub.get_subscription_count() > 0 and toy.pub_status.get_subscription_count() > 0, 10)
+            for sec, frame in ((1, "ok"), (2, "bad"), (3, "ok"), (4, "bad"), (5, "ok")):
+                msg = Header(frame_id=frame)
+                msg.stamp.sec = sec
+                pub.publish(msg)
+            assert wait_for(lambda: len(received) == 3 and len(statuses) == 2, 10)
+    finally:
+        toy.destroy_node()
+        io.destroy_node()
+    assert received == [1, 3, 5]
+    assert toy.callback_errors["/toy/in"] == 2
+    assert statuses[-1].status[0].message == "/toy/in: unexpected error: RuntimeError: boom"
+    assert {kv.key: kv.value for kv in statuses[-1].status[0].values} == {"callback_errors./toy/in": "2"}
+
+
+def test_problem_log_logs_each_new_reason_and_a_repeated_one_once() -> None:
+    from pvo_ros import ProblemLog
+
+    lines: list[str] = []
+
+    class Logger:
+        def warning(self, text: str) -> None:
+            lines.append(text)
+
+    log = ProblemLog(Logger(), repeat_every=3)
+    for k in range(4):
+        log(f"frame at {k}.5 s rejected: image size 10x10 differs")
+    log("frame at 9.0 s rejected: stamp goes backwards: 9.0 s after 10.0 s")
+    assert lines == [
+        "frame at 0.5 s rejected: image size 10x10 differs",
+        "frame at 3.5 s rejected: image size 10x10 differs (seen 3 times before)",
+        "frame at 9.0 s rejected: stamp goes backwards: 9.0 s after 10.0 s",
+    ]
