@@ -248,3 +248,39 @@ def test_fusion_node_takes_its_first_pose_from_ground_truth_when_asked(ros_conte
     assert len(odometry) == 2
     expected = first @ se3_inverse(step) @ se3_inverse(step)
     np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), expected, atol=1e-6)
+
+
+def test_a_long_run_keeps_bounded_paths_and_drains_the_window_without_publishing(ros_context) -> None:
+    """Issue 18, defect 5: the final path is bounded by path_max_poses, and marginalised states do not pile
+    up when the path is not published."""
+    overrides = [
+        Parameter("window.lag", value=3.0),
+        Parameter("path_period", value=0.0),
+        Parameter("path_max_poses", value=5),
+    ]
+    fusion = FusionNode(context=ros_context, parameter_overrides=overrides)
+    quiet = FusionNode(
+        context=ros_context,
+        namespace="quiet",
+        parameter_overrides=[Parameter("window.lag", value=3.0), Parameter("publish_path", value=False)],
+    )
+    io = Node("io", context=ros_context)
+    paths: list[PathMessage] = []
+    io.create_subscription(PathMessage, "/pvo/fusion/path", paths.append, 50)
+    vo_pub = io.create_publisher(RelativePose, "/pvo/vo/relative", RELIABLE)
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))
+    cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    t0, dt = 1_000_000_000, 100_000_000
+    try:
+        with Spinner(ros_context, fusion, quiet), Spinner(ros_context, io):
+            wait_for(lambda: vo_pub.get_subscription_count() >= 2 and fusion.pub_path.get_subscription_count() > 0, 10.0)
+            for k in range(1, 41):
+                vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step, cov))
+            wait_for(lambda: len(paths) >= 40 and quiet.graph.counts["vo.accepted"] == 40)
+    finally:
+        for node in (fusion, quiet, io):
+            node.destroy_node()
+    assert len(paths) == 40
+    assert [len(p.poses) for p in paths[:5]] == [2, 3, 4, 5, 5] and len(paths[-1].poses) == 5
+    assert [stamp_to_nanoseconds(p.header.stamp) for p in paths[-1].poses] == [t0 + k * dt for k in range(36, 41)]
+    assert quiet.graph.drain_finished() == []  # the node keeps draining what the window marginalises

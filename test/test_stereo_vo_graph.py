@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import time
 from pathlib import Path
 
 import numpy as np
@@ -127,3 +128,37 @@ def test_bad_input_is_reported_and_the_node_keeps_running(ros_context) -> None:
     assert first.level == DiagnosticStatus.OK and first.message == "first frame"
     assert mismatched.level == DiagnosticStatus.ERROR and "differ in size" in mismatched.message
     assert backwards.level == DiagnosticStatus.ERROR and "backwards" in backwards.message
+
+
+def test_the_path_is_bounded_and_published_once_per_path_period(ros_context) -> None:
+    """Issue 18, defect 5: /pvo/vo/path no longer grows and republishes the whole trajectory every frame."""
+    from nav_msgs.msg import Path as PathMessage
+
+    overrides = [Parameter("path_period", value=0.3), Parameter("path_max_poses", value=4)]
+    vo_node = StereoVONode(context=ros_context, parameter_overrides=overrides)
+    io = Node("io", context=ros_context)
+    paths: list[PathMessage] = []
+    statuses: list[DiagnosticArray] = []
+    io.create_subscription(PathMessage, "/pvo/vo/path", paths.append, RELIABLE)
+    io.create_subscription(DiagnosticArray, "/pvo/vo/status", statuses.append, RELIABLE)
+    left = io.create_publisher(Image, "/stereo/left/image_rect", RELIABLE)
+    right = io.create_publisher(Image, "/stereo/right/image_rect", RELIABLE)
+    infos = [io.create_publisher(CameraInfo, f"/stereo/{side}/camera_info", RELIABLE) for side in ("left", "right")]
+    try:
+        with Spinner(ros_context, vo_node, io):
+            wait_for(lambda: left.get_subscription_count() > 0 and vo_node.pub_path.get_subscription_count() > 0, 10)
+            wait_for(lambda: vo_node.pub_status.get_subscription_count() > 0, 10)
+            infos[0].publish(make_info(160, 120, 0.0))
+            infos[1].publish(make_info(160, 120, -50.0))
+            for k in range(12):  # noise images: every frame after the first is lost, its motion predicted
+                left.publish(make_image(k * 100_000_000, 160, 120, 2 * k))
+                right.publish(make_image(k * 100_000_000, 160, 120, 2 * k + 1))
+            wait_for(lambda: len(statuses) >= 12, 20)
+            time.sleep(0.2)
+    finally:
+        vo_node.destroy_node()
+        io.destroy_node()
+    assert len(statuses) == 12
+    # estimates at frames 1..11, one path per 0.3 s of message time: at frames 1, 4, 7 and 10
+    assert [stamp_to_nanoseconds(p.header.stamp) for p in paths] == [k * 100_000_000 for k in (1, 4, 7, 10)]
+    assert [len(p.poses) for p in paths] == [1, 4, 4, 4]

@@ -7,13 +7,14 @@ perturbation), /pvo/vo/odometry and /pvo/vo/path (pose of camera_left_optical in
 
 Parameters: every field of :class:`pvo_frontend.vo.VOConfig` under its dotted name
 (``solver.loss``, ``tracker.window`` ...) plus those of :class:`StereoVONodeConfig`; defaults in
-``config/stereo_vo.yaml``. ``publish_path`` can be changed at run time, the rest only at start-up.
+``config/stereo_vo.yaml``. ``publish_path`` and ``path_period`` can be changed at run time, the rest only at start-up.
 
 Stereo pairs are synchronised on exact header stamps. Time comes only from message headers.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,16 +34,24 @@ LEVELS = {FrameStatus.FIRST: OK, FrameStatus.TRACKING: OK, FrameStatus.LOST: WAR
 
 @dataclass(frozen=True)
 class StereoVONodeConfig:
-    """The node's own parameters: output frames, how many image pairs may wait for camera_info, the path."""
+    """The node's own parameters: output frames, how many image pairs may wait for camera_info, the path
+    (``/pvo/vo/path`` at most once per ``path_period`` seconds of message time, 0: every frame; at most
+    ``path_max_poses`` newest poses, 0: all — a long run's memory and publishing time stay bounded)."""
 
     odom_frame: str = "odom"
     camera_frame: str = "camera_left_optical"
     max_pending_frames: int = 30
     publish_path: bool = True
+    path_period: float = 1.0
+    path_max_poses: int = 2000
 
     def __post_init__(self) -> None:
         if self.max_pending_frames < 1:
             raise ValueError(f"max_pending_frames must be >= 1, got {self.max_pending_frames}")
+        if not self.path_period >= 0.0:
+            raise ValueError(f"path_period must be >= 0 s, got {self.path_period}")
+        if self.path_max_poses < 0:
+            raise ValueError(f"path_max_poses must be >= 0 (0: the whole trajectory), got {self.path_max_poses}")
         if not self.odom_frame or not self.camera_frame:
             raise ValueError("odom_frame and camera_frame must not be empty")
 
@@ -79,7 +88,7 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
             "stereo_vo",
             VOConfig(),
             StereoVONodeConfig(),
-            runtime={"publish_path": lambda _: None},
+            runtime={"publish_path": lambda _: None, "path_period": lambda _: None},
             status_topic="/pvo/vo/status",
             **kwargs,
         )
@@ -90,8 +99,8 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
         # the executor may take two lefts before the first right.
         self.sync = StereoPairSynchroniser(max(SENSOR_QUEUE_DEPTH, self.max_pending))
         self._waiting: list[tuple[int, Image, Image]] = []  # pairs that arrived before camera_info
-        self.path = Path()
-        self.path.header.frame_id = self.settings.odom_frame
+        self.path_poses: deque[PoseStamped] = deque(maxlen=self.settings.path_max_poses or None)
+        self._last_path_ns: int | None = None
         self.counts = {"processed": 0, "lost": 0, "rejected": 0, "waiting_for_camera_info": 0}
         self._previous_stamp_ns: int | None = None  # exact stamp of the last frame the VO accepted
 
@@ -198,13 +207,17 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
         fill_pose(odom.pose.pose, result.pose)
         odom.pose.covariance = [float(v) for v in result.pose_covariance.reshape(-1)]
         self.pub_odometry.publish(odom)
-        if settings.publish_path:
-            stamped = PoseStamped()
-            stamped.header = odom.header
-            stamped.pose = odom.pose.pose
-            self.path.header.stamp = rel.header.stamp
-            self.path.poses.append(stamped)
-            self.pub_path.publish(self.path)
+        stamped = PoseStamped()
+        stamped.header = odom.header
+        stamped.pose = odom.pose.pose
+        self.path_poses.append(stamped)
+        due = self._last_path_ns is None or stamp_ns - self._last_path_ns >= int(1e9 * settings.path_period)
+        if settings.publish_path and due:
+            path = Path()
+            path.header = odom.header
+            path.poses = list(self.path_poses)
+            self.pub_path.publish(path)
+            self._last_path_ns = stamp_ns
 
     def _publish_status(self, result: FrameResult | None, stamp_ns: int, message: str) -> None:
         values: dict[str, Any] = {"stamp": f"{stamp_ns * 1e-9:.9f}", "dropped_unpaired": self.sync.dropped, **self.counts}

@@ -15,6 +15,7 @@ changed at run time, the rest only at start-up.
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -64,11 +65,16 @@ def sun_from_msg(msg: SunDirection) -> SunMeasurement:
     )
 
 
+LATENCY_SAMPLES = 10_000  # the newest VO-in -> odometry-out latencies kept for benchmarks
+
+
 @dataclass(frozen=True)
 class FusionNodeConfig:
     """The node's own parameters.
 
     path_period: seconds of message time between two ``/pvo/fusion/path`` messages (0: every frame).
+    path_max_poses: the path holds at most this many newest poses (0: the whole trajectory), so that a long
+    run's memory and publishing time stay bounded.
     initial_pose: x y z qx qy qz qw of the first camera in ``map``, used when ``prior.source`` is
     ``given`` and ``initial_pose_from_ground_truth`` is false (then the first ``/ground_truth/odometry``
     at the first VO frame is used instead).
@@ -78,12 +84,15 @@ class FusionNodeConfig:
     camera_frame: str = "camera_left_optical"
     publish_path: bool = True
     path_period: float = 1.0
+    path_max_poses: int = 2000
     initial_pose: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
     initial_pose_from_ground_truth: bool = False
 
     def __post_init__(self) -> None:
         if not self.path_period >= 0.0:
             raise ValueError(f"path_period must be >= 0 s, got {self.path_period}")
+        if self.path_max_poses < 0:
+            raise ValueError(f"path_max_poses must be >= 0 (0: the whole trajectory), got {self.path_max_poses}")
         if not self.map_frame or not self.camera_frame:
             raise ValueError("map_frame and camera_frame must not be empty")
         try:
@@ -105,12 +114,12 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         settings = self.settings
         self._last_path_stamp: int | None = None
         self.graph = FusionGraph(self.config, self._static_sun_reference())
-        self.latencies_ms: list[float] = []
+        self.latencies_ms: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self._waiting_vo: list[RelativePose] = []
         self._ground_truth: dict[int, np.ndarray] = {}
         self._initial_known = self.config.prior.source == "identity"
         self._gps_fixes = 0
-        self._final_path: list[PoseStamped] = []
+        self._final_path: deque[PoseStamped] = deque(maxlen=settings.path_max_poses or None)
         if self.config.prior.source == "given" and not settings.initial_pose_from_ground_truth:
             self.graph.set_initial_pose(xyz_xyzw_to_pose(settings.initial_pose))
             self._initial_known = True
@@ -207,6 +216,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
             self._reject("vo", stamp, str(exc))
             return
         outcome = self.graph.add_vo(measurement)
+        self._keep_finished()
         if outcome == ACCEPTED:
             self._publish_estimate(stamp)
             self.latencies_ms.append(1e3 * (time.perf_counter() - received))
@@ -260,12 +270,17 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         fill_pose(out.pose, pose)
         return out
 
-    def _publish_path(self, stamp: int) -> None:
+    def _keep_finished(self) -> None:
+        """Move the states the window marginalised into the (bounded) final path."""
         self._final_path.extend(self._stamped(p.stamp, p.pose) for p in self.graph.drain_finished())
+
+    def _publish_path(self, stamp: int) -> None:
         path = Path()
         fill_stamp(path.header.stamp, stamp)
         path.header.frame_id = self.settings.map_frame
-        path.poses = self._final_path + [self._stamped(p.stamp, p.pose) for p in self.graph.window()]
+        poses = [*self._final_path, *(self._stamped(p.stamp, p.pose) for p in self.graph.window())]
+        limit = self.settings.path_max_poses
+        path.poses = poses[-limit:] if limit else poses
         self.pub_path.publish(path)
 
     def _publish_status(self, stamp: int, message: str) -> None:

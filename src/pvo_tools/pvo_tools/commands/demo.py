@@ -147,7 +147,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     parameters = {
         "stereo_vo": {},
         "simulated_sun": {"mean_error_deg": settings.sun_error_deg},
-        "fusion": {**fusion_overrides, "initial_pose": initial_pose, "path_period": 0.0},
+        "fusion": {**fusion_overrides, "initial_pose": initial_pose, "path_period": 0.0, "path_max_poses": 0},
     }
     params_file = write_params(out / "params.yaml", parameters)
     recorded_bag = out / "recorded"

@@ -93,6 +93,7 @@ def run_through_nodes(
         "inputs.sun.reference": "table",
         "inputs.sun.reference_table": str(table),
         "path_period": 0.0,  # a path per frame: the last one carries every final estimate
+        "path_max_poses": 0,
         **(parameters or {}),
     }
     # Typed as the node declares them (YAML reads "1e-5" as a string; the typed config accepts it).
