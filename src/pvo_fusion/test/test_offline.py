@@ -108,3 +108,15 @@ def test_events_come_in_arrival_order_and_the_result_does_not_depend_on_a_frames
     buffered = run_offline(_graph(seq), seq.stamps, sun_first)
     np.testing.assert_allclose(buffered.poses, vo_after.poses, atol=1e-12)
     assert buffered.counts["sun.accepted"] == 6
+
+
+def test_the_default_plausibility_bound_rejects_the_baselines_failures_on_01(pvo_data: Path) -> None:
+    """viso2-s fails on six frames of the 01 highway (up to 358 m/s); nothing else in 00-10 comes near 100 m/s."""
+    seq = read_kitti_sun_sequence(pvo_data, "01")
+    calibration = calibrate_vo([_calibration_input(read_kitti_sun_sequence(pvo_data, "05"))], span=10)
+    vo = vo_measurements(seq.stamps, seq.motions, seq.covariances, calibration)
+    graph = FusionGraph(from_flat({}))
+    result = run_offline(graph, seq.stamps, ordered_events(vo))
+    assert result.counts["vo.rejected.implausible_motion"] == 6
+    assert result.counts["vo.gap"] == 6  # each next frame bridges from the newest state
+    assert np.isnan(result.poses[:, 0, 3]).sum() == 6  # no state where the motion was impossible
