@@ -67,7 +67,10 @@ class VOInputConfig:
     Whatever the gate, a motion faster than ``max_speed`` (m/s) or ``max_angular_rate`` (rad/s) over its
     interval is physically impossible for a vehicle and rejected (``implausible_motion``); one spanning more
     than ``max_interval`` seconds is no frame-to-frame motion (a far-future or corrupt stamp:
-    ``interval_too_long``).
+    ``interval_too_long``). A gap (missing frames, a restarted VO) is bridged from the newest state with the
+    last motion extrapolated over it (constant velocity) and the covariance of a velocity that may have
+    changed by ``gap_sigma`` (m/s and rad/s, ROS order, per second of gap) plus the last motion's own
+    covariance scaled to the gap.
     """
 
     enabled: bool = True
@@ -78,6 +81,7 @@ class VOInputConfig:
     max_speed: float = 100.0
     max_angular_rate: float = 10.0
     max_interval: float = 10.0
+    gap_sigma: tuple[float, ...] = (1.0, 1.0, 2.0, 0.05, 0.1, 0.05)
 
 
 @dataclass(frozen=True)
@@ -161,6 +165,10 @@ def validate(config: FusionConfig) -> None:
         (config.inputs.vo.max_speed > 0.0, "inputs.vo.max_speed must be positive (m/s)"),
         (config.inputs.vo.max_angular_rate > 0.0, "inputs.vo.max_angular_rate must be positive (rad/s)"),
         (config.inputs.vo.max_interval > 0.0, "inputs.vo.max_interval must be positive (s)"),
+        (
+            len(config.inputs.vo.gap_sigma) == 6 and min(config.inputs.vo.gap_sigma) > 0.0,
+            "inputs.vo.gap_sigma needs 6 positive values (m/s, rad/s)",
+        ),
         (
             len(config.inputs.vo.motion_change_sigma) == 6 and min(config.inputs.vo.motion_change_sigma) > 0.0,
             "inputs.vo.motion_change_sigma needs 6 positive values",

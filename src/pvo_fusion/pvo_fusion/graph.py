@@ -32,7 +32,7 @@ import numpy as np
 from gtsam.symbol_shorthand import X
 from numpy.typing import ArrayLike, NDArray
 from pvo_core.covariance import gtsam_to_ros_covariance, is_positive_definite, ros_to_gtsam_covariance
-from pvo_core.lie import se3_inverse, se3_log
+from pvo_core.lie import se3_exp, se3_inverse, se3_log
 
 from .config import FusionConfig
 from .factors import between_measurement, rotation_error, rotation_factor, sun_error, sun_factor, zenith_azimuth
@@ -114,6 +114,7 @@ class FusionGraph:
         self._next_index = 0
         self._first_stamp: int | None = None
         self._last_motion: tuple[Array, Array] | None = None
+        self._last_velocity: tuple[Array, Array, float] | None = None  # T_k,k-1, its covariance, its interval (s)
 
     def set_initial_pose(self, pose: ArrayLike, covariance: ArrayLike | None = None) -> None:
         """Prior of the first state (T_map,cam, 4x4; optional ROS-order left covariance). Before the first VO."""
@@ -189,19 +190,24 @@ class FusionGraph:
                 return self._count("vo", "rejected.duplicate_stamp")
             return self._count("vo", "rejected.out_of_order")
         covariance = np.asarray(m.covariance, dtype=float) * self._vo_scale
+        transform = np.asarray(m.transform, dtype=float)
         reference_key = self._find(m.reference_stamp)
         if reference_key is None or reference_key != self._keys[newest]:
-            # A gap (frames missing, or a reference outside the window): bridge from the newest state
-            # with the motion given but no information, so the chain stays connected and honest.
+            # A gap (frames missing, a VO restarted, a reference outside the window): bridge from the newest
+            # state with the constant-velocity motion over the gap and a covariance sized to it, so the
+            # estimate stays continuous and recovers as VO resumes.
             self._count("vo", "gap")
             reference_key = self._keys[newest]
-            covariance = np.eye(6) * self.config.inputs.vo.lost_variance
+            transform, covariance = self._bridge(newest, m.stamp)
         elif float(np.max(np.diag(covariance))) >= self.config.inputs.vo.lost_variance:
             self._count("vo", "lost")
         elif not self._vo_motion_consistent(m.transform, covariance):
             return self._count("vo", "gated")
-        self._last_motion = (np.asarray(m.transform, dtype=float), covariance)
-        measured, cov = between_measurement(m.transform, covariance)
+        if m.stamp - m.reference_stamp > 0 and float(np.max(np.diag(m.covariance))) < self.config.inputs.vo.lost_variance:
+            # the velocity a later gap is bridged with: this message's own motion over its own interval
+            self._last_velocity = (np.asarray(m.transform, dtype=float), covariance, (m.stamp - m.reference_stamp) * 1e-9)
+        self._last_motion = (np.asarray(m.transform, dtype=float), np.asarray(m.covariance, dtype=float) * self._vo_scale)
+        measured, cov = between_measurement(transform, covariance)
         key = X(self._next_index)
         factors = gtsam.NonlinearFactorGraph()
         factors.add(gtsam.BetweenFactorPose3(reference_key, key, measured, gtsam.noiseModel.Gaussian.Covariance(cov)))
@@ -222,6 +228,18 @@ class FusionGraph:
         if late.size() > 0:
             self._update(late, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
         return self._count("vo", ACCEPTED)
+
+    def _bridge(self, newest: int, stamp: int) -> tuple[Array, Array]:
+        """T_stamp,newest under constant velocity over a gap of T seconds (n frame intervals), with covariance
+        diag((T gap_sigma)^2) + n^2 Sigma_v; without a velocity yet, the identity with ``lost_variance``."""
+        vo = self.config.inputs.vo
+        if self._last_velocity is None:
+            return np.eye(4), np.eye(6) * vo.lost_variance
+        motion, motion_cov, seconds = self._last_velocity
+        gap = (stamp - newest) * 1e-9
+        n = gap / seconds
+        sigma = np.asarray(vo.gap_sigma, dtype=float) * gap
+        return se3_exp(n * se3_log(motion)), np.diag(sigma**2) + n * n * motion_cov
 
     def _motion_plausible(self, m: RelativeMeasurement) -> bool:
         """Speed and angular rate of T_k,k-1 over its interval within what a vehicle can do."""
