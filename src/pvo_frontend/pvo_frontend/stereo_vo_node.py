@@ -119,6 +119,11 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
     def max_pending(self) -> int:
         return self.settings.max_pending_frames
 
+    def close(self) -> None:
+        """One summary line at shutdown: what became of every frame that reached the node."""
+        counts = ", ".join(f"{k} {v}" for k, v in self.counts.items())
+        self.get_logger().info(f"stereo_vo: {counts}, dropped_unpaired {self.sync.dropped}")
+
     # --- inputs ---------------------------------------------------------------------------------
     def _on_info(self, side: str, msg: CameraInfo) -> None:
         self.camera_info[side] = msg

@@ -14,6 +14,7 @@ from rosgraph_msgs.msg import Clock
 
 from .bagio import iter_messages, open_bag
 from .errors import BagError
+from .recorder import has_header, header_stamp_ns, with_header_stamp
 from .typesys import message_class
 
 #: Reliable publishers reach both reliable and best-effort subscribers.
@@ -25,21 +26,36 @@ CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Rel
 
 @dataclass
 class PlayOptions:
+    """wait_for_subscribers: before playing, wait (up to ``wait_timeout`` s) until the subscriptions have not
+    changed for ``settle`` s and every topic that has subscribers has at least this many (topics nobody
+    subscribes to are not waited for, but what is published on them is counted); 0 plays at once."""
+
     rate: float = 1.0
     start_offset: float = 0.0
     topics: list[str] | None = None
     loop: bool = False
     clock: bool = True
-    wait_for_subscribers: int = 0
+    wait_for_subscribers: int = 1
     wait_timeout: float = 10.0
+    settle: float = 2.0
     delay: float = 0.0
 
 
 @dataclass
 class PlayStats:
+    """Messages published (per topic), and those published while the topic had no subscriber (``unheard``)."""
+
     messages: int = 0
     seconds: float = 0.0
     per_topic: dict[str, int] = field(default_factory=dict)
+    unheard: dict[str, int] = field(default_factory=dict)
+
+    def report(self) -> str:
+        line = f"played {self.messages} messages in {self.seconds:.2f} s"
+        if self.unheard:
+            lost = ", ".join(f"{topic} ({n})" for topic, n in sorted(self.unheard.items()))
+            line += f"; published with no subscriber (nobody received them): {lost}"
+        return line
 
 
 class BagPlayer:
@@ -73,17 +89,30 @@ class BagPlayer:
         return connections
 
     def _wait_for_subscribers(self) -> None:
+        """Until the subscriptions have been stable for ``settle`` s (a node's endpoints are discovered one by
+        one, over a second or more) and every subscribed topic has ``wait_for_subscribers`` of them."""
         wanted = self.options.wait_for_subscribers
         if wanted <= 0:
             return
-        deadline = time.monotonic() + self.options.wait_timeout
-        while time.monotonic() < deadline:
-            if all(p.get_subscription_count() >= wanted for p in self.publishers.values()):
+        start = time.monotonic()
+        last: dict[str, int] = {}
+        changed = start
+        while True:
+            counts = {topic: p.get_subscription_count() for topic, p in self.publishers.items()}
+            now = time.monotonic()
+            if counts != last:
+                last, changed = counts, now
+            subscribed = [n for n in counts.values() if n > 0]
+            if subscribed and now - changed >= self.options.settle and all(n >= wanted for n in subscribed):
+                return
+            if now - start > self.options.wait_timeout:
+                if not subscribed:
+                    self.node.get_logger().warning(f"no subscriber after {self.options.wait_timeout:g} s; playing anyway")
+                else:
+                    short = sorted(t for t, n in counts.items() if 0 < n < wanted)
+                    self.node.get_logger().warning(f"{', '.join(short)} did not reach {wanted} subscriber(s); playing anyway")
                 return
             time.sleep(0.02)
-        self.node.get_logger().warning(
-            f"not every topic reached {wanted} subscriber(s) in {self.options.wait_timeout} s; playing anyway"
-        )
 
     def play(self) -> PlayStats:
         stats = PlayStats()
@@ -95,25 +124,42 @@ class BagPlayer:
                 time.sleep(self.options.delay)
             bag_start = reader.start_time
             first_ns = bag_start + int(self.options.start_offset * 1e9)
+            header_topics = {c.topic for c in connections if has_header(c.msgtype)}
+            restamp = 0  # ns added to every stamp from the second pass of a loop on: stamps keep increasing
+            frame_stamps: list[int] = []
             while True:
                 t0_wall = time.monotonic()
                 t0_bag: int | None = None
+                last_bag = first_ns
                 for connection, stamp_ns, raw in iter_messages(reader, connections, first_ns):
                     if t0_bag is None:
                         t0_bag = stamp_ns
+                    last_bag = stamp_ns
                     target = t0_wall + (stamp_ns - t0_bag) / 1e9 / self.options.rate
                     delay = target - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
+                    if connection.topic in header_topics:
+                        header = header_stamp_ns(raw)
+                        if header is not None and restamp == 0 and (not frame_stamps or header > frame_stamps[-1]):
+                            frame_stamps.append(header)
+                        if restamp and header is not None:
+                            raw = with_header_stamp(raw, header + restamp)
                     if self.clock_publisher is not None:
                         clock = Clock()
-                        fill_stamp(clock.clock, stamp_ns)
+                        fill_stamp(clock.clock, stamp_ns + restamp)
                         self.clock_publisher.publish(clock)
-                    self.publishers[connection.topic].publish(bytes(raw))
+                    publisher = self.publishers[connection.topic]
+                    if publisher.get_subscription_count() == 0:
+                        stats.unheard[connection.topic] = stats.unheard.get(connection.topic, 0) + 1
+                    publisher.publish(bytes(raw))
                     stats.messages += 1
                     stats.per_topic[connection.topic] = stats.per_topic.get(connection.topic, 0) + 1
                 if not self.options.loop or t0_bag is None:
                     break
+                # the next pass starts one frame interval after this one ended, in bag time and in stamps
+                interval = (frame_stamps[-1] - frame_stamps[0]) // max(len(frame_stamps) - 1, 1) if frame_stamps else 0
+                restamp += (last_bag - t0_bag) + max(interval, 1)
             self._wait_for_acknowledgements()
         stats.seconds = time.monotonic() - wall_start
         return stats

@@ -28,6 +28,19 @@ def header_stamp_ns(raw: bytes) -> int | None:
     return sec * 1_000_000_000 + nanosec
 
 
+def with_header_stamp(raw: bytes, stamp_ns: int) -> bytes:
+    """The CDR message with its ``header.stamp`` replaced (the message must start with a std_msgs/Header)."""
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    out = bytearray(raw)
+    struct.pack_into("<iI" if raw[1] == 1 else ">iI", out, 4, sec, nanosec)
+    return bytes(out)
+
+
+def has_header(type_name: str) -> bool:
+    """Whether messages of the type start with a std_msgs/Header."""
+    return _has_header(type_name)
+
+
 def _has_header(type_name: str) -> bool:
     fields = project_typestore().fielddefs.get(type_name)
     if not fields or not fields[1]:

@@ -22,11 +22,16 @@ def register(sub: Any) -> None:
     play.add_argument("--rate", "-r", type=float, default=1.0, help="playback speed factor (default 1)")
     play.add_argument("--start-offset", type=float, default=0.0, help="skip the first S seconds")
     play.add_argument("--topics", nargs="+", help="play only these topics")
-    play.add_argument("--loop", "-l", action="store_true", help="play again and again")
+    play.add_argument("--loop", "-l", action="store_true", help="play again and again, stamps increasing across passes")
     play.add_argument("--no-clock", action="store_true", help="do not publish /clock")
     play.add_argument(
-        "--wait-for-subscribers", type=int, default=0, metavar="N", help="wait (up to 10 s) for N subscribers per topic"
+        "--wait-for-subscribers",
+        type=int,
+        default=1,
+        metavar="N",
+        help="before playing, wait until every topic that has subscribers has N of them (default 1; 0: play at once)",
     )
+    play.add_argument("--wait-timeout", type=float, default=10.0, help="give up waiting after S seconds (default 10)")
     play.add_argument("--delay", type=float, default=0.0, help="seconds to wait before playing (discovery)")
 
     rec = verbs.add_parser("record", help="record topics to a bag (raw bytes, definitions preserved)")
@@ -60,10 +65,11 @@ def run(args: argparse.Namespace) -> int:
             loop=args.loop,
             clock=not args.no_clock,
             wait_for_subscribers=args.wait_for_subscribers,
+            wait_timeout=args.wait_timeout,
             delay=args.delay,
         )
         stats = play(args.bag, options)
-        print(f"played {stats.messages} messages in {stats.seconds:.2f} s", file=sys.stderr)
+        print(stats.report(), file=sys.stderr)
     elif args.verb == "record":
         from ..recorder import RecordOptions, record
 

@@ -200,7 +200,7 @@ def run_graph(
         recorder_node = Node("pvo_demo_recorder", context=context)
         player_node = Node("pvo_demo_player", context=context)
         recorder = BagRecorder(recorder_node, recorded_bag, RecordOptions(topics=OUTPUT_TOPICS, stamp="header"))
-        player = BagPlayer(player_node, bag, PlayOptions(rate=settings.rate, topics=INPUT_TOPICS))
+        player = BagPlayer(player_node, bag, PlayOptions(rate=settings.rate, topics=INPUT_TOPICS, wait_for_subscribers=0))
         try:
             with Spinner(context, recorder_node):
                 # Every edge of the graph, publishers and subscribers, as this process sees them.
