@@ -183,6 +183,8 @@ def simulate(
     out = Path(out)
     if out.exists() and not overwrite:
         raise ValueError(f"{out} exists: refusing to overwrite it (use --overwrite)")
+    if out.exists() and not (out.is_dir() and ((out / "sim.yaml").is_file() or not any(out.iterdir()))):
+        raise ValueError(f"{out} exists and is not a pvo sim output (no sim.yaml); refusing to replace it, even with --overwrite")
     poses = camera_trajectory(config)
     n = len(poses)
     origin = GeodeticOrigin(config.latitude, config.longitude, config.altitude)

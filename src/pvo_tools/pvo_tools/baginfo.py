@@ -12,6 +12,7 @@ from pvo_core.trajectory import Trajectory
 
 from .bagio import iter_messages, open_bag
 from .errors import BagError
+from .mcapcheck import verify_chunks
 from .typesys import ensure_type, project_typestore
 
 
@@ -25,6 +26,7 @@ class BagInfo:
     message_count: int
     compression: str
     topics: list[tuple[str, str, int, str]]  # name, type, count, serialization
+    integrity: str = ""
 
     @property
     def duration_s(self) -> float:
@@ -44,6 +46,7 @@ class BagInfo:
             f"Start:             {fmt_time(self.start_ns) if self.message_count else '-'}",
             f"End:               {fmt_time(self.end_ns) if self.message_count else '-'}",
             f"Messages:          {self.message_count}",
+            *([f"Chunk checksums:   {self.integrity}"] if self.integrity else []),
             "Topic information:",
         ]
         width = max((len(t[0]) for t in self.topics), default=0)
@@ -67,7 +70,20 @@ def bag_info(path: str | Path) -> BagInfo:
             compression = "zstd (chunks)" if storage == "mcap" and _mcap_is_compressed(path) else "none"
         size = sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
         end = reader.end_time - 1 if reader.message_count else 0  # rosbags' end_time is exclusive
-        return BagInfo(path, storage, size, reader.start_time, end, reader.message_count, compression, list(topics))
+        integrity = ""
+        if storage == "mcap":
+            total = checked = 0
+            for mcap in sorted(path.glob("*.mcap")):
+                chunks, with_crc, problems = verify_chunks(mcap)
+                if problems:
+                    raise BagError(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
+                total, checked = total + chunks, checked + with_crc
+            integrity = (
+                f"{checked} of {total} chunks verified"
+                if checked
+                else f"none recorded in {total} chunks (corruption cannot be detected)"
+            )
+        return BagInfo(path, storage, size, reader.start_time, end, reader.message_count, compression, list(topics), integrity)
 
 
 def _storage_identifier(path: Path) -> str:

@@ -7,7 +7,9 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import sys
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -19,15 +21,51 @@ from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 
 from .errors import BagError
+from .mcapcheck import add_chunk_crcs, verify_chunks
 from .typesys import ensure_type, project_typestore
 
 STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 
 
 def check_output_path(path: Path, overwrite: bool) -> None:
-    """Refuse to replace an existing path unless ``overwrite``."""
-    if path.exists() and not overwrite:
+    """Refuse to replace an existing path unless ``overwrite``, and even then anything but a bag or an empty
+    directory (``--overwrite`` must never delete a user's directory recursively)."""
+    if not path.exists():
+        return
+    if not overwrite:
         raise BagError(f"{path}: output exists; pass --overwrite to replace it")
+    if path.is_dir() and not any(path.iterdir()):
+        return
+    if not (path.is_dir() and (path / "metadata.yaml").is_file()):
+        raise BagError(
+            f"{path}: exists and is not a rosbag2 bag (no metadata.yaml); refusing to replace it, even with --overwrite"
+        )
+
+
+PARTIAL = ".{name}.partial-"
+
+
+def remove_stale_partials(path: Path) -> list[Path]:
+    """Remove the hidden ``.<name>.partial-<pid>-*`` directories that earlier runs for ``path`` left when they
+    were killed (their process is gone); returns what was removed."""
+    removed = []
+    for candidate in path.parent.glob(PARTIAL.format(name=path.name) + "*"):
+        pid_text = candidate.name.rsplit(".partial-", 1)[1].split("-", 1)[0]
+        alive = pid_text.isdigit() and _process_alive(int(pid_text))
+        if candidate.is_dir() and not alive:
+            shutil.rmtree(candidate, ignore_errors=True)
+            removed.append(candidate)
+    return removed
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 class SafeBagWriter:
@@ -47,8 +85,11 @@ class SafeBagWriter:
         check_output_path(self.path, overwrite)
         self.overwrite = overwrite
         self.typestore = project_typestore()
-        # The bag is written as <hidden dir>/<name> so its storage file gets its final name.
-        self._tmp_parent = self.path.parent / f".{self.path.name}.partial-{uuid.uuid4().hex[:8]}"
+        for stale in remove_stale_partials(self.path):
+            print(f"pvo: removed {stale}, left by an interrupted earlier run", file=sys.stderr)
+        # The bag is written as <hidden dir>/<name> so its storage file gets its final name; the pid in the
+        # name tells a later run whether the writer is still alive.
+        self._tmp_parent = self.path.parent / (PARTIAL.format(name=self.path.name) + f"{os.getpid()}-{uuid.uuid4().hex[:8]}")
         self._tmp_parent.mkdir(parents=True)
         self._tmp = self._tmp_parent / self.path.name
         self._writer = Writer(self._tmp, version=9, storage_plugin=STORAGES[storage])
@@ -85,6 +126,8 @@ class SafeBagWriter:
             return
         self._writer.close()
         self._closed = True
+        for mcap in self._tmp.glob("*.mcap"):
+            add_chunk_crcs(mcap)  # readers can then tell a corrupted chunk from a good one
         if self.path.exists():
             if not self.overwrite:
                 shutil.rmtree(self._tmp_parent, ignore_errors=True)
@@ -139,12 +182,15 @@ def open_bag(path: str | Path) -> Iterator[Reader]:
 
 
 def iter_messages(reader: Reader, connections: list[Connection] | None = None, start_ns: int | None = None):
-    """Messages in time order, turning storage errors part-way into a BagError."""
+    """Messages in time order, turning storage errors part-way into a BagError (naming a corrupted chunk)."""
     try:
         yield from reader.messages(connections=connections or (), start=start_ns)
     except BagError:
         raise
     except Exception as error:  # noqa: BLE001
+        bad = [line for mcap in Path(reader.path).glob("*.mcap") for line in verify_chunks(mcap)[2]]
+        if bad:
+            raise BagError(bad[0] + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "")) from None
         raise BagError(f"{reader.path}: corrupt or truncated bag: {_one_line(error)}") from None
 
 

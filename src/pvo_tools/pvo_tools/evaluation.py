@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -125,6 +126,12 @@ def run_eval(
     gt_path: Path, est_path: Path, align: str, out_dir: Path | None, gt_start: int = 0, relative_path: Path | None = None
 ) -> Evaluation:
     gt_full, est, frames = read_estimate_with_ground_truth(gt_path, est_path, gt_start)
+    if len(frames) < len(gt_full):
+        print(
+            f"pvo: warning: {est_path} has {len(frames)} poses (frames {int(frames[0])}-{int(frames[-1])}) of the "
+            f"{len(gt_full)} in {gt_path}; evaluating those frames only",
+            file=sys.stderr,
+        )
     relative = None
     if relative_path is not None:
         if not relative_path.is_file():

@@ -63,3 +63,13 @@ def test_pvo_eval_refuses_an_estimate_longer_than_the_ground_truth(
     )
     assert code == 2
     assert "has only 51 poses" in capsys.readouterr().err
+
+
+def test_pvo_eval_of_a_shorter_estimate_says_which_frames_it_evaluates(
+    pvo_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    clip = pvo_data / "kitti/sequences/06/poses_frames000-050.txt"
+    code = main(["eval", "--gt", str(pvo_data / "kitti/poses/06.txt"), "--est", str(clip)])
+    assert code == 0
+    err = capsys.readouterr().err
+    assert f"pvo: warning: {clip} has 51 poses (frames 0-50) of the 1101 in" in err and "evaluating those frames only" in err

@@ -127,6 +127,8 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     if not sun_stamps:
         raise PvoError(f"{bag}: no /ground_truth/sun_direction at a ground-truth stamp: the simulated sun has nothing to read")
     if out.exists():
+        if any(out.iterdir()) and not (out / "params.yaml").is_file():
+            raise PvoError(f"{out} exists and is not an earlier demo output (no params.yaml); not replaced")
         shutil.rmtree(out)
     out.mkdir(parents=True)
     reference_table = out / "sun_reference.csv"
