@@ -162,3 +162,39 @@ def test_a_bad_ground_truth_pose_is_rejected_and_the_next_good_one_starts_the_gr
     assert fusion.graph.counts["ground_truth.rejected.zero_quaternion"] == 1
     assert fusion.graph.counts["ground_truth.rejected.quaternion_not_unit"] == 1
     np.testing.assert_allclose(pose_to_matrix(odometry[0].pose.pose), start @ np.linalg.inv(STEP), atol=1e-6)
+
+
+def test_simulated_sun_rejects_bad_truth_and_its_clean_output_is_unchanged(ros_context) -> None:
+    from pvo_pseudosensors.simulated_sun_node import SimulatedSunNode
+
+    def truth(k: int, direction) -> SunDirection:
+        msg = SunDirection()
+        set_stamp(msg.header.stamp, T0 + k * DT)
+        msg.direction.x, msg.direction.y, msg.direction.z = (float(v) for v in direction)
+        return msg
+
+    good = [0.0, -0.6, 0.8]
+    bad = [[np.nan, 0.0, 1.0], [np.inf, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    runs = {}
+    for label, inject in (("clean", False), ("fuzzed", True)):
+        node = SimulatedSunNode(context=ros_context, parameter_overrides=[Parameter("every_n", value=1)])
+        io = Node("io", context=ros_context)
+        out: list[SunDirection] = []
+        io.create_subscription(SunDirection, "/pvo/sun/direction", out.append, RELIABLE)
+        pub = io.create_publisher(SunDirection, "/ground_truth/sun_direction", RELIABLE)
+        try:
+            with Spinner(ros_context, node, io):
+                assert wait_for(lambda p=pub, n=node: p.get_subscription_count() > 0 and n.publisher.get_subscription_count() > 0)
+                for k in range(5):
+                    if inject and k == 2:
+                        for direction in bad:
+                            pub.publish(truth(k, direction))
+                    pub.publish(truth(k, good))
+                expected = 3 if inject else 0
+                assert wait_for(lambda o=out, n=node, e=expected: len(o) == 5 and n.rejected == e)
+        finally:
+            node.destroy_node()
+            io.destroy_node()
+        runs[label] = [(m.direction.x, m.direction.y, m.direction.z) for m in out]
+    # a rejected input consumes no noise draw: the measurements equal the clean run's
+    assert runs["fuzzed"] == runs["clean"]

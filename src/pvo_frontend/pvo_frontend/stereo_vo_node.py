@@ -82,6 +82,38 @@ class StereoPairSynchroniser:
         return None
 
 
+class FrameLedger:
+    """Every camera frame announces itself with a left camera_info; a frame whose stereo pair never reaches the
+    node (lost in transport, dropped by a full queue) is counted when a later pair arrives."""
+
+    def __init__(self, capacity: int = 256) -> None:
+        self._announced: deque[int] = deque()
+        self._arrived: deque[int] = deque(maxlen=capacity)
+        self._capacity = capacity
+
+    def announce(self, stamp_ns: int) -> list[int]:
+        """Record a camera_info; returns ``[stamp]`` when it comes after a later pair was processed (its own
+        pair can no longer be processed: it would go back in time)."""
+        if stamp_ns in self._arrived or (self._announced and stamp_ns <= self._announced[-1]):
+            return []
+        if self._arrived and stamp_ns < max(self._arrived):
+            return [stamp_ns]
+        self._announced.append(stamp_ns)
+        while len(self._announced) > self._capacity:
+            self._announced.popleft()
+        return []
+
+    def arrived(self, stamp_ns: int) -> list[int]:
+        """Record a pair; returns the announced stamps before it that never arrived."""
+        self._arrived.append(stamp_ns)
+        missing = []
+        while self._announced and self._announced[0] <= stamp_ns:
+            announced = self._announced.popleft()
+            if announced != stamp_ns and announced not in self._arrived:
+                missing.append(announced)
+        return missing
+
+
 class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(
@@ -101,7 +133,8 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
         self._waiting: list[tuple[int, Image, Image]] = []  # pairs that arrived before camera_info
         self.path_poses: deque[PoseStamped] = deque(maxlen=self.settings.path_max_poses or None)
         self._last_path_ns: int | None = None
-        self.counts = {"processed": 0, "lost": 0, "rejected": 0, "waiting_for_camera_info": 0}
+        self.counts = {"processed": 0, "lost_frames": 0, "rejected": 0, "waiting_for_camera_info": 0, "missing_images": 0}
+        self.ledger = FrameLedger()
         self._previous_stamp_ns: int | None = None  # exact stamp of the last frame the VO accepted
 
         # The DDS queue must not be shallower than a short burst: a frame it overwrites is lost unreported,
@@ -126,6 +159,8 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
 
     # --- inputs ---------------------------------------------------------------------------------
     def _on_info(self, side: str, msg: CameraInfo) -> None:
+        if side == "left":
+            self._count_missing(self.ledger.announce(stamp_to_nanoseconds(msg.header.stamp)))
         self.camera_info[side] = msg
         if self.vo is None and len(self.camera_info) == 2:
             try:
@@ -145,7 +180,16 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
     def _on_image(self, side: str, msg: Image) -> None:
         pair = self.sync.add(side, stamp_to_nanoseconds(msg.header.stamp), msg)
         if pair is not None:
+            self._count_missing(self.ledger.arrived(pair[0]))
             self._process(*pair)
+
+    def _count_missing(self, missing: list[int]) -> None:
+        if missing:
+            self.counts["missing_images"] += len(missing)
+            self.problem(
+                f"{len(missing)} frame(s) missing at {missing[0] * 1e-9:.3f} s: the camera_info arrived, "
+                "the stereo pair never reached the node"
+            )
 
     # --- processing -----------------------------------------------------------------------------
     def _process(self, stamp_ns: int, left_msg: Image, right_msg: Image) -> None:
@@ -185,7 +229,7 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
             self.counts["rejected"] += 1
             self.problem(f"frame at {stamp:.9f} s rejected: {result.message}")
         elif result.status is FrameStatus.LOST:
-            self.counts["lost"] += 1
+            self.counts["lost_frames"] += 1
             self.problem(f"tracking lost at {stamp:.9f} s: {result.message}")
         if result.transform is not None and result.covariance is not None and self._previous_stamp_ns is not None:
             self._publish_estimate(stamp_ns, self._previous_stamp_ns, result)
