@@ -13,6 +13,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from pvo_core.readers import KittiSequence
 from pvo_tools.convert import convert_kitti
@@ -181,3 +182,55 @@ def test_cli_against_a_live_publisher(ros_context, nodes, ros_env) -> None:
     assert "Type: std_msgs/msg/String" in info.stdout and "Publisher count: 1" in info.stdout
     assert "/demo/talker" in node_list.stdout.splitlines()
     assert missing.returncode == 2 and "unknown topic '/nothing'" in missing.stderr
+
+
+def test_loop_restamps_each_pass_so_stamps_keep_increasing(ros_context, tmp_path: Path) -> None:
+    """Issue 18: a looped bag is a valid long run — header stamps and /clock increase across passes."""
+    from pvo_tools.bagio import SafeBagWriter
+    from pvo_tools.typesys import project_typestore
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import CameraInfo
+
+    types = project_typestore().types
+    bag = tmp_path / "small"
+    with SafeBagWriter(bag) as writer:
+        writer.add_topic("/stereo/left/camera_info", "sensor_msgs/msg/CameraInfo")
+        for k in range(5):
+            stamp = 1_000_000_000 + k * 100_000_000
+            time_msg = types["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9)
+            info = types["sensor_msgs/msg/CameraInfo"](
+                header=types["std_msgs/msg/Header"](stamp=time_msg, frame_id="c"),
+                height=10,
+                width=10,
+                distortion_model="",
+                d=np.zeros(0),
+                k=np.zeros(9),
+                r=np.zeros(9),
+                p=np.zeros(12),
+                binning_x=0,
+                binning_y=0,
+                roi=types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+            )
+            writer.write("/stereo/left/camera_info", stamp, info)
+    listener = Node("listener", context=ros_context)
+    player_node = Node("player", context=ros_context)
+    stamps: list[int] = []
+    clocks: list[int] = []
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    listener.create_subscription(
+        CameraInfo, "/stereo/left/camera_info", lambda m: stamps.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), qos
+    )
+    listener.create_subscription(Clock, "/clock", lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec), 100)
+    try:
+        with Spinner(ros_context, listener):
+            stats = BagPlayer(player_node, bag, PlayOptions(rate=10.0, loop=True, passes=3)).play()
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline and len(stamps) < 15:
+                time.sleep(0.02)
+    finally:
+        listener.destroy_node()
+        player_node.destroy_node()
+    assert stats.passes == 3 and stats.messages == 15
+    expected = [1_000_000_000 + k * 100_000_000 for k in range(15)]  # each pass one frame interval after the last
+    assert stamps == expected
+    assert all(b > a for a, b in itertools.pairwise(clocks))

@@ -34,6 +34,7 @@ class PlayOptions:
     start_offset: float = 0.0
     topics: list[str] | None = None
     loop: bool = False
+    passes: int = 0  # with loop: stop after this many passes (0: forever)
     clock: bool = True
     wait_for_subscribers: int = 1
     wait_timeout: float = 10.0
@@ -49,6 +50,7 @@ class PlayStats:
     seconds: float = 0.0
     per_topic: dict[str, int] = field(default_factory=dict)
     unheard: dict[str, int] = field(default_factory=dict)
+    passes: int = 0
 
     def report(self) -> str:
         line = f"played {self.messages} messages in {self.seconds:.2f} s"
@@ -155,7 +157,8 @@ class BagPlayer:
                     publisher.publish(bytes(raw))
                     stats.messages += 1
                     stats.per_topic[connection.topic] = stats.per_topic.get(connection.topic, 0) + 1
-                if not self.options.loop or t0_bag is None:
+                passes_done = stats.passes = stats.passes + 1
+                if not self.options.loop or t0_bag is None or (self.options.passes and passes_done >= self.options.passes):
                     break
                 # the next pass starts one frame interval after this one ended, in bag time and in stamps
                 interval = (frame_stamps[-1] - frame_stamps[0]) // max(len(frame_stamps) - 1, 1) if frame_stamps else 0

@@ -23,6 +23,7 @@ def register(sub: Any) -> None:
     play.add_argument("--start-offset", type=float, default=0.0, help="skip the first S seconds")
     play.add_argument("--topics", nargs="+", help="play only these topics")
     play.add_argument("--loop", "-l", action="store_true", help="play again and again, stamps increasing across passes")
+    play.add_argument("--loops", type=int, default=0, metavar="N", help="with --loop: stop after N passes (default: never)")
     play.add_argument("--no-clock", action="store_true", help="do not publish /clock")
     play.add_argument(
         "--wait-for-subscribers",
@@ -62,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
             rate=args.rate,
             start_offset=args.start_offset,
             topics=args.topics,
-            loop=args.loop,
+            loop=args.loop or args.loops > 0,
+            passes=args.loops,
             clock=not args.no_clock,
             wait_for_subscribers=args.wait_for_subscribers,
             wait_timeout=args.wait_timeout,
