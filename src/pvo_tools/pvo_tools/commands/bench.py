@@ -37,6 +37,15 @@ def register(sub: Any) -> None:
     bs.add_argument("--preset", default="urban", help="urban | planetary")
     bs.add_argument("--frames", type=int, default=30, help="frames rendered per size (default 30)")
 
+    bsoak = kinds.add_parser("soak", help="a sample bag looped through the real node graph: memory, lost frames, latency drift")
+    bsoak.set_defaults(handler=bench_soak)
+    bsoak.add_argument("--bag", type=Path, help="bag to loop (default bags/sim_urban_sample)")
+    bsoak.add_argument("--frames", type=int, default=10_000, help="stereo frames to play (default 10000)")
+    bsoak.add_argument("--rate", type=float, default=2.0, help="playback speed factor (default 2x real time)")
+    bsoak.add_argument(
+        "--out", "-o", type=Path, default=Path("runs/bench-soak"), help="logs and metrics.json (default runs/bench-soak)"
+    )
+
     bf = kinds.add_parser("fusion", help="FusionGraph over a whole KITTI sequence (viso2-s VO + GT-Sun-10): time and memory")
     bf.set_defaults(handler=bench_fusion)
     bf.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
@@ -167,4 +176,64 @@ def bench_fusion(args: argparse.Namespace) -> int:
     print(
         f"  end: {current / 1e6:.2f} MB live, peak {peak / 1e6:.2f} MB; max RSS {rss_start / 1024:.0f} -> {rss_end / 1024:.0f} MB"
     )
+    return 0
+
+
+def bench_soak(args: argparse.Namespace) -> int:
+    """Issue 18's soak: RSS growth after warm-up per node, frames lost, end-to-end latency p95 start vs end."""
+    import os
+    import random
+
+    from pvo_core.results import RunResult
+    from pvo_fusion.sun_reference import TabulatedSunReference
+
+    from pvo_core import metrics
+
+    from ..graphbench import run_soak
+    from ..paths import repository_root
+    from ..samples import read_stereo_sample
+
+    bag = args.bag or (repository_root() or Path.cwd()) / "bags" / "sim_urban_sample"
+    sample = read_stereo_sample(bag)
+    first = int(sample.frame_stamps[0])
+    sun_map = TabulatedSunReference.from_ground_truth(
+        [first], sample.ground_truth_at(sample.frame_stamps[:1]), [sample.sun[first]]
+    )
+    domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
+    print(f"soak: {args.frames} frames of {bag} at {args.rate:g}x through stereo_vo + simulated_sun + fusion", flush=True)
+    result = run_soak(bag, args.frames, args.rate, args.out, domain, [float(v) for v in sun_map.directions[0]])
+    print(
+        f"  played {result.frames_played} stereo frames in {result.seconds:.0f} s; received {result.vo_messages} VO motions "
+        f"and {result.fused_messages} fused poses (every frame after the first: {result.frames_played - 1}); "
+        f"node exit codes {result.exit_codes}"
+    )
+    figures: dict[str, float] = {
+        "frames": result.frames_played,
+        "vo_messages": result.vo_messages,
+        "fused": result.fused_messages,
+    }
+    warm = 0.1 * result.seconds
+    for name, samples in result.rss.items():
+        after = [mb for t, mb in samples if t >= warm]
+        if len(after) >= 2:
+            growth = after[-1] - after[0]
+            figures[f"{name}.rss_start_mb"], figures[f"{name}.rss_end_mb"], figures[f"{name}.rss_growth_mb"] = (
+                after[0],
+                after[-1],
+                growth,
+            )
+            print(f"  {name:<14} RSS {after[0]:7.1f} MB after warm-up -> {after[-1]:7.1f} MB at the end ({growth:+.1f} MB)")
+    window = min(1000, max(len(result.latencies_ms) // 4, 1))
+    if len(result.latencies_ms) >= 2 * window:
+        start = metrics.latency_summary([ms for _, ms in result.latencies_ms[:window]])
+        end = metrics.latency_summary([ms for _, ms in result.latencies_ms[-window:]])
+        figures.update({f"latency_start.{k}": v for k, v in start.items()})
+        figures.update({f"latency_end.{k}": v for k, v in end.items()})
+        print(
+            f"  latency image -> fused pose, first {window} frames: "
+            f"median {start['median_ms']:.1f} ms, p95 {start['p95_ms']:.1f} ms; "
+            f"last {window}: median {end['median_ms']:.1f} ms, p95 {end['p95_ms']:.1f} ms"
+        )
+    path = RunResult("bench/soak", bag.name, figures=figures, inputs={"bag": str(bag), "rate": str(args.rate)}).write(args.out)
+    print(f"  wrote {path}")
     return 0

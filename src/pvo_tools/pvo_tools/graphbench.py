@@ -1,0 +1,159 @@
+"""Long runs of the real node graph for benchmarks: the soak (``pvo bench soak``) — a bag looped through
+stereo_vo + simulated_sun + fusion as processes, every node's memory sampled, every frame accounted for and
+the end-to-end latency compared between the start and the end of the run."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import PvoError
+
+NODES = (("pvo_frontend", "stereo_vo"), ("pvo_pseudosensors", "simulated_sun"), ("pvo_fusion", "fusion"))
+INPUTS = [
+    "/stereo/left/image_rect",
+    "/stereo/right/image_rect",
+    "/stereo/left/camera_info",
+    "/stereo/right/camera_info",
+    "/ground_truth/sun_direction",
+]
+
+
+def rss_mb(pid: int) -> float:
+    """Resident set size of a process (MB) from /proc; NaN when it is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return math.nan
+
+
+@dataclass
+class SoakResult:
+    frames_played: int
+    vo_messages: int
+    fused_messages: int
+    seconds: float
+    rss: dict[str, list[tuple[float, float]]] = field(default_factory=dict)  # node -> (s, MB)
+    latencies_ms: list[tuple[int, float]] = field(default_factory=list)  # (frame index, ms)
+    exit_codes: dict[str, int] = field(default_factory=dict)
+
+
+def run_soak(bag: Path, frames: int, rate: float, work: Path, domain_id: int, sun_direction: list[float]) -> SoakResult:
+    """Loop ``bag`` until ``frames`` stereo frames were played at ``rate`` x real time through the graph."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray  # noqa: F401 - the status topic type is known to rclpy
+    from nav_msgs.msg import Odometry
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
+
+    from pvo_msgs.msg import RelativePose
+
+    from .baginfo import bag_info
+    from .launch import NodeGroup, wait_for_graph
+    from .player import BagPlayer, PlayOptions
+    from .testing import Spinner
+
+    per_pass = dict((t, n) for t, _, n, _ in bag_info(bag).topics).get("/stereo/left/image_rect", 0)
+    if per_pass < 2:
+        raise PvoError(f"{bag}: no stereo images to loop")
+    passes = max(1, math.ceil(frames / per_pass))
+    work.mkdir(parents=True, exist_ok=True)
+    params = work / "params.yaml"
+    params.write_text(
+        yaml.safe_dump(
+            {
+                "stereo_vo": {"ros__parameters": {}},
+                "simulated_sun": {"ros__parameters": {}},
+                "fusion": {"ros__parameters": {"inputs.sun.reference": "fixed", "inputs.sun.reference_direction": sun_direction}},
+            }
+        )
+    )
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+    group = NodeGroup()
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    image_seen: dict[int, float] = {}
+    latencies: list[tuple[int, float]] = []
+    counts = {"vo": 0, "fused": 0}
+    every = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+
+    def stamp(msg: Any) -> int:
+        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+    def on_image(msg: Image) -> None:
+        image_seen[stamp(msg)] = time.perf_counter()
+
+    def on_vo(msg: RelativePose) -> None:
+        counts["vo"] += 1
+
+    def on_fused(msg: Odometry) -> None:
+        counts["fused"] += 1
+        seen = image_seen.pop(stamp(msg), None)
+        for old in [s for s in image_seen if s < stamp(msg)]:
+            del image_seen[old]  # bounded: frames without an odometry are not kept
+        if seen is not None:
+            latencies.append((counts["fused"], 1e3 * (time.perf_counter() - seen)))
+
+    rss: dict[str, list[tuple[float, float]]] = {name: [] for _, name in NODES}
+    start = time.perf_counter()
+    try:
+        for package, executable in NODES:
+            group.start(package, executable, params, work / "logs", env)
+        listener = Node("pvo_soak_listener", context=context)
+        player_node = Node("pvo_soak_player", context=context)
+        listener.create_subscription(Image, "/stereo/left/image_rect", on_image, every)
+        listener.create_subscription(RelativePose, "/pvo/vo/relative", on_vo, every)
+        listener.create_subscription(Odometry, "/pvo/fusion/odometry", on_fused, every)
+        player = BagPlayer(player_node, bag, PlayOptions(rate=rate, loop=True, passes=passes, topics=INPUTS))
+        with Spinner(context, listener):
+            wait_for_graph(
+                player_node,
+                {"/stereo/left/image_rect": (0, 2), "/pvo/vo/relative": (1, 2), "/pvo/fusion/odometry": (1, 1)},
+                timeout_s=60.0,
+                check=group.check,
+            )
+            time.sleep(2.0)
+            import threading
+
+            stop = threading.Event()
+
+            def sample() -> None:
+                while not stop.is_set():
+                    for node in group.nodes:
+                        rss[node.name].append((time.perf_counter() - start, rss_mb(node.process.pid)))
+                    stop.wait(5.0)
+
+            sampler = threading.Thread(target=sample, daemon=True)
+            sampler.start()
+            stats = player.play()
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline and counts["fused"] < stats.per_topic.get("/stereo/left/image_rect", 0) - 1:
+                group.check()
+                time.sleep(0.1)
+            stop.set()
+            sampler.join()
+        listener.destroy_node()
+        player_node.destroy_node()
+    finally:
+        codes = group.stop()
+        rclpy.shutdown(context=context)
+    return SoakResult(
+        stats.per_topic.get("/stereo/left/image_rect", 0),
+        counts["vo"],
+        counts["fused"],
+        time.perf_counter() - start,
+        rss,
+        latencies,
+        codes,
+    )
