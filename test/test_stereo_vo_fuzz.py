@@ -159,3 +159,54 @@ def test_bad_camera_info_is_rejected_and_a_good_one_starts_the_node(ros_context)
         vo_node.destroy_node()
         io.destroy_node()
     assert vo_node.vo.camera.baseline == pytest.approx(0.5)
+
+
+def test_under_overload_a_frame_behind_the_clock_is_skipped_and_said(ros_context) -> None:
+    from rclpy.parameter import Parameter
+    from rosgraph_msgs.msg import Clock
+
+    overrides = [Parameter("use_sim_time", value=True), Parameter("max_lag", value=0.5)]
+    vo_node = StereoVONode(context=ros_context, parameter_overrides=overrides)
+    io = Node("io", context=ros_context)
+    statuses: list[DiagnosticArray] = []
+    io.create_subscription(DiagnosticArray, "/pvo/vo/status", statuses.append, RELIABLE)
+    clock = io.create_publisher(Clock, "/clock", 10)
+    pubs = {
+        topic: io.create_publisher(kind, topic, RELIABLE)
+        for topic, kind in (
+            ("/stereo/left/image_rect", Image),
+            ("/stereo/right/image_rect", Image),
+            ("/stereo/left/camera_info", CameraInfo),
+            ("/stereo/right/camera_info", CameraInfo),
+        )
+    }
+
+    def tick(seconds: int) -> None:
+        msg = Clock()
+        set_stamp(msg.clock, seconds * SECOND)
+        clock.publish(msg)
+        wait_for(lambda: vo_node.get_clock().now().nanoseconds == seconds * SECOND, 5.0)
+
+    def frame(stamp: int, seed: int) -> None:
+        pubs["/stereo/left/camera_info"].publish(info(stamp, 0.0))
+        pubs["/stereo/right/camera_info"].publish(info(stamp, -60.0))
+        pubs["/stereo/left/image_rect"].publish(image(stamp, seed))
+        pubs["/stereo/right/image_rect"].publish(image(stamp, seed + 1))
+
+    try:
+        with Spinner(ros_context, vo_node, io):
+            assert wait_for(lambda: all(p.get_subscription_count() > 0 for p in pubs.values()))
+            assert wait_for(lambda: clock.get_subscription_count() > 0 and vo_node.pub_status.get_subscription_count() > 0)
+            tick(100)
+            frame(100 * SECOND, 1)
+            assert wait_for(lambda: len(statuses) == 1)
+            tick(200)
+            frame(101 * SECOND, 3)  # 99 s behind: the node cannot have kept up
+            assert wait_for(lambda: len(statuses) == 2)
+            frame(200 * SECOND, 5)
+            assert wait_for(lambda: len(statuses) == 3)
+    finally:
+        vo_node.destroy_node()
+        io.destroy_node()
+    assert statuses[1].status[0].message == "frame skipped: 99.00 s behind the clock (overload)"
+    assert vo_node.counts["skipped_overload"] == 1 and vo_node.counts["processed"] == 2

@@ -464,3 +464,40 @@ def interval_statistics(times: ArrayLike) -> dict[str, float]:
         "max_s": float(deltas.max()),
         "std_s": float(deltas.std()),
     }
+
+
+def step_excess(gt: ArrayLike, est: ArrayLike) -> Array:
+    """Per step k-1 -> k (N-1,): how much longer or shorter the estimate's position step is than the truth's (m)
+    — a jump of the estimate shows as a large value. Steps touching a NaN pose are NaN."""
+    g = np.asarray(gt, dtype=float)[:, :3, 3]
+    e = np.asarray(est, dtype=float)[:, :3, 3]
+    return np.abs(np.linalg.norm(np.diff(e, axis=0), axis=1) - np.linalg.norm(np.diff(g, axis=0), axis=1))
+
+
+def fault_figures(gt: ArrayLike, est: ArrayLike, covariances: ArrayLike) -> dict[str, float]:
+    """Figures of a run with a fault against its ground truth (N, 4, 4), NaN where no estimate came:
+    frames estimated, position RMSE over them, the largest step excess (:func:`step_excess`) between consecutive
+    estimated frames and, at that step, 5 sigma of the growth of the published position covariance
+    (what the motion model allowed: a jump within it is a bridged gap, beyond it a discontinuity)."""
+    g = np.asarray(gt, dtype=float)
+    e = np.asarray(est, dtype=float)
+    c = np.asarray(covariances, dtype=float)
+    idx = np.flatnonzero(np.all(np.isfinite(e.reshape(len(e), -1)), axis=1))
+    if len(idx) < 2:
+        return {
+            "frames": float(len(idx)),
+            "rmse_m": float("nan"),
+            "max_step_excess_m": float("nan"),
+            "five_sigma_m": float("nan"),
+        }
+    errors = map_frame_errors(g[idx], e[idx])["trans"]
+    excess = step_excess(g[idx], e[idx])
+    worst = int(np.nanargmax(excess))
+    growth = np.trace(c[idx[worst + 1]][:3, :3]) - np.trace(c[idx[worst]][:3, :3])
+    return {
+        "frames": float(len(idx)),
+        "rmse_m": float(np.sqrt(np.mean(errors**2))),
+        "max_step_excess_m": float(excess[worst]),
+        "five_sigma_m": float(5.0 * np.sqrt(max(growth, 0.0))),
+        "at_frame": float(idx[worst + 1]),
+    }

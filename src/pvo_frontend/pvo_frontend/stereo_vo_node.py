@@ -36,7 +36,11 @@ LEVELS = {FrameStatus.FIRST: OK, FrameStatus.TRACKING: OK, FrameStatus.LOST: WAR
 class StereoVONodeConfig:
     """The node's own parameters: output frames, how many image pairs may wait for camera_info, the path
     (``/pvo/vo/path`` at most once per ``path_period`` seconds of message time, 0: every frame; at most
-    ``path_max_poses`` newest poses, 0: all — a long run's memory and publishing time stay bounded)."""
+    ``path_max_poses`` newest poses, 0: all — a long run's memory and publishing time stay bounded).
+
+    max_lag: under overload, skip a frame whose stamp is more than this many seconds behind the node's clock
+    (ROS time: ``/clock`` with ``use_sim_time``, else the system clock for live sensors), counted as
+    ``skipped_overload`` and reported; 0 never skips (for replays without ``/clock``, whose stamps are old)."""
 
     odom_frame: str = "odom"
     camera_frame: str = "camera_left_optical"
@@ -44,8 +48,11 @@ class StereoVONodeConfig:
     publish_path: bool = True
     path_period: float = 1.0
     path_max_poses: int = 2000
+    max_lag: float = 0.0
 
     def __post_init__(self) -> None:
+        if not self.max_lag >= 0.0:
+            raise ValueError(f"max_lag must be >= 0 s (0: never skip), got {self.max_lag}")
         if self.max_pending_frames < 1:
             raise ValueError(f"max_pending_frames must be >= 1, got {self.max_pending_frames}")
         if not self.path_period >= 0.0:
@@ -134,6 +141,7 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
         self.path_poses: deque[PoseStamped] = deque(maxlen=self.settings.path_max_poses or None)
         self._last_path_ns: int | None = None
         self.counts = {"processed": 0, "lost_frames": 0, "rejected": 0, "waiting_for_camera_info": 0, "missing_images": 0}
+        self.counts["skipped_overload"] = 0
         self.ledger = FrameLedger()
         self._previous_stamp_ns: int | None = None  # exact stamp of the last frame the VO accepted
 
@@ -206,6 +214,8 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
             self._publish_status(None, dropped_ns, f"frame dropped: {what}")
             return
         stamp = stamp_ns * 1e-9
+        if self._behind(stamp_ns):
+            return
         try:
             left = image_to_array(left_msg)
             right = image_to_array(right_msg)
@@ -236,6 +246,19 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
         if result.status is not FrameStatus.REJECTED:
             self._previous_stamp_ns = stamp_ns
         self._publish_status(result, stamp_ns, result.message or result.status.value)
+
+    def _behind(self, stamp_ns: int) -> bool:
+        """Skip the frame deliberately when it lags the clock by more than max_lag (the node cannot keep up)."""
+        max_lag = self.settings.max_lag
+        if max_lag <= 0.0:
+            return False
+        lag = (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9
+        if lag <= max_lag:
+            return False
+        self.counts["skipped_overload"] += 1
+        self.problem(f"frame at {stamp_ns * 1e-9:.3f} s skipped: {lag:.2f} s behind the clock (max_lag {max_lag:g} s)")
+        self._publish_status(None, stamp_ns, f"frame skipped: {lag:.2f} s behind the clock (overload)")
+        return True
 
     def _publish_estimate(self, stamp_ns: int, reference_ns: int, result: FrameResult) -> None:
         assert result.transform is not None and result.covariance is not None

@@ -157,3 +157,82 @@ def run_soak(bag: Path, frames: int, rate: float, work: Path, domain_id: int, su
         latencies,
         codes,
     )
+
+
+# ----------------------------------------------------------------------------------------------- faults
+@dataclass
+class FaultRun:
+    """One run of a sample with a fault: the fused online poses and their covariances by stamp (ns)."""
+
+    name: str
+    poses: dict[int, Any]
+    covariances: dict[int, Any]
+    dropped: dict[str, int]
+    exit_codes: dict[str, int]
+    seconds: float
+
+
+def run_fault(
+    name: str,
+    bag: Path,
+    work: Path,
+    domain_id: int,
+    params: dict[str, dict[str, Any]],
+    rate: float,
+    hook_factory: Any = None,
+) -> FaultRun:
+    """The sample through the graph once; ``hook_factory(group, params_file, log_dir, env)`` gives the player's
+    fault-injection hook (None: a clean run)."""
+    import rclpy
+    from nav_msgs.msg import Odometry
+    from pvo_core.msgconv import covariance_to_matrix, pose_to_matrix
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from .launch import NodeGroup, wait_for_graph
+    from .player import BagPlayer, PlayOptions
+    from .testing import Spinner
+
+    work.mkdir(parents=True, exist_ok=True)
+    params_file = work / "params.yaml"
+    params_file.write_text(yaml.safe_dump({n: {"ros__parameters": v} for n, v in params.items()}))
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+    log_dir = work / "logs"
+    group = NodeGroup()
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    poses: dict[int, Any] = {}
+    covariances: dict[int, Any] = {}
+
+    def on_fused(msg: Odometry) -> None:
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        poses[stamp] = pose_to_matrix(msg.pose.pose)
+        covariances[stamp] = covariance_to_matrix(msg.pose.covariance)
+
+    start = time.perf_counter()
+    try:
+        for package, executable in NODES:
+            group.start(package, executable, params_file, log_dir, env)
+        listener = Node("pvo_faults_listener", context=context)
+        player_node = Node("pvo_faults_player", context=context)
+        every = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+        listener.create_subscription(Odometry, "/pvo/fusion/odometry", on_fused, every)
+        hook = hook_factory(group, params_file, log_dir, env) if hook_factory else None
+        player = BagPlayer(player_node, bag, PlayOptions(rate=rate, topics=INPUTS, hook=hook, wait_for_subscribers=0))
+        with Spinner(context, listener):
+            wait_for_graph(
+                player_node,
+                {"/stereo/left/image_rect": (0, 1), "/pvo/vo/relative": (1, 1), "/pvo/fusion/odometry": (1, 1)},
+                timeout_s=60.0,
+                check=group.check,
+            )
+            time.sleep(2.0)
+            stats = player.play()
+            time.sleep(3.0)  # the last frames through the graph
+        listener.destroy_node()
+        player_node.destroy_node()
+    finally:
+        codes = group.stop()
+        rclpy.shutdown(context=context)
+    return FaultRun(name, poses, covariances, dict(stats.dropped), codes, time.perf_counter() - start)

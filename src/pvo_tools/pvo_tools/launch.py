@@ -22,6 +22,7 @@ class NodeProcess:
     name: str
     process: subprocess.Popen
     log: Path
+    expected_dead: bool = False
 
     def tail(self, lines: int = 5) -> str:
         try:
@@ -36,22 +37,47 @@ class NodeGroup:
     """Node processes started together; ``check()`` raises if one has died, ``stop()`` ends them all."""
 
     nodes: list[NodeProcess] = field(default_factory=list)
+    packages: dict[str, str] = field(default_factory=dict)
 
-    def start(self, package: str, executable: str, params_file: Path | None, log_dir: Path, env: Mapping[str, str]) -> None:
+    def start(
+        self, package: str, executable: str, params_file: Path | None, log_dir: Path, env: Mapping[str, str], suffix: str = ""
+    ) -> None:
+        self.packages[executable] = package
         path = find_executable(package, executable)
         args = [str(path), "--ros-args"]
         if params_file is not None:
             args += ["--params-file", str(params_file)]
         log_dir.mkdir(parents=True, exist_ok=True)
-        log = log_dir / f"{executable}.log"
+        log = log_dir / f"{executable}{suffix}.log"
         with log.open("w") as out:
             process = subprocess.Popen(args, stdout=out, stderr=subprocess.STDOUT, env=dict(env), start_new_session=True)
         self.nodes.append(NodeProcess(executable, process, log))
 
+    def restart(self, name: str, params_file: Path | None, log_dir: Path, env: Mapping[str, str], kill: bool = True) -> None:
+        """Kill a node (SIGKILL: a crash, not a shutdown) and start it again with the same parameters."""
+        for index, node in enumerate(self.nodes):
+            if node.name == name:
+                if node.process.poll() is None:
+                    node.process.send_signal(signal.SIGKILL if kill else signal.SIGINT)
+                    node.process.wait(timeout=15)
+                package = self.packages[name]
+                del self.nodes[index]
+                self.start(package, name, params_file, log_dir, env, suffix=f".{int(time.monotonic() * 1000)}")
+                return
+        raise PvoError(f"no node {name} to restart")
+
+    def kill(self, name: str) -> None:
+        """SIGKILL a node (a crash); it stays dead until :meth:`restart`."""
+        for node in self.nodes:
+            if node.name == name and node.process.poll() is None:
+                node.process.send_signal(signal.SIGKILL)
+                node.process.wait(timeout=15)
+                node.expected_dead = True
+
     def check(self) -> None:
         for node in self.nodes:
             code = node.process.poll()
-            if code is not None:
+            if code is not None and not node.expected_dead:
                 raise PvoError(f"node {node.name} died (exit status {code}): {node.tail() or 'no output'} (log {node.log})")
 
     def stop(self, timeout_s: float = 15.0) -> dict[str, int]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,6 +41,9 @@ class PlayOptions:
     wait_timeout: float = 10.0
     settle: float = 2.0
     delay: float = 0.0
+    # fault injection (benchmarks): called with (topic, header stamp or None, CDR bytes) before each publish;
+    # returns the bytes to publish (possibly restamped) or None to drop the message
+    hook: Callable[[str, int | None, bytes], bytes | None] | None = None
 
 
 @dataclass
@@ -50,6 +54,7 @@ class PlayStats:
     seconds: float = 0.0
     per_topic: dict[str, int] = field(default_factory=dict)
     unheard: dict[str, int] = field(default_factory=dict)
+    dropped: dict[str, int] = field(default_factory=dict)  # by the fault-injection hook
     passes: int = 0
 
     def report(self) -> str:
@@ -147,6 +152,14 @@ class BagPlayer:
                             frame_stamps.append(header)
                         if restamp and header is not None:
                             raw = with_header_stamp(raw, header + restamp)
+                    if self.options.hook is not None:
+                        hooked = self.options.hook(
+                            connection.topic, header_stamp_ns(raw) if connection.topic in header_topics else None, bytes(raw)
+                        )
+                        if hooked is None:
+                            stats.dropped[connection.topic] = stats.dropped.get(connection.topic, 0) + 1
+                            continue
+                        raw = hooked
                     if self.clock_publisher is not None:
                         clock = Clock()
                         fill_stamp(clock.clock, stamp_ns + restamp)

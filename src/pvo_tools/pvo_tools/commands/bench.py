@@ -46,6 +46,12 @@ def register(sub: Any) -> None:
         "--out", "-o", type=Path, default=Path("runs/bench-soak"), help="logs and metrics.json (default runs/bench-soak)"
     )
 
+    bfault = kinds.add_parser("faults", help="nodes killed and restarted, images dropped, a clock jump: what each costs")
+    bfault.set_defaults(handler=bench_faults)
+    bfault.add_argument("--bag", type=Path, help="sample bag (default bags/sim_urban_sample)")
+    bfault.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    bfault.add_argument("--out", "-o", type=Path, default=Path("runs/bench-faults"), help="logs and metrics.json")
+
     bf = kinds.add_parser("fusion", help="FusionGraph over a whole KITTI sequence (viso2-s VO + GT-Sun-10): time and memory")
     bf.set_defaults(handler=bench_fusion)
     bf.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
@@ -236,4 +242,105 @@ def bench_soak(args: argparse.Namespace) -> int:
         )
     path = RunResult("bench/soak", bag.name, figures=figures, inputs={"bag": str(bag), "rate": str(args.rate)}).write(args.out)
     print(f"  wrote {path}")
+    return 0
+
+
+FAULT_AT, RESTART_AT, JUMP_AT = 100, 120, 150  # frames of the sample
+CLOCK_JUMP_NS = 5_000_000_000
+
+
+def bench_faults(args: argparse.Namespace) -> int:
+    """Issue 18's faults: each node killed (SIGKILL) at frame 100 and restarted at 120, 10 % of the images dropped
+    at random, the stamps jumping 5 s forward at frame 150; the fused online pose against the ground truth."""
+    import os
+    import random
+
+    from pvo_core.msgconv import pose_to_xyz_xyzw
+    from pvo_core.results import RunResult
+    from pvo_fusion.sun_reference import TabulatedSunReference
+
+    from pvo_core import metrics
+
+    from ..graphbench import run_fault
+    from ..paths import repository_root
+    from ..recorder import with_header_stamp
+    from ..samples import read_stereo_sample
+
+    bag = args.bag or (repository_root() or Path.cwd()) / "bags" / "sim_urban_sample"
+    sample = read_stereo_sample(bag)
+    stamps = [int(s) for s in sample.frame_stamps]
+    gt = sample.ground_truth_at(sample.frame_stamps)
+    args.out.mkdir(parents=True, exist_ok=True)
+    table = args.out / "sun_reference.csv"
+    sun_stamps = [s for s in stamps if s in sample.sun]
+    reference = TabulatedSunReference.from_ground_truth(
+        sun_stamps, sample.ground_truth_at(sun_stamps), [sample.sun[s] for s in sun_stamps]
+    )
+    TabulatedSunReference.write(table, sun_stamps, reference.directions)
+    params = {
+        "stereo_vo": {},
+        "simulated_sun": {},
+        "fusion": {
+            "prior.source": "given",
+            "initial_pose": pose_to_xyz_xyzw(gt[0]),
+            "inputs.sun.reference": "table",
+            "inputs.sun.reference_table": str(table.resolve()),
+        },
+    }
+    domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
+
+    def restart(node: str):
+        def factory(group, params_file, log_dir, env):
+            def hook(topic: str, stamp: int | None, raw: bytes) -> bytes:
+                if topic == "/stereo/left/image_rect" and stamp == stamps[FAULT_AT]:
+                    group.kill(node)
+                if topic == "/stereo/left/image_rect" and stamp == stamps[RESTART_AT]:
+                    group.restart(node, params_file, log_dir, env)
+                return raw
+
+            return hook
+
+        return factory
+
+    def drop_images(group, params_file, log_dir, env):
+        rng = random.Random(0)
+        return lambda topic, stamp, raw: None if topic.endswith("image_rect") and rng.random() < 0.1 else raw
+
+    def clock_jump(group, params_file, log_dir, env):
+        return lambda topic, stamp, raw: (
+            with_header_stamp(raw, stamp + CLOCK_JUMP_NS) if stamp and stamp >= stamps[JUMP_AT] else raw
+        )
+
+    scenarios = [
+        ("clean", None),
+        ("stereo_vo killed and restarted", restart("stereo_vo")),
+        ("simulated_sun killed and restarted", restart("simulated_sun")),
+        ("fusion killed and restarted", restart("fusion")),
+        ("10 % of images dropped", drop_images),
+        ("stamps jump 5 s forward", clock_jump),
+    ]
+    print(f"faults on {bag} ({len(stamps)} frames at {args.rate:g}x); node faults at frame {FAULT_AT}, restarts at {RESTART_AT}")
+    print(f"{'scenario':<36}{'fused':>7}{'RMSE m':>9}{'vs clean':>10}{'max jump m':>12}{'5 sigma m':>11}  exits")
+    figures: dict[str, float] = {}
+    clean_rmse = None
+    for index, (name, factory) in enumerate(scenarios):
+        run = run_fault(name, bag, args.out / f"scenario{index}", domain, params, args.rate, factory)
+        shift = CLOCK_JUMP_NS if factory is clock_jump else 0
+        by_frame = {}
+        for stamp, pose in run.poses.items():
+            original = stamp - shift if shift and stamp >= stamps[JUMP_AT] + shift else stamp
+            by_frame[original] = (pose, run.covariances[stamp])
+        est = [by_frame[s][0] if s in by_frame else [[float("nan")] * 4] * 4 for s in stamps]
+        cov = [by_frame[s][1] if s in by_frame else [[float("nan")] * 6] * 6 for s in stamps]
+        f = metrics.fault_figures(gt, est, cov)
+        clean_rmse = f["rmse_m"] if clean_rmse is None else clean_rmse
+        figures.update({f"{name}.{k}": v for k, v in f.items()})
+        exits = ", ".join(f"{n} {c}" for n, c in run.exit_codes.items())
+        print(
+            f"{name:<36}{int(f['frames']):>7}{f['rmse_m']:>9.3f}{f['rmse_m'] - clean_rmse:>+10.3f}"
+            f"{f['max_step_excess_m']:>12.3f}{f['five_sigma_m']:>11.3f}  {exits}"
+        )
+    path = RunResult("bench/faults", bag.name, figures=figures, inputs={"bag": str(bag), "rate": str(args.rate)}).write(args.out)
+    print("fused = frames with a fused pose; max jump = largest step of the fused pose beyond the true step, against 5 sigma")
+    print(f"of the growth of its published position covariance over that step. Wrote {path}")
     return 0
