@@ -14,6 +14,7 @@ changed at run time, the rest only at start-up.
 
 from __future__ import annotations
 
+import os
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ from sensor_msgs.msg import NavSatFix, NavSatStatus
 from pvo_msgs.msg import RelativePose, SunDirection
 from pvo_ros import OK, WARN, PvoNode, every_message, reliable, run_node
 
+from .checkpoint import FusionCheckpoint
 from .config import FusionConfig
 from .graph import ACCEPTED, BUFFERED, FusionGraph
 from .measurements import RelativeMeasurement, SunMeasurement
@@ -78,6 +80,8 @@ class FusionNodeConfig:
     initial_pose: x y z qx qy qz qw of the first camera in ``map``, used when ``prior.source`` is
     ``given`` and ``initial_pose_from_ground_truth`` is false (then the first ``/ground_truth/odometry``
     at the first VO frame is used instead).
+    state_file: where the newest state is checkpointed after every VO frame; a node started with an
+    existing checkpoint resumes from it (a restart after a crash continues the trajectory). Empty: off.
     """
 
     map_frame: str = "map"
@@ -87,6 +91,7 @@ class FusionNodeConfig:
     path_max_poses: int = 2000
     initial_pose: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
     initial_pose_from_ground_truth: bool = False
+    state_file: str = ""
 
     def __post_init__(self) -> None:
         if not self.path_period >= 0.0:
@@ -123,6 +128,16 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         if self.config.prior.source == "given" and not settings.initial_pose_from_ground_truth:
             self.graph.set_initial_pose(xyz_xyzw_to_pose(settings.initial_pose))
             self._initial_known = True
+        if settings.state_file and os.path.isfile(settings.state_file):
+            try:
+                checkpoint = FusionCheckpoint.read(settings.state_file)
+            except ValueError as exc:
+                self.get_logger().warning(f"{exc}; starting without it")
+            else:
+                self.graph = FusionGraph(self.config, self._static_sun_reference())
+                self.graph.resume(checkpoint)
+                self._initial_known = True
+                self.get_logger().info(f"resuming from {settings.state_file} at {checkpoint.stamp * 1e-9:.3f} s")
 
         # Inputs keep every message: a lagging fusion must not silently lose VO frames (a lost frame
         # would become a gap); outputs keep the last 200.
@@ -219,6 +234,10 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         self._keep_finished()
         if outcome == ACCEPTED:
             self._publish_estimate(stamp)
+            if self.settings.state_file:
+                checkpoint = self.graph.checkpoint()
+                if checkpoint is not None:
+                    checkpoint.write(self.settings.state_file)
             self.latencies_ms.append(1e3 * (time.perf_counter() - received))
             period_ns = int(1e9 * self.settings.path_period)
             due = self._last_path_stamp is None or stamp - self._last_path_stamp >= period_ns

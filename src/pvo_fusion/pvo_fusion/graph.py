@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from pvo_core.covariance import gtsam_to_ros_covariance, is_positive_definite, ros_to_gtsam_covariance
 from pvo_core.lie import se3_exp, se3_inverse, se3_log
 
+from .checkpoint import FusionCheckpoint
 from .config import FusionConfig
 from .factors import between_measurement, rotation_error, rotation_factor, sun_error, sun_factor, zenith_azimuth
 from .measurements import RelativeMeasurement, SunMeasurement, relative_problem, sun_problem
@@ -71,6 +72,7 @@ class FusionGraph:
         self.last_update_seconds = 0.0
         self.last_rejection = ""
         self._initial_pose: Array | None = None
+        self._resume_stamp: int | None = None
         self._initial_covariance: Array | None = None
         self._tolerance_ns = round(self.config.stamp_tolerance * 1e9)
         scale = np.sqrt(np.asarray(self.config.inputs.vo.covariance_scale, dtype=float))
@@ -128,6 +130,19 @@ class FusionGraph:
         self._initial_pose = pose
         self._initial_covariance = None if covariance is None else np.asarray(covariance, dtype=float).reshape(6, 6)
 
+    def checkpoint(self) -> FusionCheckpoint | None:
+        """The newest state (stamp, pose, marginal covariance) and the last VO velocity; None before the first VO."""
+        if not self._stamps:
+            return None
+        return FusionCheckpoint(self._stamps[-1], self.pose(), self.covariance(), self._last_velocity)
+
+    def resume(self, checkpoint: FusionCheckpoint) -> None:
+        """Start from a checkpoint (before the first VO): the first state is the checkpoint's, at its stamp, with
+        its covariance; the next VO bridges the time since with the checkpoint's velocity."""
+        self.set_initial_pose(checkpoint.pose, checkpoint.covariance)
+        self._resume_stamp = int(checkpoint.stamp)
+        self._last_velocity = checkpoint.velocity
+
     # ------------------------------------------------------------------ state look-up
     @property
     def initial_pose(self) -> Array:
@@ -183,7 +198,9 @@ class FusionGraph:
         if not self._motion_plausible(m):
             return self._count("vo", "rejected.implausible_motion")
         if not self._stamps:
-            self._start(m.reference_stamp)
+            if self._resume_stamp is not None and m.reference_stamp < self._resume_stamp:
+                return self._count("vo", "rejected.before_checkpoint")
+            self._start(m.reference_stamp if self._resume_stamp is None else self._resume_stamp)
         newest = self._stamps[-1]
         if m.stamp <= newest + self._tolerance_ns:
             if self._find(m.stamp) is not None:

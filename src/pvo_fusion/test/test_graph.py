@@ -434,3 +434,29 @@ def test_vo_constant_velocity_gate_drops_a_jump_and_bridges_it() -> None:
     assert graph.counts["vo.gap"] == 1 and graph.counts["vo.gated"] == 1
     for m in vo[12:]:
         assert graph.add_vo(m) == "accepted"
+
+
+def test_a_graph_resumed_from_a_checkpoint_continues_the_trajectory(tmp_path) -> None:
+    """Issue 18: a fusion killed at frame 30 and restarted at frame 50 resumes from its checkpoint."""
+    from pvo_fusion.checkpoint import FusionCheckpoint
+
+    truth = truth_trajectory(80)
+    vo = vo_stream(truth, None)
+    first = FusionGraph()
+    for m in vo[:30]:
+        first.add_vo(m)
+    path = tmp_path / "state.json"
+    first.checkpoint().write(path)
+    resumed = FusionGraph()
+    resumed.resume(FusionCheckpoint.read(path))
+    assert resumed.add_vo(vo[10]) == "rejected.before_checkpoint"  # older than the checkpoint
+    for m in vo[50:]:
+        assert resumed.add_vo(m) == "accepted"
+    assert resumed.counts["vo.gap"] == 1
+    np.testing.assert_allclose(resumed.pose()[:3, 3], truth[79][:3, 3], atol=5.0)
+    steps = np.linalg.norm(np.diff([p.pose[:3, 3] for p in resumed.trajectory()], axis=0), axis=1)
+    assert steps.max() < 25.0  # one bridged step of about 20 frames' travel, no jump back to the origin
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    with pytest.raises(ValueError, match="fusion checkpoint .*bad.json"):
+        FusionCheckpoint.read(bad)

@@ -195,6 +195,9 @@ def run_fault(
     from .testing import Spinner
 
     work.mkdir(parents=True, exist_ok=True)
+    state = work / "fusion_state.json"
+    state.unlink(missing_ok=True)
+    params = {**params, "fusion": {**params.get("fusion", {}), "state_file": str(state.resolve())}}
     params_file = work / "params.yaml"
     params_file.write_text(yaml.safe_dump({n: {"ros__parameters": v} for n, v in params.items()}))
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))

@@ -1,0 +1,66 @@
+"""The fusion's newest state on disk, so that a restarted fusion node resumes where the killed one stopped.
+
+A checkpoint is the newest state's stamp, pose T_map,cam, its marginal covariance (ROS order, left
+perturbation) and the last VO velocity (motion, covariance, interval). It is written atomically (temporary
+file, then rename): a node killed while writing leaves the previous checkpoint whole.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FusionCheckpoint:
+    stamp: int
+    pose: Array
+    covariance: Array
+    velocity: tuple[Array, Array, float] | None
+
+    def write(self, path: str | Path) -> None:
+        path = Path(path)
+        data = {
+            "stamp": int(self.stamp),
+            "pose": np.asarray(self.pose, dtype=float).reshape(-1).tolist(),
+            "covariance": np.asarray(self.covariance, dtype=float).reshape(-1).tolist(),
+            "velocity": None
+            if self.velocity is None
+            else {
+                "transform": np.asarray(self.velocity[0], dtype=float).reshape(-1).tolist(),
+                "covariance": np.asarray(self.velocity[1], dtype=float).reshape(-1).tolist(),
+                "seconds": float(self.velocity[2]),
+            },
+        }
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(data))
+        os.replace(tmp, path)
+
+    @classmethod
+    def read(cls, path: str | Path) -> FusionCheckpoint:
+        """``ValueError`` naming the file when it is missing, unreadable or not a checkpoint."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+            pose = np.asarray(data["pose"], dtype=float).reshape(4, 4)
+            covariance = np.asarray(data["covariance"], dtype=float).reshape(6, 6)
+            velocity = data["velocity"]
+            if velocity is not None:
+                velocity = (
+                    np.asarray(velocity["transform"], dtype=float).reshape(4, 4),
+                    np.asarray(velocity["covariance"], dtype=float).reshape(6, 6),
+                    float(velocity["seconds"]),
+                )
+            checkpoint = cls(int(data["stamp"]), pose, covariance, velocity)
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"fusion checkpoint {path}: {type(exc).__name__}: {exc}") from None
+        if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(covariance))):
+            raise ValueError(f"fusion checkpoint {path}: non-finite pose or covariance")
+        return checkpoint
