@@ -474,30 +474,27 @@ def step_excess(gt: ArrayLike, est: ArrayLike) -> Array:
     return np.abs(np.linalg.norm(np.diff(e, axis=0), axis=1) - np.linalg.norm(np.diff(g, axis=0), axis=1))
 
 
-def fault_figures(gt: ArrayLike, est: ArrayLike, covariances: ArrayLike) -> dict[str, float]:
-    """Figures of a run with a fault against its ground truth (N, 4, 4), NaN where no estimate came:
-    frames estimated, position RMSE over them, the largest step excess (:func:`step_excess`) between consecutive
-    estimated frames and, at that step, 5 sigma of the growth of the published position covariance
-    (what the motion model allowed: a jump within it is a bridged gap, beyond it a discontinuity)."""
+def fault_figures(gt: ArrayLike, est: ArrayLike, times: ArrayLike, sigma_per_second: float) -> dict[str, float]:
+    """Figures of a run with a fault against its ground truth (N, 4, 4), NaN where no estimate came: frames
+    estimated, position RMSE over them, and the step between consecutive estimated frames (k, k' at ``times``
+    in s) that most exceeds the true step (:func:`step_excess`), with the ratio of that excess to 5 sigma of the
+    motion model over the step, ``5 sigma_per_second (t_k' - t_k)``: above 1, the estimate jumped."""
     g = np.asarray(gt, dtype=float)
     e = np.asarray(est, dtype=float)
-    c = np.asarray(covariances, dtype=float)
+    t = np.asarray(times, dtype=float)
     idx = np.flatnonzero(np.all(np.isfinite(e.reshape(len(e), -1)), axis=1))
+    nan = float("nan")
     if len(idx) < 2:
-        return {
-            "frames": float(len(idx)),
-            "rmse_m": float("nan"),
-            "max_step_excess_m": float("nan"),
-            "five_sigma_m": float("nan"),
-        }
+        return {"frames": float(len(idx)), "rmse_m": nan, "max_step_excess_m": nan, "five_sigma_m": nan, "jump_ratio": nan}
     errors = map_frame_errors(g[idx], e[idx])["trans"]
     excess = step_excess(g[idx], e[idx])
-    worst = int(np.nanargmax(excess))
-    growth = np.trace(c[idx[worst + 1]][:3, :3]) - np.trace(c[idx[worst]][:3, :3])
+    five_sigma = 5.0 * sigma_per_second * np.diff(t[idx])
+    worst = int(np.nanargmax(excess / five_sigma))
     return {
         "frames": float(len(idx)),
         "rmse_m": float(np.sqrt(np.mean(errors**2))),
         "max_step_excess_m": float(excess[worst]),
-        "five_sigma_m": float(5.0 * np.sqrt(max(growth, 0.0))),
+        "five_sigma_m": float(five_sigma[worst]),
+        "jump_ratio": float(excess[worst] / five_sigma[worst]),
         "at_frame": float(idx[worst + 1]),
     }
