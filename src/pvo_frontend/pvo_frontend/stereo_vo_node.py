@@ -14,6 +14,7 @@ Stereo pairs are synchronised on exact header stamps. Time comes only from messa
 
 from __future__ import annotations
 
+import sys
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
@@ -163,7 +164,8 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
     def close(self) -> None:
         """One summary line at shutdown: what became of every frame that reached the node."""
         counts = ", ".join(f"{k} {v}" for k, v in self.counts.items())
-        self.get_logger().info(f"stereo_vo: {counts}, dropped_unpaired {self.sync.dropped}")
+        # stderr, not the logger: at shutdown the context (and its /rosout publisher) may already be gone
+        print(f"stereo_vo: {counts}, dropped_unpaired {self.sync.dropped}", file=sys.stderr, flush=True)
 
     # --- inputs ---------------------------------------------------------------------------------
     def _on_info(self, side: str, msg: CameraInfo) -> None:

@@ -92,10 +92,14 @@ class SafeBagWriter:
         self._tmp_parent = self.path.parent / (PARTIAL.format(name=self.path.name) + f"{os.getpid()}-{uuid.uuid4().hex[:8]}")
         self._tmp_parent.mkdir(parents=True)
         self._tmp = self._tmp_parent / self.path.name
-        self._writer = Writer(self._tmp, version=9, storage_plugin=STORAGES[storage])
-        if compress and storage == "mcap":
-            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-        self._writer.open()
+        try:
+            self._writer = Writer(self._tmp, version=9, storage_plugin=STORAGES[storage])
+            if compress and storage == "mcap":
+                self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            self._writer.open()
+        except BaseException:  # an interrupt before the with-block is entered must not leave the partial behind
+            shutil.rmtree(self._tmp_parent, ignore_errors=True)
+            raise
         self._connections: dict[str, Connection] = {}
         self.counts: dict[str, int] = {}
         self._closed = False

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 import threading
@@ -25,8 +26,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+_TERMINATED = []
+
+
 def _terminate(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt  # SIGTERM (kill, timeout) cleans up like Ctrl-C: partial outputs are removed
+    """SIGTERM (kill, timeout) cleans up like Ctrl-C: context managers remove partial outputs."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once is enough
+    _TERMINATED.append(signum)
+    raise KeyboardInterrupt
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,6 +47,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt:
         print("pvo: interrupted", file=sys.stderr)
+        if _TERMINATED:
+            # Everything is cleaned up; leave at once: an interrupt landing in the interpreter's own shutdown
+            # would otherwise turn the exit status into a SIGINT death.
+            sys.stderr.flush()
+            sys.stdout.flush()
+            os._exit(130)
         return 130
 
 
