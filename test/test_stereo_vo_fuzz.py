@@ -38,6 +38,16 @@ def info(stamp: int, tx: float, p00: float = 120.0) -> CameraInfo:
     return msg
 
 
+def stereo_publishers(io: Node) -> tuple:
+    """Publishers of the left and right images and camera_info, in that order."""
+    return (
+        io.create_publisher(Image, "/stereo/left/image_rect", RELIABLE),
+        io.create_publisher(Image, "/stereo/right/image_rect", RELIABLE),
+        io.create_publisher(CameraInfo, "/stereo/left/camera_info", RELIABLE),
+        io.create_publisher(CameraInfo, "/stereo/right/camera_info", RELIABLE),
+    )
+
+
 def bad_pairs(t: int) -> list[tuple[str, Image, Image, str]]:
     """(name, left, right, words the rejection must contain), each at stamp t (after frames up to t - 1 s)."""
     empty = image(t, 1)
@@ -62,10 +72,7 @@ def test_every_bad_input_is_rejected_with_its_reason_and_missing_frames_are_coun
     io = Node("io", context=ros_context)
     statuses: list[DiagnosticArray] = []
     io.create_subscription(DiagnosticArray, "/pvo/vo/status", statuses.append, RELIABLE)
-    left = io.create_publisher(Image, "/stereo/left/image_rect", RELIABLE)
-    right = io.create_publisher(Image, "/stereo/right/image_rect", RELIABLE)
-    left_info = io.create_publisher(CameraInfo, "/stereo/left/camera_info", RELIABLE)
-    right_info = io.create_publisher(CameraInfo, "/stereo/right/camera_info", RELIABLE)
+    left, right, left_info, right_info = stereo_publishers(io)
 
     def frame(stamp: int, seed: int, with_images: bool = True) -> None:
         left_info.publish(info(stamp, 0.0))
@@ -122,10 +129,7 @@ def test_bad_camera_info_is_rejected_and_a_good_one_starts_the_node(ros_context)
     io = Node("io", context=ros_context)
     statuses: list[DiagnosticArray] = []
     io.create_subscription(DiagnosticArray, "/pvo/vo/status", statuses.append, RELIABLE)
-    left = io.create_publisher(Image, "/stereo/left/image_rect", RELIABLE)
-    right = io.create_publisher(Image, "/stereo/right/image_rect", RELIABLE)
-    left_info = io.create_publisher(CameraInfo, "/stereo/left/camera_info", RELIABLE)
-    right_info = io.create_publisher(CameraInfo, "/stereo/right/camera_info", RELIABLE)
+    left, right, left_info, right_info = stereo_publishers(io)
     nan_info = info(0, 0.0)
     nan_info.p = [float("nan")] * 12
     wrong_size = copy.deepcopy(info(0, -60.0))  # a right camera of another size

@@ -25,6 +25,24 @@ INPUTS = [
 ]
 
 
+GRAPH_SETTLE_S = 2.0  # after discovery, for every publisher/subscriber pair to match
+
+
+def _start_graph(group: Any, params_file: Path, log_dir: Path, env: dict[str, str]) -> None:
+    for package, executable in NODES:
+        group.start(package, executable, params_file, log_dir, env)
+
+
+def _wait_connected(player_node: Any, group: Any, listeners: int) -> None:
+    """Until the images and the VO each have ``listeners`` subscribers (the nodes, plus the benchmark's own
+    listeners) and the fused odometry one, then the settle time."""
+    from .launch import wait_for_graph
+
+    edges = {"/stereo/left/image_rect": (0, listeners), "/pvo/vo/relative": (1, listeners), "/pvo/fusion/odometry": (1, 1)}
+    wait_for_graph(player_node, edges, timeout_s=60.0, check=group.check)
+    time.sleep(GRAPH_SETTLE_S)
+
+
 def rss_mb(pid: int) -> float:
     """Resident set size of a process (MB) from /proc; NaN when it is gone."""
     try:
@@ -60,7 +78,7 @@ def run_soak(bag: Path, frames: int, rate: float, work: Path, domain_id: int, su
     from pvo_msgs.msg import RelativePose
 
     from .baginfo import bag_info
-    from .launch import NodeGroup, wait_for_graph
+    from .launch import NodeGroup
     from .player import BagPlayer, PlayOptions
     from .testing import Spinner
 
@@ -108,8 +126,7 @@ def run_soak(bag: Path, frames: int, rate: float, work: Path, domain_id: int, su
     rss: dict[str, list[tuple[float, float]]] = {name: [] for _, name in NODES}
     start = time.perf_counter()
     try:
-        for package, executable in NODES:
-            group.start(package, executable, params, work / "logs", env)
+        _start_graph(group, params, work / "logs", env)
         listener = Node("pvo_soak_listener", context=context)
         player_node = Node("pvo_soak_player", context=context)
         listener.create_subscription(Image, "/stereo/left/image_rect", on_image, every)
@@ -117,13 +134,7 @@ def run_soak(bag: Path, frames: int, rate: float, work: Path, domain_id: int, su
         listener.create_subscription(Odometry, "/pvo/fusion/odometry", on_fused, every)
         player = BagPlayer(player_node, bag, PlayOptions(rate=rate, loop=True, passes=passes, topics=INPUTS))
         with Spinner(context, listener):
-            wait_for_graph(
-                player_node,
-                {"/stereo/left/image_rect": (0, 2), "/pvo/vo/relative": (1, 2), "/pvo/fusion/odometry": (1, 1)},
-                timeout_s=60.0,
-                check=group.check,
-            )
-            time.sleep(2.0)
+            _wait_connected(player_node, group, listeners=2)
             import threading
 
             stop = threading.Event()
@@ -190,7 +201,7 @@ def run_fault(
     from rclpy.node import Node
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    from .launch import NodeGroup, wait_for_graph
+    from .launch import NodeGroup
     from .player import BagPlayer, PlayOptions
     from .testing import Spinner
 
@@ -215,8 +226,7 @@ def run_fault(
 
     start = time.perf_counter()
     try:
-        for package, executable in NODES:
-            group.start(package, executable, params_file, log_dir, env)
+        _start_graph(group, params_file, log_dir, env)
         listener = Node("pvo_faults_listener", context=context)
         player_node = Node("pvo_faults_player", context=context)
         every = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
@@ -224,13 +234,7 @@ def run_fault(
         hook = hook_factory(group, params_file, log_dir, env) if hook_factory else None
         player = BagPlayer(player_node, bag, PlayOptions(rate=rate, topics=INPUTS, hook=hook, wait_for_subscribers=0))
         with Spinner(context, listener):
-            wait_for_graph(
-                player_node,
-                {"/stereo/left/image_rect": (0, 1), "/pvo/vo/relative": (1, 1), "/pvo/fusion/odometry": (1, 1)},
-                timeout_s=60.0,
-                check=group.check,
-            )
-            time.sleep(2.0)
+            _wait_connected(player_node, group, listeners=1)
             stats = player.play()
             time.sleep(3.0)  # the last frames through the graph
         listener.destroy_node()
