@@ -65,8 +65,17 @@ class SoakResult:
     exit_codes: dict[str, int] = field(default_factory=dict)
 
 
-def run_soak(bag: Path, frames: int, rate: float, work: Path, domain_id: int, sun_direction: list[float]) -> SoakResult:
-    """Loop ``bag`` until ``frames`` stereo frames were played at ``rate`` x real time through the graph."""
+def run_soak(
+    bag: Path,
+    frames: int,
+    rate: float,
+    work: Path,
+    domain_id: int,
+    sun_direction: list[float],
+    overrides: dict[str, dict[str, Any]] | None = None,
+) -> SoakResult:
+    """Loop ``bag`` until ``frames`` stereo frames were played at ``rate`` x real time through the graph;
+    ``overrides``: node name -> parameters."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray  # noqa: F401 - the status topic type is known to rclpy
     from nav_msgs.msg import Odometry
@@ -91,9 +100,15 @@ def run_soak(bag: Path, frames: int, rate: float, work: Path, domain_id: int, su
     params.write_text(
         yaml.safe_dump(
             {
-                "stereo_vo": {"ros__parameters": {}},
-                "simulated_sun": {"ros__parameters": {}},
-                "fusion": {"ros__parameters": {"inputs.sun.reference": "fixed", "inputs.sun.reference_direction": sun_direction}},
+                "stereo_vo": {"ros__parameters": {**(overrides or {}).get("stereo_vo", {})}},
+                "simulated_sun": {"ros__parameters": {**(overrides or {}).get("simulated_sun", {})}},
+                "fusion": {
+                    "ros__parameters": {
+                        "inputs.sun.reference": "fixed",
+                        "inputs.sun.reference_direction": sun_direction,
+                        **(overrides or {}).get("fusion", {}),
+                    }
+                },
             }
         )
     )

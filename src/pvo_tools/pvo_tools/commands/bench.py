@@ -14,6 +14,7 @@ import yaml
 from pvo_frontend.offline import STAGES, run_sequence, summarise
 from pvo_frontend.vo import from_flat
 
+from ..errors import PvoError
 from ..overrides import parse_overrides
 from ..paths import data_directory
 from .vo import add_sequence_arguments, open_sequence
@@ -44,6 +45,9 @@ def register(sub: Any) -> None:
     bsoak.add_argument("--rate", type=float, default=2.0, help="playback speed factor (default 2x real time)")
     bsoak.add_argument(
         "--out", "-o", type=Path, default=Path("runs/bench-soak"), help="logs and metrics.json (default runs/bench-soak)"
+    )
+    bsoak.add_argument(
+        "--param", "-p", action="append", metavar="NODE:NAME=VALUE", help="node parameter, e.g. -p fusion:path_max_poses=100"
     )
 
     bfault = kinds.add_parser("faults", help="nodes killed and restarted, images dropped, a clock jump: what each costs")
@@ -207,7 +211,13 @@ def bench_soak(args: argparse.Namespace) -> int:
     )
     domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
     print(f"soak: {args.frames} frames of {bag} at {args.rate:g}x through stereo_vo + simulated_sun + fusion", flush=True)
-    result = run_soak(bag, args.frames, args.rate, args.out, domain, [float(v) for v in sun_map.directions[0]])
+    overrides: dict[str, dict] = {}
+    for item in args.param or []:
+        node, sep, assignment = item.partition(":")
+        if not sep:
+            raise PvoError(f"--param {item!r} must be NODE:NAME=VALUE, e.g. fusion:path_max_poses=100")
+        overrides.setdefault(node, {}).update(parse_overrides([assignment]))
+    result = run_soak(bag, args.frames, args.rate, args.out, domain, [float(v) for v in sun_map.directions[0]], overrides)
     print(
         f"  played {result.frames_played} stereo frames in {result.seconds:.0f} s; received {result.vo_messages} VO motions "
         f"and {result.fused_messages} fused poses (every frame after the first: {result.frames_played - 1}); "
