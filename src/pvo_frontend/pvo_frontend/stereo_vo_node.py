@@ -48,7 +48,7 @@ class StereoVONodeConfig:
     max_pending_frames: int = 30
     publish_path: bool = True
     path_period: float = 1.0
-    path_max_poses: int = 2000
+    path_max_poses: int = 500
     max_lag: float = 0.0
 
     def __post_init__(self) -> None:

@@ -88,7 +88,7 @@ class FusionNodeConfig:
     camera_frame: str = "camera_left_optical"
     publish_path: bool = True
     path_period: float = 1.0
-    path_max_poses: int = 2000
+    path_max_poses: int = 500
     initial_pose: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
     initial_pose_from_ground_truth: bool = False
     state_file: str = ""
