@@ -284,3 +284,36 @@ def test_a_long_run_keeps_bounded_paths_and_drains_the_window_without_publishing
     assert [len(p.poses) for p in paths[:5]] == [2, 3, 4, 5, 5] and len(paths[-1].poses) == 5
     assert [stamp_to_nanoseconds(p.header.stamp) for p in paths[-1].poses] == [t0 + k * dt for k in range(36, 41)]
     assert quiet.graph.drain_finished() == []  # the node keeps draining what the window marginalises
+
+
+def test_a_restarted_fusion_node_resumes_from_its_state_file(ros_context, tmp_path: Path) -> None:
+    """Issue 18: the node checkpoints its newest state; a new node with the same state_file continues from it."""
+    state = tmp_path / "state.json"
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))
+    cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    t0, dt = 1_000_000_000, 100_000_000
+    odometry: list[Odometry] = []
+    for first, last in ((1, 10), (21, 25)):  # frames 11..20 are lost while the node is down
+        fusion = FusionNode(context=ros_context, parameter_overrides=[Parameter("state_file", value=str(state))])
+        io = Node("io", context=ros_context)
+        io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
+        vo_pub = io.create_publisher(RelativePose, "/pvo/vo/relative", RELIABLE)
+        try:
+            with Spinner(ros_context, fusion), Spinner(ros_context, io):
+                wait_for(
+                    lambda p=vo_pub, f=fusion: p.get_subscription_count() > 0 and f.pub_odometry.get_subscription_count() > 0
+                )
+                for k in range(first, last + 1):
+                    vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step, cov))
+                n = last - first + 1
+                wait_for(lambda f=fusion, n=n: f.graph.counts["vo.accepted"] == n)
+                time.sleep(0.2)
+        finally:
+            fusion.destroy_node()
+            io.destroy_node()
+        assert state.is_file()
+    z = [pose_to_matrix(m.pose.pose)[2, 3] for m in odometry]
+    assert len(z) == 15
+    # 1 m per frame forward: frame 10 at z = 10; the bridge over frames 11..20 continues at that velocity
+    assert z[9] == pytest.approx(10.0, abs=1e-6)
+    np.testing.assert_allclose(z[10:], [21.0, 22.0, 23.0, 24.0, 25.0], atol=1e-6)

@@ -233,9 +233,9 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         outcome = self.graph.add_vo(measurement)
         self._keep_finished()
         if outcome == ACCEPTED:
-            self._publish_estimate(stamp)
+            pose, covariance = self._publish_estimate(stamp)
             if self.settings.state_file:
-                checkpoint = self.graph.checkpoint()
+                checkpoint = self.graph.checkpoint(pose, covariance)  # the marginal just published, not a second one
                 if checkpoint is not None:
                     checkpoint.write(self.settings.state_file)
             self.latencies_ms.append(1e3 * (time.perf_counter() - received))
@@ -269,18 +269,21 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
             self._publish_status(measurement.stamp, f"{name}: {outcome}")
 
     # --- outputs --------------------------------------------------------------------------------
-    def _publish_estimate(self, stamp: int) -> None:
+    def _publish_estimate(self, stamp: int) -> tuple[np.ndarray, np.ndarray]:
+        """Publish the newest state; returns its pose and marginal covariance."""
+        pose, covariance = self.graph.pose(), self.graph.covariance()
         odom = Odometry()
         fill_stamp(odom.header.stamp, stamp)
         odom.header.frame_id = self.settings.map_frame
         odom.child_frame_id = self.settings.camera_frame
-        fill_pose(odom.pose.pose, self.graph.pose())
-        odom.pose.covariance = [float(v) for v in self.graph.covariance().reshape(-1)]
+        fill_pose(odom.pose.pose, pose)
+        odom.pose.covariance = [float(v) for v in covariance.reshape(-1)]
         self.pub_odometry.publish(odom)
         stamped = PoseWithCovarianceStamped()
         stamped.header = odom.header
         stamped.pose = odom.pose
         self.pub_pose.publish(stamped)
+        return pose, covariance
 
     def _stamped(self, stamp: int, pose: np.ndarray) -> PoseStamped:
         out = PoseStamped()

@@ -130,11 +130,17 @@ class FusionGraph:
         self._initial_pose = pose
         self._initial_covariance = None if covariance is None else np.asarray(covariance, dtype=float).reshape(6, 6)
 
-    def checkpoint(self) -> FusionCheckpoint | None:
-        """The newest state (stamp, pose, marginal covariance) and the last VO velocity; None before the first VO."""
+    def checkpoint(self, pose: ArrayLike | None = None, covariance: ArrayLike | None = None) -> FusionCheckpoint | None:
+        """The newest state (stamp, pose, marginal covariance) and the last VO velocity; None before the first VO.
+        ``pose``/``covariance``: the newest state's, when the caller has just computed them (saves a marginal)."""
         if not self._stamps:
             return None
-        return FusionCheckpoint(self._stamps[-1], self.pose(), self.covariance(), self._last_velocity)
+        return FusionCheckpoint(
+            self._stamps[-1],
+            self.pose() if pose is None else np.asarray(pose, dtype=float),
+            self.covariance() if covariance is None else np.asarray(covariance, dtype=float),
+            self._last_velocity,
+        )
 
     def resume(self, checkpoint: FusionCheckpoint) -> None:
         """Start from a checkpoint (before the first VO): the first state is the checkpoint's, at its stamp, with
