@@ -45,7 +45,7 @@ class StereoVONodeConfig:
 
     odom_frame: str = "odom"
     camera_frame: str = "camera_left_optical"
-    max_pending_frames: int = 30
+    max_pending_frames: int = 100
     publish_path: bool = True
     path_period: float = 1.0
     path_max_poses: int = 500
