@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -101,3 +102,42 @@ def summarise(run: VORun, gt: Array | None) -> dict[str, Any]:
         out["anees"] = float(nees.mean())
         out["nees_median"] = float(np.median(nees))
     return out
+
+
+@dataclass(frozen=True)
+class MonocularTracking:
+    """Frame-to-frame tracking of the VO's features on left images alone (for data without right images):
+    tracks carried per frame (mean), and the fraction of them consistent with one epipolar geometry
+    (fundamental-matrix RANSAC, 1 px) — the monocular analogue of the stereo VO's inlier ratio."""
+
+    frames: int
+    tracked: float
+    inlier_ratio: float
+
+
+def track_monocular(images: Sequence[NDArray[np.uint8]], config: VOConfig | None = None) -> MonocularTracking:
+    """Detect with the VO's detector (bucketed, topped up each frame), track by the VO's KLT with a
+    forward-backward check, and count what survives and what fits one epipolar geometry."""
+    import cv2
+
+    from .vo.features import StereoMatcher
+
+    config = config or VOConfig()
+    if len(images) < 2:
+        raise ValueError("monocular tracking needs at least two images")
+    matcher = StereoMatcher(config.detector, config.tracker)
+    points = matcher.detect(images[0], np.zeros((0, 2)))
+    tracked, ratios = [], []
+    for prev, image in itertools.pairwise(images):
+        moved, ok = matcher._klt(prev, image, points)
+        back, ok_back = matcher._klt(image, prev, moved, points)
+        ok &= ok_back & (np.linalg.norm(back - points, axis=1) <= 1.0) & matcher._inside(moved, image.shape)
+        tracked.append(int(ok.sum()))
+        if ok.sum() >= 8:
+            _, mask = cv2.findFundamentalMat(points[ok], moved[ok], cv2.FM_RANSAC, 1.0, 0.999)
+            ratios.append(float(mask.sum()) / ok.sum() if mask is not None else 0.0)
+        else:
+            ratios.append(0.0)
+        points = moved[ok]
+        points = np.vstack([points, matcher.detect(image, points)])
+    return MonocularTracking(len(images), float(np.mean(tracked)), float(np.mean(ratios)))

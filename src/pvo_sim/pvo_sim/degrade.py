@@ -79,14 +79,76 @@ def distortion_maps(width: int, height: int, focal: float, kappa: float) -> tupl
     return (cu + focal * x * factor).astype(np.float32), (cv + focal * y * factor).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class CameraModel:
+    """The sensor and its processing, between the scene radiance MuJoCo renders (taken as linear light, 0-255)
+    and the 8-bit image a camera writes: exposure, vignetting, shot and read noise, gamma, compression.
+
+    auto_exposure: the gain drives the mean encoded brightness towards ``target`` (0-1), adapting by
+    ``adaptation`` of the correction per frame as a real auto-exposure does (the same gain for both cameras,
+    metered on the left); otherwise the gain is ``gain``. vignetting: relative fall-off at the image corners
+    (quadratic in the radius). full_well: electrons at saturation, for shot noise (0: none); read_noise: std
+    in grey levels of the linear signal. gamma: the encoding exponent (image = linear^(1/gamma)); 1 keeps the
+    render linear. jpeg_quality: 1-100 compresses each image, 0 writes it losslessly."""
+
+    auto_exposure: bool = True
+    target: float = 0.42
+    gain: float = 1.0
+    adaptation: float = 0.3
+    gamma: float = 2.2
+    vignetting: float = 0.25
+    full_well: float = 6000.0
+    read_noise: float = 1.0
+    jpeg_quality: int = 0
+
+    def __post_init__(self) -> None:
+        checks = [
+            (0.05 <= self.target <= 0.95, "camera target brightness must be in [0.05, 0.95]"),
+            (self.gain > 0.0, "camera gain must be positive"),
+            (0.0 < self.adaptation <= 1.0, "camera adaptation must be in (0, 1]"),
+            (0.5 <= self.gamma <= 4.0, "camera gamma must be in [0.5, 4]"),
+            (0.0 <= self.vignetting < 1.0, "camera vignetting must be in [0, 1)"),
+            (self.full_well >= 0.0 and self.read_noise >= 0.0, "camera full_well and read_noise must be >= 0"),
+            (0 <= self.jpeg_quality <= 100, "camera jpeg_quality must be in [0, 100] (0: no compression)"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
+
+    @classmethod
+    def linear(cls) -> CameraModel:
+        """The render as it is: no exposure control, noise, vignetting, gamma or compression."""
+        return cls(auto_exposure=False, gamma=1.0, vignetting=0.0, full_well=0.0, read_noise=0.0)
+
+
 class ImageDegrader:
-    def __init__(self, degradations: Degradations, width: int, height: int, focal: float, frames: int, seed: int) -> None:
+    """Optics (distortion, blur), then the camera (exposure, vignetting, noise, gamma, compression), then the
+    extra noise of the degradation study. Noise draws are seeded per (frame, camera), whatever the call order."""
+
+    def __init__(
+        self,
+        degradations: Degradations,
+        width: int,
+        height: int,
+        focal: float,
+        frames: int,
+        seed: int,
+        camera: CameraModel | None = None,
+    ) -> None:
         self.d = degradations
+        self.camera = camera or CameraModel.linear()
+        self.seed = seed
         self.gains = exposure_gains(frames, degradations.exposure, seed)
         self.rng = np.random.default_rng(seed + 15485863)
         self.maps = distortion_maps(width, height, focal, degradations.distortion) if degradations.distortion else None
+        v, u = np.mgrid[0:height, 0:width].astype(np.float32)
+        radius2 = ((u - (width - 1) / 2) ** 2 + (v - (height - 1) / 2) ** 2) / (((width - 1) / 2) ** 2 + ((height - 1) / 2) ** 2)
+        self.vignette = 1.0 - self.camera.vignetting * radius2
+        self.exposure_gain: float | None = None
+        self._metered_frame = -1
 
-    def __call__(self, image: NDArray[np.uint8], frame: int) -> NDArray[np.uint8]:
+    def __call__(self, image: NDArray[np.uint8], frame: int, camera: int = 0) -> NDArray[np.uint8]:
+        """The degraded image (H, W) or (H, W, 3) uint8 of ``camera`` (0 left, 1 right) at ``frame``."""
         import cv2
 
         out = image
@@ -96,9 +158,43 @@ class ImageDegrader:
             size = round(self.d.blur_px)
             kernel = np.full((1, size), 1.0 / size, dtype=np.float32)
             out = cv2.filter2D(out, -1, kernel, borderType=cv2.BORDER_REPLICATE)
-        if self.d.exposure or self.d.noise:
-            value = out.astype(np.float32) * float(self.gains[frame])
-            if self.d.noise:
-                value += self.rng.normal(0.0, self.d.noise, out.shape).astype(np.float32)
+        out = self._sensor(out, frame, camera)
+        if self.d.noise:
+            value = out.astype(np.float32) + self.rng.normal(0.0, self.d.noise, out.shape).astype(np.float32)
             out = np.clip(np.round(value), 0, 255).astype(np.uint8)
+        return out
+
+    def _sensor(self, image: NDArray[np.uint8], frame: int, camera: int) -> NDArray[np.uint8]:
+        model = self.camera
+        linear = image.astype(np.float32) / 255.0
+        vignette = self.vignette if image.ndim == 2 else self.vignette[:, :, None]
+        if model.vignetting:
+            linear = linear * vignette
+        if frame != self._metered_frame:  # meter once per frame (on the first camera given, the left)
+            self._metered_frame = frame
+            gain = model.gain
+            if model.auto_exposure:
+                wanted = model.target**model.gamma / max(float(linear.mean()), 1e-4)
+                if self.exposure_gain is None:
+                    gain = wanted
+                else:
+                    gain = float(np.exp(np.log(self.exposure_gain) + model.adaptation * np.log(wanted / self.exposure_gain)))
+            self.exposure_gain = gain
+        gain = self.exposure_gain * float(self.gains[frame])
+        if gain != 1.0:
+            linear = linear * np.float32(gain)
+        if model.full_well or model.read_noise:
+            rng = np.random.default_rng([self.seed, frame, camera, 7])
+            variance = np.clip(linear, 0.0, 1.0) / model.full_well if model.full_well else 0.0
+            variance = variance + (model.read_noise / 255.0) ** 2
+            linear = linear + np.sqrt(variance).astype(np.float32) * rng.standard_normal(linear.shape, dtype=np.float32)
+        encoded = np.clip(linear, 0.0, 1.0)
+        if model.gamma != 1.0:
+            encoded = encoded ** np.float32(1.0 / model.gamma)
+        out = np.round(encoded * 255.0).astype(np.uint8)
+        if model.jpeg_quality:
+            import cv2
+
+            _ok, data = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(model.jpeg_quality)])
+            out = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
         return out

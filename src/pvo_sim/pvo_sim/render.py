@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 from pvo_core.ephemeris import GeodeticOrigin, enu_to_geodetic, sun_direction_enu, sun_elevation_azimuth
-from pvo_core.lie import rotation_to_quaternion, so3_log
+from pvo_core.lie import rotation_to_quaternion, so3_exp, so3_log
 
-from .degrade import Degradations, ImageDegrader
-from .paths import kitti_path, procedural_path
+from .degrade import CameraModel, Degradations, ImageDegrader
+from .paths import heading_rotation, kitti_path, procedural_path
 from .world import PRESETS, WorldSpec, build_world
 
 Array = NDArray[np.float64]
@@ -58,6 +58,7 @@ class SimConfig:
     speed: float = 8.0
     camera_height: float = 1.65
     heading_deg: float = 0.0
+    pitch_deg: float = 0.0  # the cameras pitched down by this much (a rover's mast camera looks at the ground)
     latitude: float = 49.011
     longitude: float = 8.4245
     altitude: float = 115.0
@@ -70,10 +71,13 @@ class SimConfig:
     gps_sigma: float = 0.0  # m, horizontal and vertical
     shadow_map: int = 1024
     degradations: Degradations = field(default_factory=Degradations)
+    camera: CameraModel = field(default_factory=CameraModel)
 
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
             raise ValueError(f"unknown preset {self.preset!r}: choose one of {', '.join(PRESETS)}")
+        if not -60.0 <= self.pitch_deg <= 60.0:
+            raise ValueError(f"--pitch must be in [-60, 60] degrees, got {self.pitch_deg}")
         if self.frames < 2:
             raise ValueError(f"--frames must be >= 2, got {self.frames}")
         if self.width < 16 or self.height < 16 or self.focal <= 0 or self.baseline <= 0 or self.rate <= 0:
@@ -92,10 +96,21 @@ class SimConfig:
 
 
 def camera_trajectory(config: SimConfig) -> Array:
-    """T_world,cam (N, 4, 4) of the left camera."""
+    """T_world,cam (N, 4, 4) of the left camera: the path (a procedural one turned clockwise by the heading),
+    the camera pitched down by ``pitch_deg`` about its x axis."""
     if config.poses_file:
-        return kitti_path(Path(config.poses_file), config.frames, config.start_frame, config.camera_height, config.heading_deg)
-    return procedural_path(config.path, config.frames, config.rate, config.speed, config.camera_height, config.seed)
+        poses = kitti_path(Path(config.poses_file), config.frames, config.start_frame, config.camera_height, config.heading_deg)
+    else:
+        poses = procedural_path(config.path, config.frames, config.rate, config.speed, config.camera_height, config.seed)
+        if config.heading_deg:
+            turn = np.eye(4)
+            turn[:3, :3] = heading_rotation(config.heading_deg)
+            poses = turn @ poses
+    if config.pitch_deg:
+        pitch = np.eye(4)
+        pitch[:3, :3] = so3_exp(np.array([-np.radians(config.pitch_deg), 0.0, 0.0]))
+        poses = poses @ pitch
+    return poses
 
 
 def imu_from_trajectory(poses: Array, rate: float) -> tuple[Array, Array]:
@@ -176,6 +191,34 @@ def place_rig(data, rig: int, pose: Array) -> None:
     data.mocap_quat[rig] = mocap_quaternion(pose[:3, :3])
 
 
+HIDDEN_GROUP = 5
+
+
+class RangeCuller:
+    """MuJoCo draws every geom of a model (no frustum culling), so a long world would cost every frame in
+    proportion to its length. Per frame, geoms farther than ``radius`` m from the camera, or behind it and
+    farther than ``behind`` m (nearer ones may still cast a shadow into view), move to a hidden group."""
+
+    def __init__(self, model, radius: float = 160.0, behind: float = 25.0) -> None:
+        import mujoco
+
+        self.model = model
+        self.radius, self.behind = radius, behind
+        self.groups = model.geom_group.copy()
+        self.always = model.geom_rbound <= 0.0  # planes: unbounded
+        self.option = mujoco.MjvOption()
+        self.option.geomgroup[HIDDEN_GROUP] = 0
+
+    def __call__(self, data, pose: Array):
+        """Hide what the camera at ``pose`` (T_world,cam) cannot see; the scene option to render with."""
+        offset = data.geom_xpos - pose[:3, 3]
+        reach = np.linalg.norm(offset, axis=1) - self.model.geom_rbound
+        behind = offset @ pose[:3, 2] < -self.model.geom_rbound
+        hide = ((reach > self.radius) | (behind & (reach > self.behind))) & ~self.always
+        self.model.geom_group[:] = np.where(hide, HIDDEN_GROUP, self.groups)
+        return self.option
+
+
 def simulate(
     config: SimConfig, out: Path, overwrite: bool = False, progress: Callable[[int, int], None] | None = None
 ) -> SimResult:
@@ -216,9 +259,7 @@ def simulate(
         moving_vehicles=config.degradations.moving_vehicles,
     )
     world = build_world(spec, poses, config.camera_height)
-    model = mujoco.MjModel.from_xml_string(world.xml)
-    if world.hfield is not None:
-        model.hfield_data[:] = world.hfield.reshape(-1)
+    model = world.compile()
     data = mujoco.MjData(model)
     seconds_world = time.perf_counter() - t0
 
@@ -267,7 +308,8 @@ def _render(
     depth_renderer = open_renderer(model, config.height, config.width) if config.depth else None
     if depth_renderer is not None:
         depth_renderer.enable_depth_rendering()
-    degrade = ImageDegrader(config.degradations, config.width, config.height, config.focal, n, config.seed)
+    degrade = ImageDegrader(config.degradations, config.width, config.height, config.focal, n, config.seed, config.camera)
+    cull = RangeCuller(model)
     t1 = time.perf_counter()
     try:
         for k in range(n):
@@ -279,18 +321,18 @@ def _render(
             place_sun(model, light, sun_world[k], poses[k, :3, 3])
             mujoco.mj_kinematics(model, data)
             mujoco.mj_camlight(model, data)
+            option = cull(data, poses[k])
             name = f"{k:06d}.png"
-            for camera, folder in (("left", left_dir), ("right", right_dir)):
-                renderer.update_scene(data, camera=camera)
+            for index, (camera, folder) in enumerate((("left", left_dir), ("right", right_dir))):
+                renderer.update_scene(data, camera=camera, scene_option=option)
                 rgb = renderer.render()
                 image = rgb if config.colour else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-                if config.degradations.touches_images:
-                    image = degrade(image, k)
+                image = degrade(image, k, index)
                 if config.colour:
                     image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
                 cv2.imwrite(str(out / folder / name), image)
             if depth_renderer is not None:
-                depth_renderer.update_scene(data, camera="left")
+                depth_renderer.update_scene(data, camera="left", scene_option=option)
                 depth = depth_renderer.render()
                 far = depth >= 0.99 * model.vis.map.zfar * model.stat.extent
                 encoded = np.clip(np.round(depth * 256.0), 0, 65535).astype(np.uint16)

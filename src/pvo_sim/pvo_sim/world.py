@@ -29,7 +29,7 @@ class WorldSpec:
     fovy_deg: float = 35.0
     overcast: bool = False
     clearance: float = 3.0
-    terrain_resolution: float = 2.0  # planetary: metres per height-field sample
+    terrain_resolution: float = 1.0  # planetary: metres per height-field sample
     shadow_map: int = 1024  # texels; the map covers 60 m around the camera
     image_size: tuple[int, int] = (640, 480)  # the offscreen framebuffer must hold the images
     texture_poor: float = 0.0  # fraction of buildings with plain walls
@@ -54,7 +54,8 @@ class WorldParts:
 
     assets: list[str] = field(default_factory=list)
     bodies: list[str] = field(default_factory=list)
-    hfield: Array | None = None
+    files: dict[str, bytes] = field(default_factory=dict)  # texture PNGs the assets name
+    hfields: dict[str, Array] = field(default_factory=dict)  # height-field name: (rows, cols) heights in [0, 1]
     moving_paths: list[Array] = field(default_factory=list)
     moving_headings: list[Array] = field(default_factory=list)
 
@@ -62,10 +63,36 @@ class WorldParts:
 @dataclass
 class World:
     xml: str
-    hfield: Array | None  # planetary: (rows, cols) heights in [0, 1] to copy into the model
+    hfields: dict[str, Array]  # height-field name: (rows, cols) heights in [0, 1] (row 0 at the lowest y)
     moving_paths: list[Array]  # per moving vehicle: (N, 3) positions per frame
     moving_headings: list[Array]
     extent: float
+    files: dict[str, bytes] = field(default_factory=dict)  # the assets MjModel.from_xml_string needs
+
+    def compile(self):
+        """The MuJoCo model, its height fields filled in."""
+        import mujoco
+
+        model = mujoco.MjModel.from_xml_string(self.xml, self.files)
+        for name, heights in self.hfields.items():
+            hfield = model.hfield(name)
+            start, size = int(hfield.adr[0]), int(hfield.nrow[0] * hfield.ncol[0])
+            model.hfield_data[start : start + size] = heights.reshape(-1)
+        return model
+
+
+def image_material(
+    parts: WorldParts, name: str, image: NDArray[np.uint8], repeat: str = "1 1", uniform: bool = False, extra: str = ""
+) -> None:
+    """Add a procedural image (H, W, 3 uint8, row 0 at the top) as texture and material ``name``; with
+    ``uniform``, ``repeat`` counts repetitions per metre, else per face."""
+    from .textures import png_asset
+
+    parts.files[f"{name}.png"] = png_asset(image)
+    parts.assets.append(f'<texture name="{name}" type="2d" file="{name}.png"/>')
+    parts.assets.append(
+        f'<material name="{name}" texture="{name}" texrepeat="{repeat}" texuniform="{str(uniform).lower()}" {extra}/>'
+    )
 
 
 def texture(name: str, builtin: str, rgb1: str, rgb2: str, size: int, random: float, mark: str = "random") -> str:
@@ -129,9 +156,14 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
     area = WorldArea(path_xy, camera_poses[:, :2, 3], lo, hi, centre, half)
     parts = builder(spec, area, rng)
     assets, bodies = parts.assets, parts.bodies
-    ambient = "0.75 0.75 0.75" if spec.overcast else "0.38 0.38 0.40"
-    diffuse = "0.35 0.35 0.35" if spec.overcast else "0.95 0.93 0.88"
-    shadows = "false" if spec.overcast else "true"
+    # Sunlight with cast shadows plus skylight: a diffuse fill from the zenith and an ambient term, so that
+    # faces turned from the sun are grey as in a photograph, not black. Overcast: the whole sky, no shadows.
+    # The ambient term rides on the sky light: MuJoCo drops a shadow-casting light's ambient wherever its
+    # shadow map says "shadowed" (faces turned from the sun went black).
+    if spec.overcast:
+        sky_ambient, sun_diffuse, sky_diffuse, shadows = "0.42 0.42 0.44", "0.18 0.18 0.18", "0.40 0.40 0.42", "false"
+    else:
+        sky_ambient, sun_diffuse, sky_diffuse, shadows = "0.09 0.095 0.11", "1.0 0.97 0.9", "0.07 0.075 0.09", "true"
     xml = f"""<mujoco model={quoteattr("pvo-" + spec.preset)}>
   <compiler angle="degree"/>
   <statistic extent="{extent:.1f}" center="{centre[0]:.1f} {centre[1]:.1f} 0"/>
@@ -143,12 +175,14 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
     <rgba haze="0.65 0.72 0.82 1" fog="0.7 0.75 0.82 1"/>
   </visual>
   <asset>
-    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.55 0.68 0.85" rgb2="0.85 0.88 0.92" width="256" height="256"/>
+    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.85 0.9 1.0" rgb2="1 1 1" width="256" height="256"/>
     {chr(10).join("    " + a for a in assets).strip()}
   </asset>
   <worldbody>
     <light name="sun" directional="true" castshadow="{shadows}" pos="0 0 100" dir="0 0 -1"
-           ambient="{ambient}" diffuse="{diffuse}" specular="0.1 0.1 0.1"/>
+           ambient="0 0 0" diffuse="{sun_diffuse}" specular="0.1 0.1 0.1"/>
+    <light name="sky" directional="true" castshadow="false" pos="0 0 100" dir="0.1 0.2 -1"
+           ambient="{sky_ambient}" diffuse="{sky_diffuse}" specular="0 0 0"/>
     <body name="rig" mocap="true">
       <camera name="left" pos="0 0 0" fovy="{spec.fovy_deg:.6f}"/>
       <camera name="right" pos="{spec.baseline:.6f} 0 0" fovy="{spec.fovy_deg:.6f}"/>
@@ -156,7 +190,7 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
     {chr(10).join("    " + b for b in bodies).strip()}
   </worldbody>
 </mujoco>"""
-    return World(xml, parts.hfield, parts.moving_paths, parts.moving_headings, extent)
+    return World(xml, parts.hfields, parts.moving_paths, parts.moving_headings, extent, parts.files)
 
 
 def _builders() -> dict[str, Callable[[WorldSpec, WorldArea, np.random.Generator], WorldParts]]:

@@ -232,7 +232,7 @@ def test_rig_and_light_placement_match_the_truth() -> None:
     from pvo_sim.world import WorldSpec, build_world
 
     poses = camera_trajectory(SimConfig(**SMALL, frames=30))
-    model = mujoco.MjModel.from_xml_string(build_world(WorldSpec(), poses, 1.65).xml)
+    model = build_world(WorldSpec(), poses, 1.65).compile()
     data = mujoco.MjData(model)
     sun = np.array([0.3, -0.5, 0.81])
     sun /= np.linalg.norm(sun)

@@ -37,6 +37,9 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:2] == ["sim", "corpus"]:  # `pvo sim OUT` takes a folder; `pvo sim corpus OUT` is its own command
+        argv = ["sim-corpus", *argv[2:]]
     args = build_parser().parse_args(argv)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _terminate)

@@ -25,14 +25,24 @@ class Progress:
         if self._tty:
             filled = int(30 * fraction)
             bar = "#" * filled + "-" * (30 - filled)
-            self.stream.write(f"\r{self.label} [{bar}] {self.done}/{self.total} {rate:6.1f}/s")
+            self.stream.write(f"\r{self.label} [{bar}] {self.done}/{self.total} {rate:6.1f}/s, {self._left(rate)} left ")
             self.stream.flush()
         else:
             decile = int(fraction * 10)
             if decile != self._last_decile:
                 self._last_decile = decile
-                self.stream.write(f"{self.label}: {self.done}/{self.total} ({100 * fraction:.0f} %)\n")
+                self.stream.write(
+                    f"{self.label}: {self.done}/{self.total} ({100 * fraction:.0f} %, {rate:.1f}/s, {self._left(rate)} left)\n"
+                )
                 self.stream.flush()
+
+    def _left(self, rate: float) -> str:
+        """Time left at the current rate, as h:mm:ss or m:ss."""
+        if rate <= 0:
+            return "?"
+        seconds = round(max(self.total - self.done, 0) / rate)
+        hours, rest = divmod(seconds, 3600)
+        return f"{hours}:{rest // 60:02d}:{rest % 60:02d}" if hours else f"{rest // 60}:{rest % 60:02d}"
 
     def close(self) -> None:
         if self._tty:

@@ -1,89 +1,169 @@
-"""The ``urban`` preset: textured ground and road, buildings, poles, parked cars and moving vehicles."""
+"""The ``urban`` preset: a street along the path — asphalt with lane markings, kerbs and pavements, grass
+verges, façades with storeys of windows, trees and hedges, street lamps, signs, benches and bins, parked
+cars of several body types and colours, and vehicles driving the oncoming lane.
+
+Cross-section, metres from the driven path (positive: right of the direction of travel): the camera's lane
+[-1.75, 1.75], the oncoming lane [-5.25, -1.75], parking lanes [1.75, 4.0] and [-7.5, -5.25], pavements out
+to 7 and -10.5, then verges, hedges and buildings.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..world import WorldArea, WorldParts, WorldSpec, along_path, distance_to_path, texture
+from .. import shapes, textures
+from ..world import WorldArea, WorldParts, WorldSpec, along_path, distance_to_path, image_material
+
+ROAD_CENTRE = -1.75  # the road's centre line, right of the path is positive
+ROAD_HALF_WIDTH = 5.75
+PAVEMENT = ((4.0, 7.0), (-10.5, -7.5))
+SEGMENT = 6.0  # m of road per box
+FACADE_POOL = 8
+
+
+def _materials(parts: WorldParts, spec: WorldSpec, rng: np.random.Generator) -> list[textures.FacadeLayout]:
+    """The world's textures and materials, each drawn from ``rng``; the façade layouts in the pool."""
+    add = image_material
+    add(parts, "road", _road_tile(rng))
+    add(parts, "pavement", textures.pavement(rng, 256, 3.0), extra='specular="0.1"')
+    add(parts, "grass", textures.grass(rng, 256, 4.0), "0.25 0.25", uniform=True)
+    add(parts, "foliage", textures.foliage(rng), extra='specular="0"')
+    add(parts, "hedge", textures.foliage(rng), "0.8 0.8", uniform=True, extra='specular="0"')
+    add(parts, "bark", textures.bark(rng))
+    layouts = []
+    for i in range(FACADE_POOL):
+        layout = textures.FacadeLayout(int(rng.integers(2, 6)), int(rng.integers(1, 7)), bay_width=float(rng.uniform(2.6, 3.8)))
+        add(parts, f"facade{i}", textures.facade(rng, layout), extra='specular="0.05"')
+        layouts.append(layout)
+    parts.assets += [
+        '<material name="plain" rgba="0.72 0.71 0.68 1" specular="0.05"/>',
+        '<material name="kerb" rgba="0.58 0.57 0.55 1"/>',
+        '<material name="metal" rgba="0.30 0.31 0.33 1" specular="0.3"/>',
+        '<material name="wood" rgba="0.45 0.32 0.2 1"/>',
+        '<material name="glass" rgba="0.10 0.12 0.15 1" specular="0.6" shininess="0.8" reflectance="0"/>',
+        '<material name="tyre" rgba="0.06 0.06 0.06 1"/>',
+    ]
+    for i, colour in enumerate(shapes.CAR_COLOURS):
+        parts.assets.append(
+            f'<material name="paint{i}" rgba="{colour[0]} {colour[1]} {colour[2]} 1" specular="0.5" shininess="0.6"/>'
+        )
+    return layouts
+
+
+def _road_tile(rng: np.random.Generator) -> np.ndarray:
+    """Asphalt for one road box: its full length (with the overlap) along, its width across."""
+    return textures.asphalt(rng, SEGMENT + 0.4, 2 * ROAD_HALF_WIDTH)
+
+
+def _placed(x: float, y: float, yaw: float, inner: str, name: str = "") -> str:
+    named = f' name="{name}"' if name else ""
+    return f'<body{named} pos="{x:.3f} {y:.3f} 0" euler="0 0 {np.degrees(yaw):.2f}">{inner}</body>'
 
 
 def build(spec: WorldSpec, area: WorldArea, rng: np.random.Generator) -> WorldParts:
     """Assets and geoms of a street along ``area.path_xy``; vehicles drive the oncoming lane of the driven path."""
     parts = WorldParts()
-    assets, bodies = parts.assets, parts.bodies
-    moving_paths, moving_headings = parts.moving_paths, parts.moving_headings
+    bodies = parts.bodies
+    layouts = _materials(parts, spec, rng)
     path_xy, centre, half = area.path_xy, area.centre, area.half
-    assets += [
-        texture("ground", "checker", "0.55 0.53 0.48", "0.68 0.66 0.60", 512, 0.08),
-        texture("road", "checker", "0.30 0.30 0.31", "0.36 0.36 0.37", 512, 0.05),
-        texture("facade", "checker", "0.55 0.45 0.38", "0.25 0.28 0.33", 256, 0.02, "edge"),
-        texture("facade2", "checker", "0.70 0.68 0.60", "0.30 0.30 0.35", 256, 0.03, "cross"),
-        texture("car", "gradient", "0.6 0.1 0.1", "0.15 0.15 0.2", 64, 0.0, "none"),
-        '<material name="ground" texture="ground" texrepeat="120 120" texuniform="false"/>',
-        '<material name="road" texture="road" texrepeat="1 40"/>',
-        '<material name="facade" texture="facade" texrepeat="4 6"/>',
-        '<material name="facade2" texture="facade2" texrepeat="6 8"/>',
-        '<material name="car" texture="car" rgba="1 1 1 1"/>',
-        '<material name="pole" rgba="0.2 0.2 0.22 1"/>',
-        '<material name="plain" rgba="0.62 0.62 0.60 1"/>',
-    ]
-    ground = (
-        f'<geom name="ground" type="plane" pos="{centre[0]} {centre[1]} 0" size="{half[0]} {half[1]} 0.1" material="ground"/>'
+    bodies.append(
+        f'<geom name="ground" type="plane" pos="{centre[0]} {centre[1]} 0" size="{half[0]} {half[1]} 0.1" material="grass"/>'
     )
-    bodies.append(ground)
-    # the road: thin boxes along the path
-    points, tangents = along_path(path_xy, 6.0)
-    for p, t in zip(points, tangents, strict=True):
+
+    def clear(point: np.ndarray, margin: float) -> bool:
+        return bool(distance_to_path(point[None], path_xy)[0] >= margin)
+
+    # road and pavements: boxes along the path; neighbours alternate by 1 mm in height so overlaps never z-fight
+    points, tangents = along_path(path_xy, SEGMENT)
+    for i, (p, t) in enumerate(zip(points, tangents, strict=True)):
+        right = np.array([t[1], -t[0]])
         yaw = np.degrees(np.arctan2(t[1], t[0]))
+        c = p + ROAD_CENTRE * right
+        top = 0.010 - 0.001 * (i % 2)
         bodies.append(
-            f'<geom type="box" pos="{p[0]:.3f} {p[1]:.3f} 0.005" euler="0 0 {yaw:.3f}" size="3.4 3.6 0.005" material="road"/>'
+            f'<geom type="box" pos="{c[0]:.3f} {c[1]:.3f} {top / 2:.4f}" euler="0 0 {yaw:.3f}" '
+            f'size="{SEGMENT / 2 + 0.2:.3f} {ROAD_HALF_WIDTH:.3f} {top / 2:.4f}" material="road"/>'
         )
-    # buildings, poles and parked cars on both sides
-    for p, t in zip(*along_path(path_xy, 11.0), strict=True):
-        normal = np.array([-t[1], t[0]])
-        for side in (-1.0, 1.0):
-            if rng.random() < 0.2:
-                continue
-            depth, width, height = rng.uniform(5, 12), rng.uniform(6, 10), rng.uniform(6, 25)
-            c = p + side * normal * (9.0 + depth / 2 + rng.uniform(0, 3))
-            if distance_to_path(c[None], path_xy)[0] < spec.clearance + depth / 2 + 3.0:
-                continue
-            yaw = np.degrees(np.arctan2(t[1], t[0]))
-            mat = "facade" if rng.random() < 0.5 else "facade2"
-            if rng.random() < spec.texture_poor:
-                mat = "plain"
+        for lo, hi in PAVEMENT:
+            c = p + 0.5 * (lo + hi) * right
             bodies.append(
-                f'<geom type="box" pos="{c[0]:.3f} {c[1]:.3f} {height / 2:.3f}" euler="0 0 {yaw:.2f}" '
-                f'size="{width / 2:.3f} {depth / 2:.3f} {height / 2:.3f}" material="{mat}"/>'
+                f'<geom type="box" pos="{c[0]:.3f} {c[1]:.3f} {0.06 + 0.0005 * (i % 2):.4f}" euler="0 0 {yaw:.3f}" '
+                f'size="{SEGMENT / 2 + 0.2:.3f} {(hi - lo) / 2:.3f} 0.06" material="pavement"/>'
             )
-    for p, t in zip(*along_path(path_xy, 23.0), strict=True):
-        normal = np.array([-t[1], t[0]])
-        side = 1.0 if rng.random() < 0.5 else -1.0
-        q = p + side * normal * 5.5
-        if distance_to_path(q[None], path_xy)[0] >= spec.clearance + 1.0:
-            bodies.append(f'<geom type="cylinder" pos="{q[0]:.3f} {q[1]:.3f} 3" size="0.12 3" material="pole"/>')
-        if rng.random() < 0.6:
-            car = p + rng.uniform(-4, 4) * t - side * normal * 4.2
-            if distance_to_path(car[None], path_xy)[0] >= spec.clearance:
-                yaw = np.degrees(np.arctan2(t[1], t[0]))
+    # buildings on both sides, their fronts 1.5-4 m behind the pavement, heights from the façade layout
+    for p, t in zip(*along_path(path_xy, 13.0), strict=True):
+        right = np.array([t[1], -t[0]])
+        yaw = float(np.arctan2(t[1], t[0]))
+        for side, kerb in ((1.0, PAVEMENT[0][1]), (-1.0, -PAVEMENT[1][0])):
+            if rng.random() < 0.15:
+                continue
+            which = int(rng.integers(len(layouts)))
+            layout = layouts[which]
+            depth = rng.uniform(6, 12)
+            c = p + side * right * (kerb + rng.uniform(1.5, 4.0) + depth / 2)
+            if not clear(c, spec.clearance + depth / 2 + 3.0):
+                continue
+            material = "plain" if rng.random() < spec.texture_poor else f"facade{which}"
+            # the box's x axis runs along the street, so both long faces show the whole façade
+            bodies.append(
+                f'<geom type="box" pos="{c[0]:.3f} {c[1]:.3f} {layout.height_m / 2:.3f}" euler="0 0 {np.degrees(yaw):.2f}" '
+                f'size="{layout.width_m / 2:.3f} {depth / 2:.3f} {layout.height_m / 2:.3f}" material="{material}"/>'
+            )
+    # verge: trees and hedges between pavement and buildings; street furniture on the pavements
+    for p, t in zip(*along_path(path_xy, 9.0), strict=True):
+        right = np.array([t[1], -t[0]])
+        yaw = float(np.arctan2(t[1], t[0]))
+        for side, kerb in ((1.0, PAVEMENT[0][1]), (-1.0, -PAVEMENT[1][0])):
+            draw = rng.random()
+            q = p + rng.uniform(-3, 3) * t + side * right * (kerb + rng.uniform(0.6, 1.2))
+            if draw < 0.35 and clear(q, spec.clearance + 1.0):
+                bodies.append(_placed(q[0], q[1], yaw, shapes.tree(rng, "foliage")))
+            elif draw < 0.55 and clear(q, spec.clearance + 1.0):
+                length = rng.uniform(2.0, 6.0)
+                height = rng.uniform(0.7, 1.4)
                 bodies.append(
-                    f'<geom type="box" pos="{car[0]:.3f} {car[1]:.3f} 0.75" euler="0 0 {yaw:.2f}" '
-                    'size="2.2 0.9 0.75" material="car"/>'
+                    f'<geom type="box" pos="{q[0]:.3f} {q[1]:.3f} {height / 2:.3f}" euler="0 0 {np.degrees(yaw):.2f}" '
+                    f'size="{length / 2:.3f} 0.45 {height / 2:.3f}" material="hedge"/>'
                 )
-    # moving vehicles: drive the path in the oncoming lane, offset in time
-    path_xy = area.driven_xy  # vehicles follow the driven part
-    n = len(path_xy)
+    for p, t in zip(*along_path(path_xy, 25.0), strict=True):
+        right = np.array([t[1], -t[0]])
+        yaw = float(np.arctan2(t[1], t[0]))
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        kerb = PAVEMENT[0][0] if side > 0 else -PAVEMENT[1][1]
+        q = p + side * right * (kerb + 0.4)
+        if clear(q, spec.clearance + 0.5):
+            # the lamp's arm (local -y) reaches over the road
+            bodies.append(_placed(q[0], q[1], yaw + (0.0 if side > 0 else np.pi), shapes.street_lamp(rng.uniform(5.5, 7.5))))
+        extra = p + rng.uniform(-8, 8) * t + side * right * (kerb + rng.uniform(1.0, 2.6))
+        if clear(extra, spec.clearance + 1.0):
+            kind = rng.random()
+            inner = shapes.sign(rng) if kind < 0.4 else shapes.bench() if kind < 0.7 else shapes.bin_()
+            bodies.append(_placed(extra[0], extra[1], yaw + (np.pi / 2 if side > 0 else -np.pi / 2), inner))
+    # parked cars in both parking lanes
+    kinds = list(shapes.VEHICLE_TYPES)
+    for p, t in zip(*along_path(path_xy, 6.5), strict=True):
+        right = np.array([t[1], -t[0]])
+        yaw = float(np.arctan2(t[1], t[0]))
+        for offset in (2.9, -6.4):
+            if rng.random() > 0.45:
+                continue
+            car = p + rng.uniform(-0.8, 0.8) * t + offset * right
+            if clear(car, min(abs(offset), spec.clearance) - 0.1):
+                inner = shapes.vehicle(kinds[int(rng.integers(len(kinds)))], f"paint{int(rng.integers(len(shapes.CAR_COLOURS)))}")
+                bodies.append(_placed(car[0], car[1], yaw + (np.pi if rng.random() < 0.2 else 0.0), inner))
+    # moving vehicles: drive the driven path in the oncoming lane, offset in time
+    driven = area.driven_xy
+    n = len(driven)
     for j in range(spec.moving_vehicles):
         offset = int(rng.integers(n // 4, max(n // 4 + 1, n)))
         idx = (offset - np.arange(n)) % n
-        tang = np.gradient(path_xy, axis=0)[idx]
+        tang = np.gradient(driven, axis=0)[idx]
         tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
-        normal = np.stack([-tang[:, 1], tang[:, 0]], axis=1)
-        xy = path_xy[idx] - normal * 3.5
-        moving_paths.append(np.column_stack([xy, np.full(n, 0.8)]))
-        moving_headings.append(np.arctan2(-tang[:, 1], -tang[:, 0]))
-        bodies.append(
-            f'<body name="vehicle{j}" mocap="true">'
-            '<geom type="box" size="2.2 0.9 0.8" material="car" contype="0" conaffinity="0"/></body>'
-        )
+        right = np.stack([tang[:, 1], -tang[:, 0]], axis=1)
+        xy = driven[idx] + right * (2 * ROAD_CENTRE)
+        parts.moving_paths.append(np.column_stack([xy, np.zeros(n)]))
+        parts.moving_headings.append(np.arctan2(-tang[:, 1], -tang[:, 0]))
+        kind = kinds[int(rng.integers(len(kinds)))]
+        paint = f"paint{int(rng.integers(len(shapes.CAR_COLOURS)))}"
+        bodies.append(f'<body name="vehicle{j}" mocap="true">{shapes.vehicle(kind, paint, collide=False)}</body>')
     return parts

@@ -13,6 +13,7 @@ COMMANDS = (
     "vo",
     "eval",
     "sim",
+    "corpus",
     "demo",
     "experiment",
     "bench",

@@ -1,4 +1,4 @@
-"""`pvo bench vo|sim|fusion`: benchmarks that print figures (speed, memory, accuracy)."""
+"""`pvo bench vo|sim|realism|fusion|soak|faults`: benchmarks that print figures (speed, memory, accuracy)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from .vo import add_sequence_arguments, open_sequence
 
 
 def register(sub: Any) -> None:
-    bench = sub.add_parser("bench", help="benchmarks: vo | sim | fusion")
+    bench = sub.add_parser("bench", help="benchmarks: vo | sim | realism | fusion | soak | faults")
     kinds = bench.add_subparsers(dest="bench", required=True, metavar="WHAT")
     bvo = kinds.add_parser("vo", help="stereo VO per-stage timings and accuracy on a KITTI clip")
     bvo.set_defaults(handler=bench_vo)
@@ -37,6 +37,19 @@ def register(sub: Any) -> None:
     bs.set_defaults(handler=bench_sim)
     bs.add_argument("--preset", default="urban", help="urban | planetary")
     bs.add_argument("--frames", type=int, default=30, help="frames rendered per size (default 30)")
+
+    breal = kinds.add_parser(
+        "realism", help="rendered worlds against the real KITTI and Devon images: statistics, tracking, drift"
+    )
+    breal.set_defaults(handler=bench_realism)
+    breal.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
+    breal.add_argument(
+        "--out", "-o", type=Path, default=Path("runs/bench-realism"), help="renders, metrics.json, contact_sheet.png"
+    )
+    breal.add_argument("--reuse", action="store_true", help="keep earlier renders of the same configurations")
+    breal.add_argument(
+        "--compare", action="append", default=[], metavar="LABEL=DIR", help="also measure this rendered folder (repeatable)"
+    )
 
     bsoak = kinds.add_parser("soak", help="a sample bag looped through the real node graph: memory, lost frames, latency drift")
     bsoak.set_defaults(handler=bench_soak)
@@ -142,6 +155,44 @@ def bench_sim(args: argparse.Namespace) -> int:
         world = build_world(WorldSpec(args.preset), poses, 1.65)
         seconds = time.perf_counter() - start
         print(f"world generation, {frames} frames ({frames * 0.8:.0f} m): {seconds:.3f} s, {world.xml.count('<geom')} geoms")
+    return 0
+
+
+def bench_realism(args: argparse.Namespace) -> int:
+    import sys
+
+    import cv2
+
+    from ..realism import RealismOptions, contact_sheet, run_realism
+
+    extra = []
+    for item in args.compare:
+        label, sep, folder = item.partition("=")
+        if not sep or not Path(folder).is_dir():
+            raise PvoError(f"--compare {item!r}: expected LABEL=DIR with an existing rendered folder")
+        extra.append((label, Path(folder)))
+    out = Path(args.out)
+    options = RealismOptions(data_directory(args.data), out / "renders", tuple(extra), args.reuse)
+    result, sets = run_realism(options, say=lambda text: print(text, file=sys.stderr, flush=True))
+    columns = (
+        "tracked",
+        "inlier_ratio",
+        "spectrum_slope",
+        "mean_intensity",
+        "slope_gap",
+        "intensity_distance",
+        "gradient_distance",
+    )
+    print(f"{'image set':<24} {'kind':<10} " + " ".join(f"{c:>18}" for c in columns))
+    for label, row in result.tables["image_sets"].items():
+        values = " ".join(f"{row[c]:>18.3f}" for c in columns)
+        print(f"{label:<24} {row['kind']:<10} {values}")
+    print("(slope_gap and distances against the real set of the same kind: KITTI 06 for urban, Devon for planetary)")
+    for label, row in result.tables["vo_runs"].items():
+        print(f"stereo VO end drift, {label}: {row['end_drift_percent']:.2f} % of {row['path_m']:.1f} m")
+    out.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out / "contact_sheet.png"), contact_sheet(sets))
+    print(f"wrote {result.write(out)} and {out / 'contact_sheet.png'}")
     return 0
 
 

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pvo_sim import KITTI_FOCAL_PER_PIXEL_WIDTH, Degradations, ImuNoise, SimConfig, simulate
+from pvo_sim import KITTI_FOCAL_PER_PIXEL_WIDTH, CameraModel, Degradations, ImuNoise, SimConfig, simulate
 
 from ..progress import Progress
 
@@ -27,7 +27,8 @@ def register(sub: Any) -> None:
     sim.add_argument("--poses", type=Path, help="replay a KITTI ground-truth pose file instead of a procedural path")
     sim.add_argument("--start", type=int, default=0, help="with --poses: first pose")
     sim.add_argument("--speed", type=float, default=8.0, help="procedural path speed in m/s (default 8)")
-    sim.add_argument("--heading", type=float, default=0.0, help="initial heading, degrees clockwise from north")
+    sim.add_argument("--heading", type=float, default=0.0, help="heading, degrees clockwise from north (turns the path)")
+    sim.add_argument("--pitch", type=float, default=0.0, help="cameras pitched down by this many degrees (default 0)")
     sim.add_argument("--lat", type=float, default=49.011, help="latitude of the world origin (default Karlsruhe)")
     sim.add_argument("--lon", type=float, default=8.4245, help="longitude of the world origin")
     sim.add_argument("--alt", type=float, default=115.0, help="altitude of the world origin (m)")
@@ -53,6 +54,15 @@ def register(sub: Any) -> None:
     deg.add_argument("--baseline-scale", type=float, default=1.0, help="write calib.txt with the baseline times this")
     deg.add_argument("--texture-poor", type=float, default=0.0, help="urban: fraction of buildings with plain walls")
     deg.add_argument("--moving", type=int, default=3, help="urban: number of independently moving vehicles")
+    cam = sim.add_argument_group("camera model (applied to every image; --linear-camera keeps the raw render)")
+    cam.add_argument("--linear-camera", action="store_true", help="no auto-exposure, vignetting, noise, gamma or JPEG")
+    cam.add_argument("--exposure-target", type=float, default=0.42, help="auto-exposure mean brightness, 0-1 (default 0.42)")
+    cam.add_argument("--fixed-gain", type=float, help="a fixed exposure gain instead of auto-exposure")
+    cam.add_argument("--gamma", type=float, default=2.2, help="encoding gamma (default 2.2)")
+    cam.add_argument("--vignetting", type=float, default=0.25, help="relative fall-off at the corners (default 0.25)")
+    cam.add_argument("--full-well", type=float, default=6000.0, help="electrons at saturation, for shot noise (0: none)")
+    cam.add_argument("--read-noise", type=float, default=1.0, help="read noise std, grey levels (default 1)")
+    cam.add_argument("--jpeg", type=int, default=0, help="JPEG quality 1-100 (default 0: lossless PNG only)")
     sim.add_argument("--quiet", "-q", action="store_true", help="no progress output")
 
 
@@ -62,6 +72,21 @@ def parse_size(text: str) -> tuple[int, int]:
     except ValueError:
         raise ValueError(f"--size {text!r} must be WIDTHxHEIGHT, e.g. 620x188") from None
     return width, height
+
+
+def camera_model(args: argparse.Namespace) -> CameraModel:
+    if args.linear_camera:
+        return CameraModel.linear()
+    return CameraModel(
+        auto_exposure=args.fixed_gain is None,
+        target=args.exposure_target,
+        gain=args.fixed_gain or 1.0,
+        gamma=args.gamma,
+        vignetting=args.vignetting,
+        full_well=args.full_well,
+        read_noise=args.read_noise,
+        jpeg_quality=args.jpeg,
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -80,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         start_frame=args.start,
         speed=args.speed,
         heading_deg=args.heading,
+        pitch_deg=args.pitch,
         latitude=args.lat,
         longitude=args.lon,
         altitude=args.alt,
@@ -100,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
             texture_poor=args.texture_poor,
             moving_vehicles=args.moving,
         ),
+        camera=camera_model(args),
     )
     if args.bag is not None and args.bag.exists() and not args.overwrite:
         raise ValueError(f"{args.bag} exists: refusing to overwrite it (use --overwrite)")

@@ -1,0 +1,317 @@
+"""Training corpora: many varied sequences rendered by :func:`pvo_sim.simulate`, with a manifest.
+
+Each sequence's configuration is drawn from ``numpy.random.default_rng([seed, index])`` alone, so sequence
+``i`` is the same whatever the corpus size, the number of parallel jobs or the order they finish in. The
+split (train / validation / test) is by sequence, drawn the same way. ``manifest.yaml`` lists every
+sequence's full configuration, its split and a SHA-256 of its files; it is rewritten after each sequence,
+so an interrupted run resumes: complete sequences whose configuration matches are kept, a partial one
+(``simulate`` renders into a hidden sibling and moves it into place only when whole) is rendered again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pvo_core.ephemeris import GeodeticOrigin, sun_elevation_azimuth
+
+from .degrade import CameraModel, Degradations
+from .paths import PATH_KINDS
+from .render import KITTI_FOCAL_PER_PIXEL_WIDTH, SimConfig, simulate
+from .world import PRESETS
+
+MANIFEST = "manifest.yaml"
+SPLITS = ("train", "validation", "test")
+
+
+@dataclass(frozen=True)
+class CorpusConfig:
+    """What to render: ``sequences`` of ``frames`` each, at ``width`` x ``height``, from ``presets``.
+
+    The fractions say how often each condition is drawn; ``split`` the expected share of train /
+    validation / test sequences."""
+
+    sequences: int = 20
+    frames: int = 200
+    width: int = 620
+    height: int = 188
+    presets: tuple[str, ...] = PRESETS
+    seed: int = 0
+    colour: bool = False
+    rate: float = 10.0
+    split: tuple[float, float, float] = (0.7, 0.15, 0.15)
+    overcast: float = 0.15
+    motion_blur: float = 0.1
+    exposure_changes: float = 0.15
+    moving_vehicles: float = 0.5
+    texture_poor: float = 0.1
+    wrong_calibration: float = 0.05
+    radial_distortion: float = 0.05
+    jpeg: float = 0.3
+    min_sun_elevation: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.sequences < 1 or self.frames < 2:
+            raise ValueError(f"a corpus needs >= 1 sequence of >= 2 frames, got {self.sequences} x {self.frames}")
+        unknown = [p for p in self.presets if p not in PRESETS]
+        if unknown or not self.presets:
+            raise ValueError(f"--presets {','.join(self.presets)}: choose from {', '.join(PRESETS)}")
+        if abs(sum(self.split) - 1.0) > 1e-9 or min(self.split) < 0:
+            raise ValueError(f"split fractions must be >= 0 and sum to 1, got {self.split}")
+        fractions = ("overcast", "motion_blur", "exposure_changes", "moving_vehicles", "texture_poor")
+        fractions += ("wrong_calibration", "radial_distortion", "jpeg")
+        for name in fractions:
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be a fraction in [0, 1], got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
+class SequencePlan:
+    """One sequence of the corpus: its name, split, the configuration that renders it and the conditions
+    drawn for it (for the manifest, in words)."""
+
+    index: int
+    name: str
+    split: str
+    config: SimConfig
+    conditions: tuple[str, ...] = field(default_factory=tuple)
+
+
+def _daylight_time(rng: np.random.Generator, latitude: float, longitude: float, minimum_elevation: float) -> tuple[str, float]:
+    """A UTC time on a random date (2008-2022) with the sun at least ``minimum_elevation`` degrees up:
+    uniform over that day's qualifying minutes (so elevations span the range the place allows and azimuths
+    go all round). Returns (ISO time, elevation)."""
+    origin = GeodeticOrigin(latitude, longitude, 0.0)
+    for _ in range(50):
+        day = datetime(2008, 1, 1, tzinfo=UTC) + timedelta(days=int(rng.integers(0, 15 * 365)))
+        minutes = np.arange(0, 24 * 60, 5)
+        times = day.timestamp() + 60.0 * minutes
+        elevation, _ = sun_elevation_azimuth(origin, times)
+        ok = np.flatnonzero(elevation >= minimum_elevation + 1.0)  # a margin: the sequence lasts a while
+        if ok.size:
+            pick = int(rng.choice(ok))
+            moment = datetime.fromtimestamp(float(times[pick]), tz=UTC)
+            return moment.strftime("%Y-%m-%dT%H:%M:%SZ"), float(elevation[pick])
+    raise ValueError(f"no day with the sun above {minimum_elevation} deg at latitude {latitude:.1f}")
+
+
+def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
+    """Draw sequence ``index``: place, time, path, preset, appearance, camera and degradations."""
+    rng = np.random.default_rng([corpus.seed, index, 20260])
+    split = SPLITS[int(np.searchsorted(np.cumsum(corpus.split), rng.random(), side="right").clip(0, 2))]
+    preset = corpus.presets[int(rng.integers(len(corpus.presets)))]
+    conditions: list[str] = []
+    # place: both hemispheres, from the tropics to the high Arctic (Devon Island is at 75 N)
+    latitude = float(rng.uniform(10.0, 78.0)) * (1.0 if rng.random() < 0.75 else -1.0)
+    longitude = float(rng.uniform(-180.0, 180.0))
+    start_time, elevation = _daylight_time(rng, latitude, longitude, corpus.min_sun_elevation)
+    overcast = bool(rng.random() < corpus.overcast)
+    if overcast:
+        conditions.append("overcast")
+    path = PATH_KINDS[int(rng.integers(len(PATH_KINDS)))]
+    speed = float(rng.uniform(4.0, 12.0) if preset == "urban" else rng.uniform(0.8, 4.0))
+    pitch = 0.0 if preset == "urban" else float(rng.uniform(0.0, 25.0))
+    height = 1.65 if preset == "urban" else float(rng.uniform(0.9, 1.8))
+    blur = float(rng.uniform(2.0, 8.0)) if rng.random() < corpus.motion_blur else 0.0
+    exposure = float(rng.uniform(0.1, 0.4)) if rng.random() < corpus.exposure_changes else 0.0
+    moving = int(rng.integers(1, 7)) if preset == "urban" and rng.random() < corpus.moving_vehicles else 0
+    texture_poor = float(rng.uniform(0.5, 1.0)) if preset == "urban" and rng.random() < corpus.texture_poor else 0.0
+    focal_scale = baseline_scale = 1.0
+    if rng.random() < corpus.wrong_calibration:
+        focal_scale, baseline_scale = float(rng.uniform(0.97, 1.03)), float(rng.uniform(0.97, 1.03))
+        conditions.append("wrong calibration")
+    distortion = float(rng.uniform(-0.3, 0.2)) if rng.random() < corpus.radial_distortion else 0.0
+    for flag, name in ((blur, "motion blur"), (exposure, "exposure changes"), (moving, "moving vehicles")):
+        if flag:
+            conditions.append(name)
+    if texture_poor:
+        conditions.append("texture-poor walls")
+    if distortion:
+        conditions.append("radial distortion")
+    jpeg = int(rng.integers(60, 96)) if rng.random() < corpus.jpeg else 0
+    camera = CameraModel(
+        target=float(rng.uniform(0.3, 0.55)),
+        gamma=float(rng.uniform(1.0, 2.2)),
+        vignetting=float(rng.uniform(0.0, 0.4)),
+        full_well=float(rng.uniform(2000.0, 12000.0)),
+        read_noise=float(rng.uniform(0.5, 3.0)),
+        jpeg_quality=jpeg,
+    )
+    config = SimConfig(
+        preset=preset,
+        frames=corpus.frames,
+        width=corpus.width,
+        height=corpus.height,
+        focal=KITTI_FOCAL_PER_PIXEL_WIDTH * corpus.width * float(rng.uniform(0.85, 1.15)),
+        rate=corpus.rate,
+        colour=corpus.colour,
+        path=path,
+        speed=speed,
+        camera_height=height,
+        heading_deg=float(rng.uniform(0.0, 360.0)),
+        pitch_deg=pitch,
+        latitude=latitude,
+        longitude=longitude,
+        altitude=float(rng.uniform(0.0, 1500.0)),
+        start_time=start_time,
+        overcast=overcast,
+        seed=int(rng.integers(0, 2**31 - 1)),
+        degradations=Degradations(
+            distortion=distortion,
+            blur_px=blur,
+            exposure=exposure,
+            focal_scale=focal_scale,
+            baseline_scale=baseline_scale,
+            texture_poor=texture_poor,
+            moving_vehicles=moving,
+        ),
+        camera=camera,
+    )
+    del elevation  # drawn through the time of day; the render records the actual range
+    return SequencePlan(index, f"{index:04d}", split, config, tuple(conditions))
+
+
+def content_hash(folder: Path) -> str:
+    """SHA-256 over the relative paths and bytes of every file under ``folder`` (sorted)."""
+    digest = hashlib.sha256()
+    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+        digest.update(path.relative_to(folder).as_posix().encode())
+        digest.update(b"\0")
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def _plain(value: Any) -> Any:
+    import yaml
+
+    return yaml.safe_load(yaml.safe_dump(value, sort_keys=False))
+
+
+def _entry(plan: SequencePlan, folder: Path, seconds: float) -> dict[str, Any]:
+    return {
+        "name": plan.name,
+        "split": plan.split,
+        "preset": plan.config.preset,
+        "conditions": list(plan.conditions),
+        "frames": plan.config.frames,
+        "render_seconds": round(seconds, 2),
+        "sha256": content_hash(folder),
+        "config": _plain(asdict(plan.config)),
+    }
+
+
+def read_manifest(out: Path) -> dict[str, Any]:
+    """The corpus manifest (``{}`` when there is none yet); ``ValueError`` naming the file when unreadable."""
+    import yaml
+
+    path = Path(out) / MANIFEST
+    if not path.is_file():
+        return {}
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"{path}: unreadable corpus manifest ({exc}); remove it to start afresh") from None
+    if not isinstance(data, dict) or not isinstance(data.get("sequences"), list):
+        raise ValueError(f"{path}: not a corpus manifest (no 'sequences' list)")
+    return data
+
+
+def _write_manifest(out: Path, corpus: CorpusConfig, entries: dict[str, dict[str, Any]]) -> None:
+    import yaml
+
+    data = {
+        "generator": "pvo sim corpus",
+        "corpus": _plain(asdict(corpus)),
+        "splits": {s: sorted(n for n, e in entries.items() if e["split"] == s) for s in SPLITS},
+        "sequences": [entries[name] for name in sorted(entries)],
+    }
+    temporary = out / f".{MANIFEST}.tmp"
+    temporary.write_text(yaml.safe_dump(data, sort_keys=False))
+    os.replace(temporary, out / MANIFEST)
+
+
+def _render_one(plan: SequencePlan, out: Path) -> tuple[str, float]:
+    """Worker: render one sequence (in its own process with --jobs); its name and wall time."""
+    start = time.perf_counter()
+    simulate(plan.config, out / plan.name, overwrite=True)
+    return plan.name, time.perf_counter() - start
+
+
+@dataclass
+class CorpusResult:
+    out: Path
+    rendered: list[str]
+    kept: list[str]
+    seconds: float
+    frames_rendered: int
+
+    @property
+    def frames_per_second(self) -> float:
+        return self.frames_rendered / max(self.seconds, 1e-9)
+
+
+def render_corpus(
+    corpus: CorpusConfig,
+    out: Path,
+    jobs: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+) -> CorpusResult:
+    """Render every sequence of ``corpus`` into ``out`` not already there with the same configuration;
+    ``progress(frames_done, frames_to_render)`` at the start and after each sequence rendered."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if jobs < 1:
+        raise ValueError(f"--jobs must be >= 1, got {jobs}")
+    plans = [plan_sequence(corpus, i) for i in range(corpus.sequences)]
+    previous = {e.get("name"): e for e in read_manifest(out).get("sequences", [])}
+    entries: dict[str, dict[str, Any]] = {}
+    kept, todo = [], []
+    for plan in plans:
+        entry = previous.get(plan.name)
+        folder = out / plan.name
+        if entry and entry.get("config") == _plain(asdict(plan.config)) and (folder / "sim.yaml").is_file():
+            entries[plan.name] = entry
+            kept.append(plan.name)
+        else:
+            todo.append(plan)
+    total = len(todo) * corpus.frames
+    done_frames = 0
+    if progress:
+        progress(done_frames, total)
+    _write_manifest(out, corpus, entries)
+    start = time.perf_counter()
+    rendered: list[str] = []
+    by_name = {p.name: p for p in todo}
+
+    def finished(name: str, seconds: float) -> None:
+        nonlocal done_frames
+        entries[name] = _entry(by_name[name], out / name, seconds)
+        _write_manifest(out, corpus, entries)
+        rendered.append(name)
+        done_frames += corpus.frames
+        if progress:
+            progress(done_frames, total)
+
+    if jobs == 1 or len(todo) <= 1:
+        for plan in todo:
+            finished(*_render_one(plan, out))
+    else:
+        import multiprocessing
+
+        # fork: the parent never opens a GL context (only workers render), so each worker opens its own; spawn
+        # would re-run the console script, which has no __main__ guard
+        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:
+            pending: set[Future] = {pool.submit(_render_one, plan, out) for plan in todo}
+            while pending:
+                complete, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for future in complete:
+                    finished(*future.result())
+    return CorpusResult(out, rendered, kept, time.perf_counter() - start, len(rendered) * corpus.frames)
