@@ -14,7 +14,6 @@ import hashlib
 import os
 import time
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -239,10 +238,38 @@ def _write_manifest(out: Path, corpus: CorpusConfig, entries: dict[str, dict[str
 
 
 def _render_one(plan: SequencePlan, out: Path) -> tuple[str, float]:
-    """Worker: render one sequence (in its own process with --jobs); its name and wall time."""
+    """Render one sequence in this process; its name and wall time."""
     start = time.perf_counter()
     simulate(plan.config, out / plan.name, overwrite=True)
     return plan.name, time.perf_counter() - start
+
+
+def render_worker(corpus_json: str, index: int, out: str) -> None:
+    """Entry point of a worker process: plan sequence ``index`` again (plans depend on (seed, index) only)
+    and render it."""
+    import json
+
+    values = json.loads(corpus_json)
+    values["presets"] = tuple(values["presets"])
+    values["split"] = tuple(values["split"])
+    _render_one(plan_sequence(CorpusConfig(**values), index), Path(out))
+
+
+def _start_worker(corpus: CorpusConfig, plan: SequencePlan, out: Path):
+    """A fresh Python process per sequence: its own GL context whatever the parent holds (a forked worker
+    would inherit the parent's), and nothing of the parent's ``__main__`` re-run (as spawn would do)."""
+    import json
+    import subprocess
+    import sys
+
+    code = "import sys; from pvo_sim.corpus import render_worker; render_worker(sys.argv[1], int(sys.argv[2]), sys.argv[3])"
+    argv = [sys.executable, "-c", code, json.dumps(asdict(corpus)), str(plan.index), str(out)]
+    import tempfile
+
+    errors = tempfile.TemporaryFile("w+")  # a file, not a pipe: a chatty worker cannot block on it
+    process = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=errors, text=True)
+    process.error_log = errors  # type: ignore[attr-defined]
+    return process
 
 
 @dataclass
@@ -266,10 +293,10 @@ def render_corpus(
 ) -> CorpusResult:
     """Render every sequence of ``corpus`` into ``out`` not already there with the same configuration;
     ``progress(frames_done, frames_to_render)`` at the start and after each sequence rendered."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     if jobs < 1:
         raise ValueError(f"--jobs must be >= 1, got {jobs}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     plans = [plan_sequence(corpus, i) for i in range(corpus.sequences)]
     previous = {e.get("name"): e for e in read_manifest(out).get("sequences", [])}
     entries: dict[str, dict[str, Any]] = {}
@@ -304,14 +331,27 @@ def render_corpus(
         for plan in todo:
             finished(*_render_one(plan, out))
     else:
-        import multiprocessing
-
-        # fork: the parent never opens a GL context (only workers render), so each worker opens its own; spawn
-        # would re-run the console script, which has no __main__ guard
-        with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:
-            pending: set[Future] = {pool.submit(_render_one, plan, out) for plan in todo}
-            while pending:
-                complete, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for future in complete:
-                    finished(*future.result())
+        queue = list(todo)
+        running: dict[str, tuple[Any, float]] = {}
+        try:
+            while queue or running:
+                while queue and len(running) < jobs:
+                    plan = queue.pop(0)
+                    running[plan.name] = (_start_worker(corpus, plan, out), time.perf_counter())
+                time.sleep(0.05)
+                for name, (process, started) in list(running.items()):
+                    if process.poll() is None:
+                        continue
+                    del running[name]
+                    process.error_log.seek(0)
+                    errors = process.error_log.read().strip().splitlines()
+                    process.error_log.close()
+                    if process.returncode != 0:
+                        detail = errors[-1] if errors else f"exit status {process.returncode}"
+                        raise ValueError(f"{out / name}: rendering failed: {detail}")
+                    finished(name, time.perf_counter() - started)
+        finally:
+            for process, _ in running.values():  # interrupted: stop the workers; their partial output is discarded
+                process.terminate()
+                process.wait()
     return CorpusResult(out, rendered, kept, time.perf_counter() - start, len(rendered) * corpus.frames)

@@ -69,3 +69,46 @@ def test_a_missing_renderer_backend_is_one_line(tmp_path: Path) -> None:
     assert result.returncode == 2
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "no offscreen renderer (MUJOCO_GL=osmesa): install libosmesa6" in lines[0]
+
+
+def test_sim_corpus_command_renders_resumes_and_reports(tmp_path: Path, capsys) -> None:
+    import yaml
+    from pvo_tools.cli import main
+
+    args = ["sim", "corpus", str(tmp_path / "c"), "--sequences", "2", "--frames", "2", "--size", "96x48", "-q"]
+    if main(args) != 0:
+        pytest.skip("pvo sim corpus could not render here (no offscreen renderer)")
+    first = capsys.readouterr().out
+    assert "2 sequence(s) rendered, 0 kept" in first
+    manifest = yaml.safe_load((tmp_path / "c" / "manifest.yaml").read_text())
+    assert [s["name"] for s in manifest["sequences"]] == ["0000", "0001"]
+    assert main(args) == 0
+    assert "0 sequence(s) rendered, 2 kept" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--presets", "lunar"], "--presets lunar: choose from urban, planetary"),
+        (["--split", "0.5,0.5"], "--split '0.5,0.5' must be three numbers"),
+        (["--jobs", "0"], "--jobs must be >= 1"),
+    ],
+)
+def test_sim_corpus_bad_options_are_one_line(tmp_path: Path, capsys, extra: list[str], message: str) -> None:
+    from pvo_tools.cli import main
+
+    assert main(["sim", "corpus", str(tmp_path / "c"), "--frames", "2", *extra]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_camera_and_pitch_options_reach_the_configuration(tmp_path: Path) -> None:
+    import yaml
+    from pvo_tools.cli import main
+
+    out = tmp_path / "s"
+    args = ["sim", str(out), "--frames", "2", "--size", "96x48", "--pitch", "15", "--gamma", "1.5", "--jpeg", "80", "-q"]
+    if main(args) != 0:
+        pytest.skip("pvo sim could not render here (no offscreen renderer)")
+    config = yaml.safe_load((out / "sim.yaml").read_text())["config"]
+    assert config["pitch_deg"] == 15.0 and config["camera"]["gamma"] == 1.5 and config["camera"]["jpeg_quality"] == 80
+    assert main(["sim", str(tmp_path / "bad"), "--pitch", "80", "-q"]) == 2

@@ -1,0 +1,129 @@
+"""`pvo_sim.corpus`: varied, deterministic sequences, splits by sequence, a manifest, and resuming."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from pvo_sim.corpus import CorpusConfig, content_hash, plan_sequence, read_manifest, render_corpus
+
+from pvo_sim import corpus as corpus_module
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+TINY = CorpusConfig(sequences=3, frames=2, width=96, height=48, seed=11)
+
+
+def test_plans_vary_and_depend_only_on_seed_and_index() -> None:
+    big = CorpusConfig(sequences=200, frames=10, seed=3)
+    plans = [plan_sequence(big, i) for i in range(200)]
+    assert plan_sequence(CorpusConfig(sequences=5, frames=10, seed=3), 4) == plans[4]  # not on the corpus size
+    assert plan_sequence(CorpusConfig(sequences=5, frames=10, seed=4), 4) != plans[4]
+    latitudes = np.array([p.config.latitude for p in plans])
+    assert latitudes.min() < -10 and latitudes.max() > 60  # both hemispheres, into the Arctic
+    assert {p.config.preset for p in plans} == {"urban", "planetary"}
+    assert {p.config.path for p in plans} == {"loop", "straight", "s-curve"}
+    headings = np.array([p.config.heading_deg for p in plans])
+    assert np.histogram(headings, bins=4, range=(0, 360))[0].min() > 20  # all round
+    splits = [p.split for p in plans]
+    assert 0.6 < splits.count("train") / 200 < 0.8 and splits.count("validation") > 10 and splits.count("test") > 10
+    conditions = [c for p in plans for c in p.conditions]
+    for name in ("overcast", "motion blur", "exposure changes", "moving vehicles", "texture-poor walls"):
+        assert conditions.count(name) > 0, name
+    assert any(p.config.degradations.distortion for p in plans)
+    assert any(p.config.degradations.focal_scale != 1.0 for p in plans)
+    assert len({p.config.camera for p in plans}) == 200  # every sequence its own camera
+
+
+def test_sun_elevations_span_low_to_high() -> None:
+    from pvo_core.ephemeris import GeodeticOrigin, sun_elevation_azimuth
+
+    from pvo_sim import SimConfig
+
+    big = CorpusConfig(sequences=120, frames=10, seed=5)
+    elevations, azimuths = [], []
+    for i in range(120):
+        config = plan_sequence(big, i).config
+        assert isinstance(config, SimConfig)
+        e, a = sun_elevation_azimuth(GeodeticOrigin(config.latitude, config.longitude, 0.0), np.array([config.epoch]))
+        elevations.append(float(e[0]))
+        azimuths.append(float(a[0]))
+    assert min(elevations) >= 5.0 and min(elevations) < 15.0 and max(elevations) > 55.0
+    assert np.ptp(np.mod(azimuths, 360.0)) > 270.0
+
+
+def test_bad_corpus_settings_are_refused() -> None:
+    with pytest.raises(ValueError, match="presets"):
+        CorpusConfig(presets=("lunar",))
+    with pytest.raises(ValueError, match="split"):
+        CorpusConfig(split=(0.5, 0.5, 0.5))
+    with pytest.raises(ValueError, match="overcast"):
+        CorpusConfig(overcast=1.5)
+
+
+def _render(out: Path, **kwargs) -> corpus_module.CorpusResult:
+    try:
+        return render_corpus(TINY, out, **kwargs)
+    except ValueError as exc:
+        if "no offscreen renderer" in str(exc):
+            pytest.skip(str(exc))
+        raise
+
+
+def test_corpus_is_deterministic_and_resumes_after_a_killed_run(tmp_path: Path, monkeypatch) -> None:
+    whole = _render(tmp_path / "whole")
+    manifest = read_manifest(tmp_path / "whole")
+    assert [e["name"] for e in manifest["sequences"]] == ["0000", "0001", "0002"]
+    assert whole.rendered == ["0000", "0001", "0002"]
+    for entry in manifest["sequences"]:
+        folder = tmp_path / "whole" / entry["name"]
+        assert entry["sha256"] == content_hash(folder)
+        assert entry["split"] in ("train", "validation", "test")
+        assert (folder / "image_0" / "000001.png").is_file() and (folder / "sun.csv").is_file()
+        assert yaml.safe_load((folder / "sim.yaml").read_text())["config"] == entry["config"]
+
+    # a run killed while rendering the second sequence: the first is in the manifest, the second half-done
+    real = corpus_module._render_one
+    calls = []
+
+    def dies_on_the_second(plan, out):
+        calls.append(plan.name)
+        if len(calls) == 2:
+            (out / f".{plan.name}.partial").mkdir()  # what simulate leaves when killed mid-sequence
+            raise KeyboardInterrupt
+        return real(plan, out)
+
+    monkeypatch.setattr(corpus_module, "_render_one", dies_on_the_second)
+    with pytest.raises(KeyboardInterrupt):
+        _render(tmp_path / "killed")
+    assert [e["name"] for e in read_manifest(tmp_path / "killed")["sequences"]] == ["0000"]
+    monkeypatch.setattr(corpus_module, "_render_one", real)
+    resumed = _render(tmp_path / "killed")
+    assert resumed.kept == ["0000"] and resumed.rendered == ["0001", "0002"]
+    again = read_manifest(tmp_path / "killed")
+    assert [e["sha256"] for e in again["sequences"]] == [e["sha256"] for e in manifest["sequences"]]
+    assert _render(tmp_path / "killed").rendered == []  # nothing left to do
+
+
+def test_parallel_jobs_render_the_same_corpus(tmp_path: Path) -> None:
+    serial = _render(tmp_path / "serial")
+    parallel = _render(tmp_path / "parallel", jobs=2)
+    assert sorted(parallel.rendered) == serial.rendered
+    hashes = [[e["sha256"] for e in read_manifest(tmp_path / d)["sequences"]] for d in ("serial", "parallel")]
+    assert hashes[0] == hashes[1]
+
+
+def test_a_changed_configuration_is_rendered_again(tmp_path: Path) -> None:
+    _render(tmp_path / "c")
+    manifest = read_manifest(tmp_path / "c")
+    manifest["sequences"][1]["config"]["speed"] = 99.0  # as if made by other settings
+    (tmp_path / "c" / "manifest.yaml").write_text(yaml.safe_dump(manifest, sort_keys=False))
+    assert _render(tmp_path / "c").rendered == ["0001"]
+
+
+def test_an_unreadable_manifest_is_one_clear_error(tmp_path: Path) -> None:
+    (tmp_path / "manifest.yaml").write_text("sequences: [unclosed")
+    with pytest.raises(ValueError, match="manifest.yaml: unreadable corpus manifest"):
+        render_corpus(TINY, tmp_path)
