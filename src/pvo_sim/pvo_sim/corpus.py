@@ -4,7 +4,7 @@ Each sequence's configuration is drawn from ``numpy.random.default_rng([seed, in
 ``i`` is the same whatever the corpus size, the number of parallel jobs or the order they finish in. The
 split (train / validation / test) is by sequence, drawn the same way. ``manifest.yaml`` lists every
 sequence's full configuration, its split and a SHA-256 of its files; it is rewritten after each sequence,
-so an interrupted run resumes: complete sequences whose configuration matches are kept, a partial one
+so an interrupted run resumes: complete sequences whose configuration and renderer revision match are kept, a partial one
 (``simulate`` renders into a hidden sibling and moves it into place only when whole) is rendered again.
 """
 
@@ -24,7 +24,7 @@ from pvo_core.ephemeris import GeodeticOrigin, sun_elevation_azimuth
 
 from .degrade import CameraModel, Degradations
 from .paths import PATH_KINDS
-from .render import KITTI_FOCAL_PER_PIXEL_WIDTH, SimConfig, simulate
+from .render import KITTI_FOCAL_PER_PIXEL_WIDTH, RENDERER_REVISION, SimConfig, simulate
 from .world import PRESETS
 
 MANIFEST = "manifest.yaml"
@@ -202,6 +202,7 @@ def _entry(plan: SequencePlan, folder: Path, seconds: float) -> dict[str, Any]:
         "conditions": list(plan.conditions),
         "frames": plan.config.frames,
         "render_seconds": round(seconds, 2),
+        "renderer_revision": RENDERER_REVISION,
         "sha256": content_hash(folder),
         "config": _plain(asdict(plan.config)),
     }
@@ -304,7 +305,8 @@ def render_corpus(
     for plan in plans:
         entry = previous.get(plan.name)
         folder = out / plan.name
-        if entry and entry.get("config") == _plain(asdict(plan.config)) and (folder / "sim.yaml").is_file():
+        same = entry and entry.get("config") == _plain(asdict(plan.config))
+        if same and entry.get("renderer_revision") == RENDERER_REVISION and (folder / "sim.yaml").is_file():
             entries[plan.name] = entry
             kept.append(plan.name)
         else:

@@ -25,10 +25,13 @@ from pvo_core.lie import rotation_to_quaternion, so3_exp, so3_log
 
 from .degrade import CameraModel, Degradations, ImageDegrader
 from .paths import heading_rotation, kitti_path, procedural_path
-from .world import PRESETS, WorldSpec, build_world
+from .world import PRESETS, SUPERSAMPLE, WorldSpec, build_world
 
 Array = NDArray[np.float64]
 GRAVITY_ENU = np.array([0.0, 0.0, -9.80665])
+#: Bumped whenever the same configuration renders different images (worlds, lighting, camera): a corpus keeps a
+#: sequence only if it was rendered by the same revision.
+RENDERER_REVISION = 2
 KITTI_FOCAL_PER_PIXEL_WIDTH = 718.856 / 1241.0  # KITTI's focal length scales with the image width
 
 
@@ -70,18 +73,26 @@ class SimConfig:
     imu: ImuNoise = field(default_factory=ImuNoise)
     gps_sigma: float = 0.0  # m, horizontal and vertical
     shadow_map: int = 1024
+    supersample: int = 0  # render at N times the size and average down; 0: the preset's default (SUPERSAMPLE)
     degradations: Degradations = field(default_factory=Degradations)
     camera: CameraModel = field(default_factory=CameraModel)
 
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
             raise ValueError(f"unknown preset {self.preset!r}: choose one of {', '.join(PRESETS)}")
+        if self.supersample not in (0, 1, 2, 3, 4):
+            raise ValueError(f"--supersample must be 0 (the preset's default), 1, 2, 3 or 4, got {self.supersample}")
         if not -60.0 <= self.pitch_deg <= 60.0:
             raise ValueError(f"--pitch must be in [-60, 60] degrees, got {self.pitch_deg}")
         if self.frames < 2:
             raise ValueError(f"--frames must be >= 2, got {self.frames}")
         if self.width < 16 or self.height < 16 or self.focal <= 0 or self.baseline <= 0 or self.rate <= 0:
             raise ValueError("image size >= 16 px, focal length, baseline and rate must be positive")
+
+    @property
+    def scale(self) -> int:
+        """The supersampling factor in effect."""
+        return self.supersample or SUPERSAMPLE[self.preset]
 
     @property
     def epoch(self) -> float:
@@ -254,7 +265,7 @@ def simulate(
         fovy,
         config.overcast,
         shadow_map=config.shadow_map,
-        image_size=(config.width, config.height),
+        image_size=(config.width * config.scale, config.height * config.scale),
         texture_poor=config.degradations.texture_poor,
         moving_vehicles=config.degradations.moving_vehicles,
     )
@@ -301,7 +312,8 @@ def _render(
     left_dir, right_dir = ("image_2", "image_3") if config.colour else ("image_0", "image_1")
     for d in (left_dir, right_dir, *(["depth_0"] if config.depth else [])):
         (out / d).mkdir(parents=True, exist_ok=True)
-    renderer = open_renderer(model, config.height, config.width)
+    scale = config.scale
+    renderer = open_renderer(model, config.height * scale, config.width * scale)
     rig = model.body("rig").mocapid[0]
     vehicles = [model.body(f"vehicle{j}").mocapid[0] for j in range(len(world.moving_paths))]
     light = model.light("sun").id
@@ -326,6 +338,8 @@ def _render(
             for index, (camera, folder) in enumerate((("left", left_dir), ("right", right_dir))):
                 renderer.update_scene(data, camera=camera, scene_option=option)
                 rgb = renderer.render()
+                if scale > 1:  # the mean of each scale x scale block: pixel centres stay where they were
+                    rgb = cv2.resize(rgb, (config.width, config.height), interpolation=cv2.INTER_AREA)
                 image = rgb if config.colour else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
                 image = degrade(image, k, index)
                 if config.colour:
@@ -394,6 +408,7 @@ def _write_sidecars(
     )
     meta = {
         "generator": "pvo sim",
+        "renderer_revision": RENDERER_REVISION,
         "config": asdict(config),
         "epoch_unix_s": float(times[0]),
         "world_T_cam0": poses[0].tolist(),

@@ -48,6 +48,7 @@ PLANETARY_CLIP = SimConfig(
     seed=102,
 )
 URBAN_LOOP = SimConfig(frames=300, path="loop", seed=0)
+URBAN_LOOP_KITTI_SIZE = SimConfig(frames=300, path="loop", seed=0, width=1241, height=376, focal=718.856)
 PLANETARY_RUN = SimConfig(preset="planetary", frames=127, path="s-curve", speed=3.0, latitude=75.4, seed=0)
 
 
@@ -164,9 +165,16 @@ def run_realism(options: RealismOptions, say: Callable[[str], None] = print) -> 
             inlier_ratio_vs_real=image_set.figures["inlier_ratio"] / max(real.figures["inlier_ratio"], 1e-9),
         )
     drift = {}
-    for label, sim in (("planetary s-curve, 75.4 N", PLANETARY_RUN), ("urban loop", URBAN_LOOP)):
+    runs = (
+        ("planetary s-curve, 75.4 N", PLANETARY_RUN),
+        ("urban loop", URBAN_LOOP),
+        ("urban loop 1241x376", URBAN_LOOP_KITTI_SIZE),
+    )
+    for label, sim in runs:
         say(f"rendering and running the VO on the {label} run ...")
-        folder = render(sim, options.work / label.split(",")[0].replace(" ", "_"), options.reuse)
+        folder = render(
+            sim, options.work / label.split(",")[0].replace(" ", "_").replace("1241x376", "kitti_size"), options.reuse
+        )
         sequence = KittiSequence(folder, poses_file=folder / "poses.txt")
         run = run_sequence(sequence, config)
         summary = summarise(run, sequence.poses)

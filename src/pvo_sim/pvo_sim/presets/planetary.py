@@ -56,7 +56,7 @@ def build(spec: WorldSpec, area: WorldArea, rng: np.random.Generator) -> WorldPa
 
     # gravel and rocks: sizes from a power law, most near the ground the camera sees
     for p, _ in zip(*along_path(path_xy, 2.0), strict=True):
-        for _ in range(rng.poisson(9.0)):
+        for _ in range(rng.poisson(spec.gravel)):
             q = p + rng.normal(0, 8.0, 2)
             size = float(np.clip(0.08 * (1.0 - rng.random()) ** (-1 / 1.2), 0.08, 1.6))
             # gravel may lie close to the path (the cameras pass over it); rocks keep the clearance

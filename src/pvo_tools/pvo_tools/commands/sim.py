@@ -35,6 +35,12 @@ def register(sub: Any) -> None:
     sim.add_argument("--start-time", default="2011-09-30T11:30:00Z", help="UTC time of the first frame (ISO 8601)")
     sim.add_argument("--overcast", action="store_true", help="diffuse light, no cast shadows")
     sim.add_argument("--night", action="store_true", help="render even when the sun is below the horizon")
+    sim.add_argument(
+        "--supersample",
+        type=int,
+        default=0,
+        help="render N times larger, average down (1-4; default 0: urban 1, planetary 2)",
+    )
     sim.add_argument("--depth", action="store_true", help="also write depth_0/*.png (16-bit, metres x 256)")
     sim.add_argument("--seed", type=int, default=0, help="world and noise seed (default 0)")
     sim.add_argument("--overwrite", action="store_true", help="replace an existing output directory")
@@ -113,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
         overcast=args.overcast,
         night=args.night,
         depth=args.depth,
+        supersample=args.supersample,
         seed=args.seed,
         imu=ImuNoise(args.gyro_noise, args.accel_noise, tuple(args.gyro_bias), tuple(args.accel_bias)),
         gps_sigma=args.gps_sigma,
