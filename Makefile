@@ -53,6 +53,7 @@ bench: build
 	$(ENV) && python benchmarks/bench_bags.py
 	$(ENV) && pvo bench vo $(PVO_DATA_DIR)/kitti/sequences/06 --poses $(PVO_DATA_DIR)/kitti/poses/06.txt --compare
 	$(ENV) && pvo bench sim --preset urban && pvo bench sim --preset planetary
+	$(ENV) && pvo bench realism -o runs/bench-realism
 	$(ENV) && pvo bench fusion --data $(PVO_DATA_DIR) --sequence 00
 	$(ENV) && pvo experiment sun-sim --data $(PVO_DATA_DIR) --through-nodes 05 --frames 1000 --rate 5 -o runs/bench-fusion-nodes
 	$(ENV) && pvo demo -o runs/bench-demo   # the main job's wall time (target: under 2 minutes for both samples)
