@@ -1,6 +1,7 @@
 """Dataset readers: KITTI odometry (+ sun CSVs), the simulator's IMU/GPS sidecars, the viso2-s
 results and the Devon Island rover navigation dataset."""
 
+from .corpus import CorpusManifest, CorpusSequence, read_corpus_manifest
 from .devon import DevonDataset, SunSensorReading, read_devon_sun_sensor, read_devon_sun_sensor_sampled
 from .kitti import KittiSequence, read_kitti_calibration, read_kitti_sun_csv, read_kitti_times
 from .sidecars import read_gps_csv, read_imu_csv
@@ -16,11 +17,14 @@ from .viso2s import (
 
 __all__ = [
     "SEQUENCE_DRIVES",
+    "CorpusManifest",
+    "CorpusSequence",
     "DevonDataset",
     "KittiSequence",
     "KittiSunSequence",
     "SunSensorReading",
     "Viso2sRun",
+    "read_corpus_manifest",
     "read_devon_sun_sensor",
     "read_devon_sun_sensor_sampled",
     "read_gps_csv",

@@ -1,0 +1,215 @@
+"""Datasets over KITTI-layout sequences (rendered corpora, real KITTI clips, Devon Island images).
+
+Images are decoded and resized once to the model's input, stored as one ``(N, C, H, W)`` uint8 ``.npy``
+per sequence, camera and size under a cache directory, and memory-mapped afterwards: decoding and
+resizing PNGs every epoch would dominate a CPU epoch (``pvo bench learning`` measures both). Truth comes
+from the sequence's sidecars through :mod:`pvo_core.readers`: poses (``poses.txt``), sun vectors
+(``sun.csv``, left camera optical frame) and IMU (``imu.csv``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from pvo_core.errors import DataFormatError
+from pvo_core.readers import read_corpus_manifest, read_imu_csv, read_kitti_sun_csv
+from pvo_core.trajectory import read_kitti_poses
+
+IMAGE_SUFFIXES = (".png", ".pgm", ".ppm", ".jpg")
+
+
+@dataclass(frozen=True)
+class DataSpec:
+    """What every sample carries: the left image at ``size`` (height, width), grey or colour, and optionally
+    the right image, the left image ``delta`` frames earlier with the relative pose T_k,k-delta, the sun
+    vector and the IMU reading."""
+
+    size: tuple[int, int]
+    colour: bool = False
+    right: bool = False
+    delta: int = 0
+    sun: bool = False
+    imu: bool = False
+
+    def __post_init__(self) -> None:
+        if len(self.size) != 2 or min(self.size) < 8:
+            raise ValueError(f"input size must be (height, width) of at least 8 px, got {self.size}")
+        if self.delta < 0:
+            raise ValueError(f"delta must be >= 0 frames, got {self.delta}")
+
+    @property
+    def channels(self) -> int:
+        return 3 if self.colour else 1
+
+
+@dataclass(frozen=True)
+class Source:
+    """One sequence directory (KITTI layout) and where it came from."""
+
+    root: Path
+    name: str
+    split: str = ""
+
+    def images(self, side: str, colour: bool) -> list[Path]:
+        folder = self.root / (
+            ("image_2" if side == "left" else "image_3") if colour else ("image_0" if side == "left" else "image_1")
+        )
+        if not folder.is_dir():
+            raise DataFormatError(folder, "image directory not found")
+        paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not paths:
+            raise DataFormatError(folder, "no images in directory")
+        return paths
+
+
+def corpus_sources(corpus: str | Path, split: str) -> list[Source]:
+    """The sequences of one split of a `pvo sim corpus` corpus."""
+    manifest = read_corpus_manifest(corpus)
+    sources = [Source(s.root, s.name, s.split) for s in manifest.split(split)]
+    if not sources:
+        raise ValueError(f"{manifest.path}: no sequence in the {split} split")
+    return sources
+
+
+def _cache_key(paths: Sequence[Path], size: tuple[int, int], colour: bool) -> str:
+    """Changes whenever the images, the size or the colour mode do (paths, sizes and mtimes of the files)."""
+    digest = hashlib.sha256(f"{size}:{colour}:{len(paths)}".encode())
+    for path in paths:
+        stat = path.stat()
+        digest.update(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
+    return digest.hexdigest()[:24]
+
+
+def load_resized(path: Path, size: tuple[int, int], colour: bool) -> NDArray[np.uint8]:
+    """One image as (C, H, W) uint8 at ``size`` (area-averaged when shrinking); one line naming a bad file."""
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR if colour else cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise DataFormatError(path, "not a readable image")
+    height, width = size
+    if image.shape[:2] != (height, width):
+        shrinking = image.shape[0] > height
+        image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
+    if colour:
+        return np.ascontiguousarray(image[:, :, ::-1].transpose(2, 0, 1))  # BGR -> RGB, channels first
+    return image[None]
+
+
+def cached_images(
+    paths: Sequence[Path], size: tuple[int, int], colour: bool, cache_dir: Path | None, progress: Callable[[], None] | None = None
+) -> NDArray[np.uint8]:
+    """(N, C, H, W) uint8 of ``paths`` at ``size``: from the cache when present, else decoded once and stored
+    (written to a temporary name and renamed: an interrupted run never leaves a half-written cache)."""
+    if cache_dir is None:
+        return np.stack([load_resized(p, size, colour) for p in paths])
+    cache_dir = Path(cache_dir)
+    file = cache_dir / f"{_cache_key(paths, size, colour)}.npy"
+    if file.is_file():
+        try:
+            return np.load(file, mmap_mode="r")
+        except (ValueError, OSError):
+            file.unlink()  # a damaged cache entry is rebuilt
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    channels = 3 if colour else 1
+    temporary = file.with_suffix(f".{os.getpid()}.tmp.npy")
+    array = np.lib.format.open_memmap(temporary, mode="w+", dtype=np.uint8, shape=(len(paths), channels, *size))
+    for i, path in enumerate(paths):
+        array[i] = load_resized(path, size, colour)
+        if progress:
+            progress()
+    array.flush()
+    del array
+    os.replace(temporary, file)
+    return np.load(file, mmap_mode="r")
+
+
+@dataclass
+class _Sequence:
+    source: Source
+    left: NDArray[np.uint8]
+    right: NDArray[np.uint8] | None
+    poses: NDArray[np.float64] | None
+    sun: NDArray[np.float64] | None
+    imu: NDArray[np.float64] | None
+
+
+@dataclass
+class FrameDataset(torch.utils.data.Dataset):
+    """Samples (one per frame k >= delta of every sequence) as dicts of tensors:
+
+    ``left`` (C, H, W) float32 in [0, 1]; ``right``, ``previous`` (the left image at k - delta) likewise;
+    ``relative`` (4, 4) T_k,k-delta (maps points from the earlier camera frame to the later one); ``sun``
+    (3,) unit vector towards the sun in the left camera optical frame; ``imu`` (6,) angular rate (rad/s)
+    and specific force (m/s²); ``sequence``, ``frame`` (ints)."""
+
+    sources: Sequence[Source]
+    spec: DataSpec
+    cache_dir: Path | None = None
+    progress: Callable[[], None] | None = None
+    sequences: list[_Sequence] = field(init=False, default_factory=list)
+    index: NDArray[np.int64] = field(init=False)
+
+    def __post_init__(self) -> None:
+        spec = self.spec
+        rows = []
+        for number, source in enumerate(self.sources):
+            left_paths = source.images("left", spec.colour)
+            left = cached_images(left_paths, spec.size, spec.colour, self.cache_dir, self.progress)
+            right = None
+            if spec.right:
+                right_paths = source.images("right", spec.colour)
+                if len(right_paths) != len(left_paths):
+                    raise DataFormatError(source.root, f"{len(left_paths)} left images but {len(right_paths)} right")
+                right = cached_images(right_paths, spec.size, spec.colour, self.cache_dir, self.progress)
+            poses = self._truth(source, "poses.txt", read_kitti_poses, len(left_paths)) if spec.delta else None
+            sun = self._truth(source, "sun.csv", read_kitti_sun_csv, len(left_paths)) if spec.sun else None
+            imu = self._truth(source, "imu.csv", lambda p: read_imu_csv(p)[:, 1:], len(left_paths)) if spec.imu else None
+            self.sequences.append(_Sequence(source, left, right, poses, sun, imu))
+            frames = np.arange(spec.delta, len(left_paths))
+            rows.append(np.column_stack([np.full(len(frames), number), frames]))
+        self.index = np.vstack(rows) if rows else np.zeros((0, 2), np.int64)
+        if len(self.index) == 0:
+            raise ValueError("the dataset holds no sample (no sequence, or every sequence shorter than delta + 1)")
+
+    @staticmethod
+    def _truth(source: Source, name: str, reader: Callable[[Path], NDArray], frames: int) -> NDArray[np.float64]:
+        path = source.root / name
+        if not path.is_file():
+            raise DataFormatError(path, f"needed by the dataset but missing ({source.name})")
+        values = np.asarray(reader(path), dtype=np.float64)
+        if len(values) != frames:
+            raise DataFormatError(path, f"{len(values)} rows for {frames} images")
+        return values
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, item: int) -> dict[str, torch.Tensor]:
+        number, k = (int(v) for v in self.index[item])
+        sequence = self.sequences[number]
+        sample = {"left": _float(sequence.left[k]), "sequence": torch.tensor(number), "frame": torch.tensor(k)}
+        if sequence.right is not None:
+            sample["right"] = _float(sequence.right[k])
+        if self.spec.delta:
+            earlier = k - self.spec.delta
+            sample["previous"] = _float(sequence.left[earlier])
+            assert sequence.poses is not None
+            relative = np.linalg.inv(sequence.poses[k]) @ sequence.poses[earlier]
+            sample["relative"] = torch.from_numpy(relative.astype(np.float32))
+        if sequence.sun is not None:
+            sample["sun"] = torch.from_numpy(sequence.sun[k].astype(np.float32))
+        if sequence.imu is not None:
+            sample["imu"] = torch.from_numpy(sequence.imu[k].astype(np.float32))
+        return sample
+
+
+def _float(image: NDArray[np.uint8]) -> torch.Tensor:
+    return torch.from_numpy(np.asarray(image, dtype=np.float32) / 255.0)

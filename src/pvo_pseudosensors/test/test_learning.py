@@ -1,0 +1,283 @@
+"""The learning harness: datasets and their cache, the training loop (loss falls, determinism, resume,
+DDP through torchrun), checkpoints and every bad-checkpoint case. Tiny data and models: seconds."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from pvo_pseudosensors.learning import (
+    DataSpec,
+    FrameDataset,
+    ModelFileError,
+    Source,
+    TrainConfig,
+    fit,
+    load_model,
+    save_model,
+)
+from pvo_pseudosensors.sun_bcnn import SunBCNN, SunBCNNConfig, SunTask
+
+SIZE = (24, 64)  # the tiny model's input (height, width)
+TINY = SunBCNNConfig(height=SIZE[0], width=SIZE[1], widths=(4, 8), hidden=8, dropout=0.1)
+
+
+def write_sequence(root: Path, frames: int = 12, seed: int = 0, size: tuple[int, int] = (48, 128)) -> Path:
+    """A KITTI-layout sequence whose brightness ramps towards the sun (learnable from one image)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    (root / "image_0").mkdir(parents=True)
+    (root / "image_1").mkdir()
+    height, width = size
+    v, u = np.mgrid[0:height, 0:width].astype(float)
+    u, v = (u - width / 2) / width, (v - height / 2) / height
+    suns, poses = [], []
+    for k in range(frames):
+        sun = rng.normal(size=3)
+        sun[2] = abs(sun[2])
+        sun /= np.linalg.norm(sun)
+        image = 128 + 200 * (sun[0] * u + sun[1] * v) + rng.normal(0, 1, (height, width))
+        for folder in ("image_0", "image_1"):
+            cv2.imwrite(str(root / folder / f"{k:06d}.png"), np.clip(image, 0, 255).astype(np.uint8))
+        suns.append(f"image_0/{k:06d}.png,{sun[0]:.9f},{sun[1]:.9f},{sun[2]:.9f}\n")
+        pose = np.eye(4)
+        pose[2, 3] = 0.8 * k  # driving forward along the optical axis
+        poses.append(" ".join(f"{x:.9e}" for x in pose[:3].reshape(-1)) + "\n")
+    (root / "sun.csv").write_text("".join(suns))
+    (root / "poses.txt").write_text("".join(poses))
+    return root
+
+
+@pytest.fixture(scope="module")
+def sequences(tmp_path_factory) -> dict[str, list[Source]]:
+    base = tmp_path_factory.mktemp("sequences")
+    train = [Source(write_sequence(base / f"t{i}", frames=16, seed=i), f"t{i}", "train") for i in range(4)]
+    validation = [Source(write_sequence(base / "v0", frames=16, seed=10), "v0", "validation")]
+    return {"train": train, "validation": validation}
+
+
+def datasets(sequences, cache: Path | None = None) -> tuple[FrameDataset, FrameDataset]:
+    spec = TINY.spec
+    return FrameDataset(sequences["train"], spec, cache), FrameDataset(sequences["validation"], spec, cache)
+
+
+# --- data -----------------------------------------------------------------------------------------
+
+
+def test_samples_carry_resized_images_and_truth(sequences, tmp_path: Path) -> None:
+    spec = DataSpec(SIZE, right=True, delta=2, sun=True)
+    data = FrameDataset(sequences["train"][:1], spec, tmp_path / "cache")
+    assert len(data) == 16 - 2
+    sample = data[0]
+    assert sample["left"].shape == (1, *SIZE) and sample["left"].dtype == torch.float32
+    assert 0.0 <= float(sample["left"].min()) and float(sample["left"].max()) <= 1.0
+    assert sample["right"].shape == sample["previous"].shape == (1, *SIZE)
+    assert int(sample["frame"]) == 2
+    # T_k,k-2 maps a point ahead of the earlier camera into the later one: 1.6 m closer
+    np.testing.assert_allclose(sample["relative"].numpy()[:3, 3], [0.0, 0.0, -1.6], atol=1e-6)
+    assert float(torch.linalg.norm(sample["sun"])) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_the_cache_is_built_once_and_rebuilt_when_images_change(sequences, tmp_path: Path) -> None:
+    import cv2
+
+    cache = tmp_path / "cache"
+    decoded = []
+    FrameDataset(sequences["train"][:1], TINY.spec, cache, progress=lambda: decoded.append(1))
+    assert len(decoded) == 16 and len(list(cache.glob("*.npy"))) == 1
+    FrameDataset(sequences["train"][:1], TINY.spec, cache, progress=lambda: decoded.append(1))
+    assert len(decoded) == 16  # the second dataset decoded nothing
+    cached = FrameDataset(sequences["train"][:1], TINY.spec, cache)[3]["left"]
+    direct = FrameDataset(sequences["train"][:1], TINY.spec, None)[3]["left"]
+    assert torch.equal(cached, direct)
+    copy = tmp_path / "copy"
+    import shutil
+
+    shutil.copytree(sequences["train"][0].root, copy)
+    image = cv2.imread(str(copy / "image_0" / "000003.png"), cv2.IMREAD_GRAYSCALE)
+    cv2.imwrite(str(copy / "image_0" / "000003.png"), 255 - image)
+    changed = FrameDataset([Source(copy, "copy")], TINY.spec, cache)
+    assert not torch.equal(changed[3]["left"], cached)
+
+
+def test_missing_truth_is_one_line_naming_the_file(tmp_path: Path) -> None:
+    root = write_sequence(tmp_path / "s", frames=3)
+    (root / "sun.csv").unlink()
+    with pytest.raises(ValueError, match=r"s/sun.csv: needed by the dataset but missing"):
+        FrameDataset([Source(root, "s")], TINY.spec)
+
+
+# --- training -------------------------------------------------------------------------------------
+
+CONFIG = TrainConfig(epochs=6, batch_size=16, learning_rate=1e-2, schedule="cosine", patience=0, seed=3, threads=1)
+
+
+def weights(out: Path) -> dict[str, torch.Tensor]:
+    from safetensors.torch import load_file
+
+    return load_file(str(out / "weights.safetensors"))
+
+
+def test_training_lowers_the_loss_and_writes_its_records(sequences, tmp_path: Path) -> None:
+    train, validation = datasets(sequences)
+    result = fit(SunTask(TINY), train, validation, replace(CONFIG, epochs=12), tmp_path / "run", say=lambda _: None)
+    first, last = result.history[0], result.history[-1]
+    assert last["train_loss"] < 0.6 * first["train_loss"]
+    assert result.best_validation < 0.6 * first["validation_loss"]
+    for name in ("weights.safetensors", "model.yaml", "history.csv", "loss.png", "checkpoint.pt"):
+        assert (tmp_path / "run" / name).is_file(), name
+    assert len((tmp_path / "run" / "history.csv").read_text().splitlines()) == 13
+    model, card = load_model(tmp_path / "run", "sun-bcnn", lambda c: SunBCNN(SunBCNNConfig.from_card(c)), SIZE)
+    assert card.validation["loss"] == pytest.approx(result.best_validation)
+    assert card.training["best_epoch"] == result.best_epoch
+
+
+def test_same_command_same_weights(sequences, tmp_path: Path) -> None:
+    train, validation = datasets(sequences)
+    for name in ("a", "b"):
+        fit(SunTask(TINY), train, validation, CONFIG, tmp_path / name, say=lambda _: None)
+    a, b = weights(tmp_path / "a"), weights(tmp_path / "b")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    fit(SunTask(TINY), train, validation, replace(CONFIG, seed=4), tmp_path / "c", say=lambda _: None)
+    c = weights(tmp_path / "c")
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_resume_reaches_the_weights_of_an_uninterrupted_run(sequences, tmp_path: Path) -> None:
+    train, validation = datasets(sequences)
+    config = replace(CONFIG, epochs=5)
+    whole = fit(SunTask(TINY), train, validation, config, tmp_path / "whole", say=lambda _: None)
+
+    def interrupt(line: str) -> None:
+        if line.startswith("epoch 3/"):
+            raise KeyboardInterrupt  # killed right after epoch 3 was checkpointed
+
+    with pytest.raises(KeyboardInterrupt):
+        fit(SunTask(TINY), train, validation, config, tmp_path / "cut", say=interrupt)
+    said: list[str] = []
+    resumed = fit(SunTask(TINY), train, validation, config, tmp_path / "cut", resume=True, say=said.append)
+    assert said[0].startswith("resuming after epoch 3 of 5")
+    assert [r["validation_loss"] for r in resumed.history] == [r["validation_loss"] for r in whole.history]
+    a, b = weights(tmp_path / "whole"), weights(tmp_path / "cut")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(ValueError, match="other training settings"):
+        fit(SunTask(TINY), train, validation, replace(config, learning_rate=5e-2), tmp_path / "cut", resume=True)
+
+
+def test_early_stopping_stops_after_patience(sequences, tmp_path: Path) -> None:
+    train, validation = datasets(sequences)
+    config = replace(CONFIG, epochs=40, patience=2, learning_rate=0.3, schedule="constant")  # far too large: no progress
+    result = fit(SunTask(TINY), train, validation, config, tmp_path / "s", say=lambda _: None)
+    assert result.stopped_early and result.epochs_run < 40
+    assert result.epochs_run - result.best_epoch == 2
+
+
+DDP_SCRIPT = """
+import sys
+from pathlib import Path
+from pvo_pseudosensors.learning import FrameDataset, Source, TrainConfig, fit
+from pvo_pseudosensors.sun_bcnn import SunBCNNConfig, SunTask
+
+roots, out = sys.argv[1:-1], Path(sys.argv[-1])
+config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.0)
+train = FrameDataset([Source(Path(r), Path(r).name) for r in roots[:-1]], config.spec)
+validation = FrameDataset([Source(Path(roots[-1]), "v")], config.spec)
+fit(SunTask(config), train, validation, TrainConfig(epochs=3, batch_size=16, learning_rate=3e-3, patience=0, seed=1, threads=1),
+    out, say=lambda _: None)
+"""
+
+
+def test_two_processes_under_torchrun_match_one(sequences, tmp_path: Path) -> None:
+    script = tmp_path / "train.py"
+    script.write_text(DDP_SCRIPT)
+    roots = [str(s.root) for s in sequences["train"]] + [str(sequences["validation"][0].root)]
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    single = subprocess.run([sys.executable, str(script), *roots, str(tmp_path / "one")], env=env, capture_output=True, text=True)
+    assert single.returncode == 0, single.stderr[-2000:]
+    torchrun = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-port", "29561"]
+    double = subprocess.run([*torchrun, str(script), *roots, str(tmp_path / "two")], env=env, capture_output=True, text=True)
+    assert double.returncode == 0, double.stderr[-2000:]
+    one, two = weights(tmp_path / "one"), weights(tmp_path / "two")
+    for name in one:
+        torch.testing.assert_close(two[name], one[name], atol=1e-5, rtol=1e-4)
+
+
+# --- checkpoints ----------------------------------------------------------------------------------
+
+
+def build(card) -> SunBCNN:
+    return SunBCNN(SunBCNNConfig.from_card(card))
+
+
+@pytest.fixture()
+def saved(tmp_path: Path) -> Path:
+    torch.manual_seed(0)
+    model = SunBCNN(TINY)
+    return save_model(tmp_path / "model", model, SunTask(TINY).card())
+
+
+def test_checkpoint_round_trip(saved: Path) -> None:
+    torch.manual_seed(0)
+    original = SunBCNN(TINY).eval()
+    model, card = load_model(saved, "sun-bcnn", build, SIZE)
+    image = torch.rand(2, 1, *SIZE)
+    torch.testing.assert_close(model(image), original(image))
+    assert card.input["size"] == list(SIZE) and card.created
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        ("no directory", "model directory not found"),
+        ("no card", "model.yaml: model card not found"),
+        ("no weights", "weights.safetensors: weights file not found"),
+        ("truncated", "weights.safetensors: truncated or corrupt weights file"),
+        ("corrupt", "weights.safetensors: truncated or corrupt weights file"),
+        ("other architecture", "model.yaml: a 'dpc-net' model, not 'sun-bcnn'"),
+        ("card without fields", "model.yaml: model card lacks hyperparameters"),
+        ("unreadable card", "model.yaml: unreadable model card"),
+        ("other widths", "weights do not fit|has shape"),
+    ],
+)
+def test_each_bad_checkpoint_is_one_line_naming_the_file(saved: Path, damage: str, message: str) -> None:
+    import shutil
+
+    import yaml
+
+    weights_file, card_file = saved / "weights.safetensors", saved / "model.yaml"
+    card = yaml.safe_load(card_file.read_text())
+    if damage == "no directory":
+        shutil.rmtree(saved)
+    elif damage == "no card":
+        card_file.unlink()
+    elif damage == "no weights":
+        weights_file.unlink()
+    elif damage == "truncated":
+        weights_file.write_bytes(weights_file.read_bytes()[:100])
+    elif damage == "corrupt":
+        data = bytearray(weights_file.read_bytes())
+        data[:8] = b"\xff" * 8  # the header length
+        weights_file.write_bytes(bytes(data))
+    elif damage == "other architecture":
+        card_file.write_text(yaml.safe_dump({**card, "architecture": "dpc-net"}))
+    elif damage == "card without fields":
+        card_file.write_text(yaml.safe_dump({"architecture": "sun-bcnn", "input": card["input"]}))
+    elif damage == "unreadable card":
+        card_file.write_text("architecture: [unclosed")
+    elif damage == "other widths":
+        card_file.write_text(yaml.safe_dump({**card, "hyperparameters": {**card["hyperparameters"], "widths": [4, 16]}}))
+    with pytest.raises(ModelFileError, match=message) as error:
+        load_model(saved, "sun-bcnn", build, SIZE)
+    assert "\n" not in str(error.value) and str(saved) in str(error.value)
+
+
+def test_another_input_size_is_refused(saved: Path) -> None:
+    with pytest.raises(ModelFileError, match=r"model.yaml: made for 24x64 \(HxW\) input, not 48x128"):
+        load_model(saved, "sun-bcnn", build, (48, 128))
