@@ -134,7 +134,7 @@ def test_training_lowers_the_loss_and_writes_its_records(sequences, tmp_path: Pa
     for name in ("weights.safetensors", "model.yaml", "history.csv", "loss.png", "checkpoint.pt"):
         assert (tmp_path / "run" / name).is_file(), name
     assert len((tmp_path / "run" / "history.csv").read_text().splitlines()) == 13
-    model, card = load_model(tmp_path / "run", "sun-bcnn", lambda c: SunBCNN(SunBCNNConfig.from_card(c)), SIZE)
+    _, card = load_model(tmp_path / "run", "sun-bcnn", lambda c: SunBCNN(SunBCNNConfig.from_card(c)), SIZE)
     assert card.validation["loss"] == pytest.approx(result.best_validation)
     assert card.training["best_epoch"] == result.best_epoch
 
