@@ -40,3 +40,41 @@ def zenith_azimuth_to_vector(zenith: ArrayLike, azimuth: ArrayLike) -> Array:
     azi = np.asarray(azimuth, dtype=float)
     sin_zen = np.sin(zen)
     return np.stack([sin_zen * np.sin(azi), -np.cos(zen), sin_zen * np.cos(azi)], axis=-1)
+
+
+def wrap_angle(angle: ArrayLike) -> Array:
+    """Angles (rad) wrapped to (-pi, pi]."""
+    return -np.mod(-np.asarray(angle, dtype=float) + np.pi, 2.0 * np.pi) + np.pi
+
+
+def sample_mean_and_covariance(samples: ArrayLike, tau: float = np.inf) -> tuple[Array, Array]:
+    """Sun-BCNN's MC estimates (thesis §5.3) from stochastic samples (S, N, 3) of unit vectors.
+
+    Method I: the mean direction is the normalised mean of the sample vectors, (N, 3). Method II: the
+    covariance (N, 2, 2) over (zenith, azimuth) of the samples' angles about the mean's (azimuth wrapped),
+    plus tau^-1 I (the model precision of the MC-dropout variance; ``inf`` adds nothing)."""
+    draws = np.asarray(samples, dtype=float)
+    if draws.ndim != 3 or draws.shape[2] != 3 or draws.shape[0] < 2:
+        raise ValueError(f"samples must be (S >= 2, N, 3), got {draws.shape}")
+    mean = draws.mean(axis=0)
+    mean /= np.linalg.norm(mean, axis=1, keepdims=True)
+    zenith, azimuth = unit_zenith_azimuth(draws / np.linalg.norm(draws, axis=2, keepdims=True))
+    mean_zenith, mean_azimuth = unit_zenith_azimuth(mean)
+    deviations = np.stack([zenith - mean_zenith, wrap_angle(azimuth - mean_azimuth)], axis=2)  # (S, N, 2)
+    covariance = np.einsum("sni,snj->nij", deviations, deviations) / (draws.shape[0] - 1)
+    if np.isfinite(tau):
+        covariance = covariance + np.eye(2) / tau
+    return mean, covariance
+
+
+def angular_errors(predicted: ArrayLike, truth: ArrayLike) -> dict[str, Array]:
+    """Per-vector errors (rad) of predicted against true unit vectors (N, 3): the angle between them, and the
+    absolute zenith and (wrapped) azimuth differences."""
+    p = np.asarray(predicted, dtype=float)
+    t = np.asarray(truth, dtype=float)
+    p = p / np.linalg.norm(p, axis=1, keepdims=True)
+    t = t / np.linalg.norm(t, axis=1, keepdims=True)
+    pz, pa = unit_zenith_azimuth(p)
+    tz, ta = unit_zenith_azimuth(t)
+    angle = np.arctan2(np.linalg.norm(np.cross(p, t), axis=1), np.sum(p * t, axis=1))
+    return {"vector": angle, "zenith": np.abs(pz - tz), "azimuth": np.abs(wrap_angle(pa - ta))}

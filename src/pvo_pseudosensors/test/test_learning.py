@@ -22,7 +22,8 @@ from pvo_pseudosensors.learning import (
     load_model,
     save_model,
 )
-from pvo_pseudosensors.sun_bcnn import SunBCNN, SunBCNNConfig, SunTask
+from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
+from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask
 
 SIZE = (24, 64)  # the tiny model's input (height, width)
 TINY = SunBCNNConfig(height=SIZE[0], width=SIZE[1], widths=(4, 8), hidden=8, dropout=0.1)
@@ -183,7 +184,8 @@ DDP_SCRIPT = """
 import sys
 from pathlib import Path
 from pvo_pseudosensors.learning import FrameDataset, Source, TrainConfig, fit
-from pvo_pseudosensors.sun_bcnn import SunBCNNConfig, SunTask
+from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
+from pvo_pseudosensors.sun_bcnn.model import SunTask
 
 roots, out = sys.argv[1:-1], Path(sys.argv[-1])
 config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.0)

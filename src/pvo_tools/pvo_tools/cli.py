@@ -41,6 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:2] == ["sim", "corpus"]:  # `pvo sim OUT` takes a folder; `pvo sim corpus OUT` is its own command
         argv = ["sim-corpus", *argv[2:]]
     args = build_parser().parse_args(argv)
+    args.argv = argv  # the command line as given (model cards record how their weights were made)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _terminate)
     try:

@@ -4,7 +4,7 @@ results and the Devon Island rover navigation dataset."""
 from .corpus import CorpusManifest, CorpusSequence, read_corpus_manifest
 from .devon import DevonDataset, SunSensorReading, read_devon_sun_sensor, read_devon_sun_sensor_sampled
 from .kitti import KittiSequence, read_kitti_calibration, read_kitti_sun_csv, read_kitti_times
-from .sidecars import read_gps_csv, read_imu_csv
+from .sidecars import SUN_PREDICTIONS_HEADER, read_gps_csv, read_imu_csv, read_sun_predictions_csv
 from .viso2s import (
     SEQUENCE_DRIVES,
     KittiSunSequence,
@@ -17,6 +17,7 @@ from .viso2s import (
 
 __all__ = [
     "SEQUENCE_DRIVES",
+    "SUN_PREDICTIONS_HEADER",
     "CorpusManifest",
     "CorpusSequence",
     "DevonDataset",
@@ -33,6 +34,7 @@ __all__ = [
     "read_kitti_sun_csv",
     "read_kitti_sun_sequence",
     "read_kitti_times",
+    "read_sun_predictions_csv",
     "read_viso2s",
     "read_viso2s_sequence",
     "viso2s_path",

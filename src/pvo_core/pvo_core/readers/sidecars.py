@@ -1,4 +1,5 @@
-"""Readers of the simulator's sidecar files (``imu.csv``, ``gps.csv``), times relative to the first frame."""
+"""Readers of the simulator's sidecar files (``imu.csv``, ``gps.csv``, times relative to the first frame) and of
+the pseudo-sensors' prediction files (Sun-BCNN's ``pred.csv``)."""
 
 from __future__ import annotations
 
@@ -47,3 +48,17 @@ def read_imu_csv(path: Path) -> Array:
 def read_gps_csv(path: Path) -> Array:
     """(N, 4): t [s from the first frame], latitude, longitude (deg), altitude (m)."""
     return _read_csv(path, "t,latitude,longitude,altitude", 4)
+
+
+SUN_PREDICTIONS_HEADER = "frame,sx,sy,sz,zenith,azimuth,c_zz,c_za,c_az,c_aa"
+
+
+def read_sun_predictions_csv(path: Path) -> Array:
+    """(N, 10) rows of a Sun-BCNN prediction file: frame, the unit sun vector in the camera optical frame,
+    zenith and azimuth (rad), and the 2x2 covariance over (zenith, azimuth) row-major (rad²)."""
+    rows = _read_csv(Path(path), SUN_PREDICTIONS_HEADER, 10)
+    norms = np.linalg.norm(rows[:, 1:4], axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+    if bad.size:
+        raise DataFormatError(path, f"sun vector of frame {int(rows[bad[0], 0])} is not unit length", int(bad[0]) + 2)
+    return rows

@@ -22,31 +22,9 @@ from pvo_core.errors import DataFormatError
 from pvo_core.readers import read_corpus_manifest, read_imu_csv, read_kitti_sun_csv
 from pvo_core.trajectory import read_kitti_poses
 
+from .spec import DataSpec
+
 IMAGE_SUFFIXES = (".png", ".pgm", ".ppm", ".jpg")
-
-
-@dataclass(frozen=True)
-class DataSpec:
-    """What every sample carries: the left image at ``size`` (height, width), grey or colour, and optionally
-    the right image, the left image ``delta`` frames earlier with the relative pose T_k,k-delta, the sun
-    vector and the IMU reading."""
-
-    size: tuple[int, int]
-    colour: bool = False
-    right: bool = False
-    delta: int = 0
-    sun: bool = False
-    imu: bool = False
-
-    def __post_init__(self) -> None:
-        if len(self.size) != 2 or min(self.size) < 8:
-            raise ValueError(f"input size must be (height, width) of at least 8 px, got {self.size}")
-        if self.delta < 0:
-            raise ValueError(f"delta must be >= 0 frames, got {self.delta}")
-
-    @property
-    def channels(self) -> int:
-        return 3 if self.colour else 1
 
 
 @dataclass(frozen=True)

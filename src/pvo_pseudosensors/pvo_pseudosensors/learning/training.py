@@ -172,6 +172,8 @@ def fit(
     model card (corpus, commands, notes)."""
     out = Path(out)
     processes = join_processes()
+    if not processes.main:  # one voice: the other processes of a torchrun stay quiet
+        say = _silent
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     torch.use_deterministic_algorithms(True)
@@ -283,6 +285,10 @@ def fit(
     if processes.main and history:
         _plot(out, history)
     return TrainResult(out, best_epoch + 1, best, len(history), stopped, history, seconds=time.perf_counter() - started)
+
+
+def _silent(_: str) -> None:
+    pass
 
 
 def _write_history(out: Path, history: list[dict[str, float]]) -> None:

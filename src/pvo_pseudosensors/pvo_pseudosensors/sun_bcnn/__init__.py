@@ -1,5 +1,8 @@
-"""Sun-BCNN (thesis ch. 5): the sun direction from one image, with its uncertainty by MC dropout."""
+"""Sun-BCNN (thesis ch. 5): the sun direction from one image, with its uncertainty by MC dropout.
 
-from .model import SunBCNN, SunBCNNConfig, SunTask, predict_sun
+:mod:`.config` (settings, no torch), :mod:`.model` (network and training task), :mod:`.infer` (prediction
+on a sequence, the prediction file, evaluation)."""
 
-__all__ = ["SunBCNN", "SunBCNNConfig", "SunTask", "predict_sun"]
+from .config import ARCHITECTURE, SunBCNNConfig
+
+__all__ = ["ARCHITECTURE", "SunBCNNConfig"]

@@ -16,5 +16,6 @@ COMMANDS = (
     "corpus",
     "demo",
     "experiment",
+    "models",
     "bench",
 )

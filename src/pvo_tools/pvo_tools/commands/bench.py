@@ -51,6 +51,12 @@ def register(sub: Any) -> None:
         "--compare", action="append", default=[], metavar="LABEL=DIR", help="also measure this rendered folder (repeatable)"
     )
 
+    blearn = kinds.add_parser("learning", help="learning harness: data-loader samples/s cold and cached, training-step time")
+    blearn.set_defaults(handler=bench_learning)
+    blearn.add_argument("--corpus", type=Path, default=Path("data/corpus"), help="corpus (default data/corpus)")
+    blearn.add_argument("--sequences", type=int, default=2, help="sequences to load (default 2)")
+    blearn.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
+
     bsoak = kinds.add_parser("soak", help="a sample bag looped through the real node graph: memory, lost frames, latency drift")
     bsoak.set_defaults(handler=bench_soak)
     bsoak.add_argument("--bag", type=Path, help="bag to loop (default bags/sim_urban_sample)")
@@ -155,6 +161,65 @@ def bench_sim(args: argparse.Namespace) -> int:
         world = build_world(WorldSpec(args.preset), poses, 1.65)
         seconds = time.perf_counter() - start
         print(f"world generation, {frames} frames ({frames * 0.8:.0f} m): {seconds:.3f} s, {world.xml.count('<geom')} geoms")
+    return 0
+
+
+def bench_learning(args: argparse.Namespace) -> int:
+    """Samples/s of the dataset decoding PNGs (cold), building the cache, and reading the cache (warm); the
+    time of one Sun-BCNN training step (batch 32) at two input sizes."""
+    import shutil
+
+    import torch
+    from pvo_core.readers import read_corpus_manifest
+    from pvo_pseudosensors.learning import DataSpec, FrameDataset, Source
+    from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
+    from pvo_pseudosensors.sun_bcnn.model import SunTask
+
+    torch.set_num_threads(args.threads)
+    sequences = read_corpus_manifest(args.corpus).sequences[: args.sequences]
+    sources = [Source(s.root, s.name, s.split) for s in sequences]
+    spec = DataSpec((94, 310), sun=True)
+
+    def sweep(data: FrameDataset) -> float:
+        start = time.perf_counter()
+        for i in range(len(data)):
+            data[i]
+        return len(data) / (time.perf_counter() - start)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        uncached = FrameDataset(sources, spec, None)  # decodes and resizes every PNG into memory
+        cold = len(uncached) / (time.perf_counter() - start)
+        start = time.perf_counter()
+        FrameDataset(sources, spec, Path(tmp))
+        build = len(uncached) / (time.perf_counter() - start)
+        start = time.perf_counter()
+        cached = FrameDataset(sources, spec, Path(tmp))
+        opening = time.perf_counter() - start
+        warm = sweep(cached)
+        shutil.rmtree(tmp, ignore_errors=True)
+    print(f"dataset over {len(sources)} corpus sequences ({len(uncached)} samples at 94x310, grey):")
+    print(f"  decoding the PNGs (what every epoch would cost without a cache): {cold:8.1f} samples/s")
+    print(f"  building the cache (decode, resize, write .npy once):            {build:8.1f} samples/s")
+    print(f"  from the cache (memory-mapped; opening took {opening * 1e3:.0f} ms):          {warm:8.1f} samples/s")
+    for height, width in ((94, 310), (120, 400)):
+        task = SunTask(SunBCNNConfig(height=height, width=width))
+        model = task.build()
+        optimizer = torch.optim.AdamW(model.parameters(), lr=1e-3)
+        batch = {"left": torch.rand(32, 1, height, width), "sun": torch.nn.functional.normalize(torch.randn(32, 3), dim=1)}
+        times = []
+        for _ in range(6):
+            start = time.perf_counter()
+            optimizer.zero_grad()
+            task.loss(model, batch).backward()
+            optimizer.step()
+            times.append(time.perf_counter() - start)
+        parameters = sum(p.numel() for p in model.parameters())
+        median = sorted(times[1:])[2]
+        print(
+            f"Sun-BCNN training step, batch 32 at {height}x{width} ({parameters / 1e3:.0f} k parameters, "
+            f"{args.threads} threads): median {1e3 * median:.0f} ms ({32 / median:.0f} samples/s)"
+        )
     return 0
 
 

@@ -1,0 +1,41 @@
+"""Sun-BCNN's MC estimates (Method I mean, Method II covariance) and angular errors against direct computations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pvo_core.sun import angular_errors, sample_mean_and_covariance, zenith_azimuth_to_vector
+
+
+def test_method_two_covariance_is_the_sample_covariance_of_the_angles() -> None:
+    rng = np.random.default_rng(0)
+    zenith = 1.0 + rng.normal(0, 0.05, 200)
+    azimuth = 0.3 + rng.normal(0, 0.1, 200)
+    samples = zenith_azimuth_to_vector(zenith, azimuth)[:, None, :]  # (S, 1, 3)
+    mean, covariance = sample_mean_and_covariance(samples)
+    expected = np.cov(np.vstack([zenith, azimuth]))  # about the sample means, which the mean direction matches closely
+    np.testing.assert_allclose(covariance[0], expected, rtol=0.05, atol=1e-5)
+    np.testing.assert_allclose(mean[0], zenith_azimuth_to_vector(1.0, 0.3), atol=0.02)
+    _, with_tau = sample_mean_and_covariance(samples, tau=100.0)
+    np.testing.assert_allclose(with_tau[0] - covariance[0], np.eye(2) / 100.0, atol=1e-12)
+
+
+def test_azimuth_is_wrapped_about_the_mean() -> None:
+    azimuth = np.array([np.pi - 0.01, -np.pi + 0.01, np.pi - 0.02, -np.pi + 0.02])
+    samples = zenith_azimuth_to_vector(np.full(4, 1.2), azimuth)[:, None, :]
+    _, covariance = sample_mean_and_covariance(samples)
+    assert covariance[0, 1, 1] < 1e-3  # not ~pi^2: the samples lie 0.04 rad apart across the cut
+
+
+def test_angular_errors() -> None:
+    truth = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    predicted = np.array([[np.sin(0.1), 0.0, np.cos(0.1)], [0.0, -np.cos(0.2), np.sin(0.2)]])
+    errors = angular_errors(predicted, truth)
+    np.testing.assert_allclose(errors["vector"], [0.1, 0.2], atol=1e-12)
+    np.testing.assert_allclose(errors["azimuth"][0], 0.1, atol=1e-12)  # x towards z: azimuth atan2(sx, sz)
+    np.testing.assert_allclose(errors["zenith"][1], 0.2, atol=1e-12)  # zenith acos(-sy)
+
+
+def test_bad_sample_shapes_are_refused() -> None:
+    with pytest.raises(ValueError, match="samples must be"):
+        sample_mean_and_covariance(np.zeros((1, 4, 3)))

@@ -1,0 +1,38 @@
+"""Sun-BCNN's settings (no torch: the `pvo sun-bcnn` options are built from them)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from ..learning.spec import DataSpec
+
+ARCHITECTURE = "sun-bcnn"
+
+
+@dataclass(frozen=True)
+class SunBCNNConfig:
+    """height, width: the input (px); colour: RGB or grey; widths: channels of the convolutional blocks (each
+    a stride-2 3x3 convolution and a 3x3 one); hidden: the fully connected layer; dropout: probability after
+    every block and the hidden layer (kept on for MC sampling)."""
+
+    height: int = 94
+    width: int = 310
+    colour: bool = False
+    widths: tuple[int, ...] = (16, 32, 64, 96)
+    hidden: int = 128
+    dropout: float = 0.2
+
+    def __post_init__(self) -> None:
+        if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:
+            raise ValueError("Sun-BCNN needs an input of at least 16 px, at least one block and dropout in [0, 1)")
+
+    @property
+    def spec(self) -> DataSpec:
+        return DataSpec((self.height, self.width), colour=self.colour, sun=True)
+
+    @classmethod
+    def from_card(cls, card: Any) -> SunBCNNConfig:
+        values = dict(card.hyperparameters)
+        values["widths"] = tuple(values["widths"])
+        return cls(**values)

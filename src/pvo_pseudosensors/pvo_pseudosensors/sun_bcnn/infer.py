@@ -1,0 +1,106 @@
+"""Sun-BCNN on a sequence: MC-dropout samples per image, Method I mean and Method II covariance, the
+prediction file, and its evaluation against the true sun vectors (thesis Table 5.1's columns)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from pvo_core.readers import SUN_PREDICTIONS_HEADER
+from pvo_core.sun import angular_errors, sample_mean_and_covariance, unit_zenith_azimuth
+
+from ..learning.checkpoint import ModelCard, load_model
+from ..learning.data import FrameDataset, Source
+from .model import ARCHITECTURE, SunBCNN, SunBCNNConfig
+
+Array = NDArray[np.float64]
+
+
+def load_sun_bcnn(directory: Path) -> tuple[SunBCNN, ModelCard]:
+    """The trained network of ``directory`` (one clear line for every bad model file)."""
+    return load_model(directory, ARCHITECTURE, lambda card: SunBCNN(SunBCNNConfig.from_card(card)))
+
+
+@dataclass
+class SunPredictions:
+    """Per image: frame number, unit sun vector (N, 3) in the camera optical frame, zenith and azimuth (N,)
+    in rad, and the (zenith, azimuth) covariance (N, 2, 2) in rad²."""
+
+    frames: NDArray[np.int64]
+    vectors: Array
+    zenith: Array
+    azimuth: Array
+    covariance: Array
+
+    def write_csv(self, path: Path) -> Path:
+        rows = [SUN_PREDICTIONS_HEADER]
+        for f, s, z, a, c in zip(self.frames, self.vectors, self.zenith, self.azimuth, self.covariance, strict=True):
+            values = [*s, z, a, *c.reshape(-1)]
+            rows.append(f"{int(f)}," + ",".join(f"{v:.9g}" for v in values))
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("\n".join(rows) + "\n")
+        return path
+
+
+def predict_sequence(
+    model: SunBCNN,
+    card: ModelCard,
+    sequence: Path,
+    samples: int = 25,
+    batch: int = 32,
+    seed: int = 0,
+    cache_dir: Path | None = None,
+) -> SunPredictions:
+    """Every left image of ``sequence`` through ``samples`` dropout passes (seeded); tau from the card
+    (``calibration.tau``, infinite until calibrated)."""
+    config = SunBCNNConfig.from_card(card)
+    spec = config.spec
+    data = FrameDataset([Source(Path(sequence), Path(sequence).name)], type(spec)(spec.size, colour=spec.colour), cache_dir)
+    tau = float(card.hyperparameters.get("tau", card.training.get("tau", np.inf)) or np.inf)
+    vectors, covariances, frames = [], [], []
+    generator = torch.Generator().manual_seed(seed)
+    for start in range(0, len(data), batch):
+        items = [data[i] for i in range(start, min(start + batch, len(data)))]
+        images = torch.stack([item["left"] for item in items])
+        draws = _draws(model, images, samples, int(torch.randint(0, 2**31 - 1, (1,), generator=generator)))
+        mean, covariance = sample_mean_and_covariance(draws, tau)
+        vectors.append(mean)
+        covariances.append(covariance)
+        frames += [int(item["frame"]) for item in items]
+    vectors_all = np.vstack(vectors)
+    zenith, azimuth = unit_zenith_azimuth(vectors_all)
+    return SunPredictions(np.asarray(frames), vectors_all, zenith, azimuth, np.concatenate(covariances))
+
+
+def _draws(model: SunBCNN, images: torch.Tensor, samples: int, seed: int) -> Array:
+    state = torch.get_rng_state()
+    torch.manual_seed(seed)
+    model.train()  # dropout on: the MC samples
+    try:
+        with torch.no_grad():
+            return torch.stack([model(images) for _ in range(samples)]).double().numpy()
+    finally:
+        model.eval()
+        torch.set_rng_state(state)
+
+
+def evaluate_predictions(predictions: Array, truth: Array) -> dict[str, float]:
+    """Errors of prediction rows (N, 10: frame, s, zenith, azimuth, covariance) against the true unit
+    vectors of the same frames (N, 3): mean and median vector-angle, zenith and azimuth errors (degrees),
+    and the ANEES over (zenith, azimuth) with the predicted covariances."""
+    vectors = predictions[:, 1:4]
+    errors = angular_errors(vectors, truth)
+    true_zenith, true_azimuth = unit_zenith_azimuth(truth / np.linalg.norm(truth, axis=1, keepdims=True))
+    residual = np.column_stack([predictions[:, 4] - true_zenith, np.angle(np.exp(1j * (predictions[:, 5] - true_azimuth)))])
+    covariance = predictions[:, 6:10].reshape(-1, 2, 2)
+    nees = np.einsum("ni,nij,nj->n", residual, np.linalg.inv(covariance), residual)
+    out = {"images": float(len(vectors))}
+    for name, values in errors.items():
+        out[f"{name}_mean_deg"] = float(np.degrees(values.mean()))
+        out[f"{name}_median_deg"] = float(np.degrees(np.median(values)))
+    out["anees"] = float(nees.mean() / 2.0)
+    return out

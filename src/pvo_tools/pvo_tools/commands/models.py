@@ -1,0 +1,202 @@
+"""`pvo <model> train|predict|eval` for every learned pseudo-sensor of :mod:`pvo_pseudosensors.registry`.
+
+The options of `train` are the model's settings (one per field of its config dataclass) plus the training
+loop's (:class:`pvo_pseudosensors.learning.TrainConfig`); run it under ``torchrun --nproc-per-node N`` for
+distributed data parallel training."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+from pvo_pseudosensors.registry import ModelEntry, models
+
+from ..progress import Progress
+
+TRAIN_DEFAULTS = {
+    "epochs": (int, 30, "at most this many epochs"),
+    "batch_size": (int, 32, "global batch size (split over torchrun processes)"),
+    "learning_rate": (float, 1e-3, "AdamW learning rate"),
+    "weight_decay": (float, 1e-4, "AdamW weight decay"),
+    "schedule": (str, "cosine", "learning-rate schedule: cosine | step | constant"),
+    "patience": (int, 8, "stop after this many epochs without a better validation loss (0: never)"),
+    "seed": (int, 0, "seed of initialisation, shuffling and dropout"),
+    "threads": (int, 2, "torch threads per process"),
+}
+
+
+def register(sub: Any) -> None:
+    for entry in models().values():
+        parser = sub.add_parser(entry.name, help=entry.description)
+        actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+        _train_parser(actions, entry)
+        _predict_parser(actions, entry)
+        _eval_parser(actions, entry)
+
+
+def _option(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _train_parser(actions: Any, entry: ModelEntry) -> None:
+    train = actions.add_parser("train", help=f"train {entry.name} on a corpus (model selection on its validation split)")
+    train.set_defaults(handler=lambda args: run_train(args, entry))
+    train.add_argument("--corpus", type=Path, required=True, help="corpus directory rendered by `pvo sim corpus`")
+    train.add_argument("--out", "-o", type=Path, required=True, help="model directory (weights, card, history, plots)")
+    train.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    train.add_argument("--cache", type=Path, help="decoded-image cache (default CORPUS/.cache)")
+    train.add_argument("--max-sequences", type=int, default=0, help="use at most this many sequences per split (0: all)")
+    train.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    loop = train.add_argument_group("training loop")
+    for name, (kind, default, text) in TRAIN_DEFAULTS.items():
+        loop.add_argument(_option(name), type=kind, default=default, help=f"{text} (default {default})")
+    model = train.add_argument_group(f"{entry.name} settings")
+    for field in dataclasses.fields(entry.config):
+        default = field.default
+        text = entry.options.get(field.name, field.name)
+        if isinstance(default, bool):
+            model.add_argument(_option(field.name), action="store_true", help=text)
+        elif isinstance(default, tuple):
+            model.add_argument(_option(field.name), default=",".join(map(str, default)), help=f"{text} (default {default})")
+        else:
+            model.add_argument(_option(field.name), type=type(default), default=default, help=f"{text} (default {default})")
+
+
+def _predict_parser(actions: Any, entry: ModelEntry) -> None:
+    predict = actions.add_parser("predict", help=f"run a trained {entry.name} over a sequence's images")
+    predict.set_defaults(handler=lambda args: run_predict(args, entry))
+    predict.add_argument("sequence", type=Path, help="KITTI-layout sequence directory")
+    predict.add_argument("--model", type=Path, required=True, help="model directory (weights.safetensors + model.yaml)")
+    predict.add_argument("--out", "-o", type=Path, required=True, help="prediction file (CSV)")
+    predict.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
+    predict.add_argument("--seed", type=int, default=0, help="seed of the dropout samples (default 0)")
+
+
+def _eval_parser(actions: Any, entry: ModelEntry) -> None:
+    evaluate = actions.add_parser("eval", help=f"evaluate {entry.name} predictions against the truth")
+    evaluate.set_defaults(handler=lambda args: run_eval(args, entry))
+    evaluate.add_argument("--pred", type=Path, required=True, help="prediction file from `predict`")
+    evaluate.add_argument("--gt", type=Path, required=True, help="true sun vectors (sun.csv of the sequence)")
+    evaluate.add_argument("--json", type=Path, help="also write the figures as a run-result record here")
+
+
+def _model_config(args: argparse.Namespace, entry: ModelEntry) -> Any:
+    values = {}
+    for field in dataclasses.fields(entry.config):
+        value = getattr(args, field.name)
+        if isinstance(field.default, tuple):
+            try:
+                value = tuple(int(v) for v in str(value).split(","))
+            except ValueError:
+                raise ValueError(f"{_option(field.name)} {value!r} must be comma-separated integers") from None
+        values[field.name] = value
+    return entry.config(**values)
+
+
+def _corpus_command(manifest: Any) -> str:
+    import yaml
+
+    data = yaml.safe_load(manifest.path.read_text()).get("corpus", {})
+    if not data:
+        return ""
+    size = f"{data['width']}x{data['height']}"
+    presets = ",".join(data["presets"])
+    colour = " --colour" if data.get("colour") else ""
+    return (
+        f"pvo sim corpus {manifest.path.parent} --sequences {data['sequences']} --frames {data['frames']} --size {size} "
+        f"--presets {presets} --seed {data['seed']}{colour}"
+    )
+
+
+def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
+    from pvo_core.readers import read_corpus_manifest
+    from pvo_pseudosensors.learning import FrameDataset, Source, TrainConfig, fit
+
+    config = _model_config(args, entry)
+    loop = TrainConfig(**{name: getattr(args, name) for name in TRAIN_DEFAULTS})
+    manifest = read_corpus_manifest(args.corpus)
+    cache = args.cache or Path(args.corpus) / ".cache"
+    spec = entry.spec(config)
+    sets = {}
+    for split in ("train", "validation"):
+        sequences = manifest.split(split)[: args.max_sequences or None]
+        if not sequences:
+            raise ValueError(f"{manifest.path}: no sequence in the {split} split")
+        bar = None if args.quiet else Progress(len(sequences), f"{split}: decoding and caching sequences")
+        sources = []
+        for sequence in sequences:
+            sources.append(Source(sequence.root, sequence.name, split))
+        sets[split] = FrameDataset(sources, spec, cache)
+        if bar:
+            bar.update(len(sequences))
+            bar.close()
+    print(f"{entry.name}: {len(sets['train'])} training and {len(sets['validation'])} validation samples", file=sys.stderr)
+    bar: Progress | None = None
+
+    def progress(step: int, steps: int) -> None:
+        nonlocal bar
+        if args.quiet:
+            return
+        if bar is None or step == 1:
+            if bar is not None:
+                bar.close()
+            bar = Progress(steps, "  batches")
+        bar.update()
+
+    extra = {
+        "corpus": {"path": str(manifest.path.parent), "sha256": manifest.sha256, "sequences": len(manifest.sequences)},
+        "commands": {"corpus": _corpus_command(manifest), "train": "pvo " + shlex.join(getattr(args, "argv", sys.argv[1:]))},
+    }
+    result = fit(
+        entry.task(config),
+        sets["train"],
+        sets["validation"],
+        loop,
+        args.out,
+        resume=args.resume,
+        progress=progress,
+        say=lambda line: print(line, file=sys.stderr, flush=True),
+        card_extra=extra,
+    )
+    if bar is not None:
+        bar.close()
+    print(
+        f"{args.out}: best validation loss {result.best_validation:.5g} at epoch {result.best_epoch} of {result.epochs_run}"
+        f"{' (stopped early)' if result.stopped_early else ''}; {result.seconds:.0f} s"
+    )
+    return 0
+
+
+def run_predict(args: argparse.Namespace, entry: ModelEntry) -> int:
+    if args.samples < 2:
+        raise ValueError(f"--samples must be >= 2 (the covariance needs two), got {args.samples}")
+    predictions = entry.predict(args.model, args.sequence, samples=args.samples, seed=args.seed)
+    path = predictions.write_csv(args.out)
+    print(f"{path}: {len(predictions.frames)} predictions ({args.samples} MC samples each)")
+    return 0
+
+
+def run_eval(args: argparse.Namespace, entry: ModelEntry) -> int:
+    from pvo_core.readers import read_kitti_sun_csv, read_sun_predictions_csv
+    from pvo_core.results import RunResult
+
+    predictions = read_sun_predictions_csv(args.pred)
+    truth = read_kitti_sun_csv(args.gt)
+    frames = predictions[:, 0].astype(int)
+    if frames.max() >= len(truth):
+        raise ValueError(f"{args.pred}: frame {frames.max()} is beyond the {len(truth)} rows of {args.gt}")
+    figures = entry.evaluate(predictions, truth[frames])
+    print(f"{'images':<22} {int(figures['images'])}")
+    for name in ("vector", "zenith", "azimuth"):
+        print(
+            f"{name + ' error (deg)':<22} mean {figures[f'{name}_mean_deg']:7.2f}   median {figures[f'{name}_median_deg']:7.2f}"
+        )
+    print(f"{'ANEES (zenith, azimuth)':<22} {figures['anees']:.3f}")
+    if args.json:
+        inputs = {"pred": str(args.pred), "gt": str(args.gt)}
+        RunResult("eval", f"{entry.name} {args.pred.name}", figures=figures, inputs=inputs).write(args.json)
+    return 0

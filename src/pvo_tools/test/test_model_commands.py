@@ -1,0 +1,105 @@
+"""`pvo sun-bcnn train|predict|eval` on a tiny corpus: the commands compose the learning harness."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from pvo_tools.cli import main
+
+TINY = ["--height", "24", "--width", "64", "--widths", "4,8", "--hidden", "8", "--threads", "1", "-q"]
+
+
+def write_sequence(root: Path, frames: int, seed: int) -> None:
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    (root / "image_0").mkdir(parents=True)
+    v, u = np.mgrid[0:48, 0:128].astype(float)
+    u, v = (u - 64) / 128, (v - 24) / 48
+    rows = []
+    for k in range(frames):
+        sun = rng.normal(size=3)
+        sun[2] = abs(sun[2])
+        sun /= np.linalg.norm(sun)
+        image = np.clip(128 + 200 * (sun[0] * u + sun[1] * v), 0, 255).astype(np.uint8)
+        cv2.imwrite(str(root / "image_0" / f"{k:06d}.png"), image)
+        rows.append(f"image_0/{k:06d}.png,{sun[0]:.9f},{sun[1]:.9f},{sun[2]:.9f}\n")
+    (root / "sun.csv").write_text("".join(rows))
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("corpus")
+    entries = []
+    for i, split in enumerate(("train", "train", "validation", "test")):
+        name = f"{i:04d}"
+        write_sequence(root / name, 16, i)
+        entries.append({"name": name, "split": split, "sha256": hashlib.sha256(name.encode()).hexdigest(), "config": {}})
+    corpus = {"sequences": 4, "frames": 16, "width": 128, "height": 48, "presets": ["urban"], "seed": 0, "colour": False}
+    (root / "manifest.yaml").write_text(yaml.safe_dump({"corpus": corpus, "sequences": entries}))
+    return root
+
+
+def test_train_predict_eval(corpus: Path, tmp_path: Path, capsys) -> None:
+    model = tmp_path / "model"
+    args = ["sun-bcnn", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "3", "--batch-size", "16"]
+    assert main([*args, "--learning-rate", "0.01", *TINY]) == 0
+    assert "best validation loss" in capsys.readouterr().out
+    card = yaml.safe_load((model / "model.yaml").read_text())
+    assert card["architecture"] == "sun-bcnn" and card["input"]["size"] == [24, 64]
+    assert card["corpus"]["sequences"] == 4 and len(card["corpus"]["sha256"]) == 64
+    assert card["commands"]["corpus"].startswith("pvo sim corpus") and "sun-bcnn train" in card["commands"]["train"]
+    assert card["training"]["best_epoch"] >= 1 and "loss" in card["validation"]
+
+    predictions = tmp_path / "pred.csv"
+    predict = ["sun-bcnn", "predict", str(corpus / "0003"), "--model", str(model), "--samples", "5"]
+    assert main([*predict, "-o", str(predictions)]) == 0
+    lines = predictions.read_text().splitlines()
+    assert lines[0] == "frame,sx,sy,sz,zenith,azimuth,c_zz,c_za,c_az,c_aa" and len(lines) == 17
+    values = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+    np.testing.assert_allclose(np.linalg.norm(values[:, 1:4], axis=1), 1.0, atol=1e-6)
+    np.testing.assert_allclose(values[:, 7], values[:, 8])  # the covariance is symmetric
+    assert np.all(values[:, 6] > 0) and np.all(values[:, 9] > 0)
+    again = tmp_path / "again.csv"
+    main([*predict, "-o", str(again)])
+    assert again.read_text() == predictions.read_text()  # seeded MC samples
+
+    capsys.readouterr()
+    assert (
+        main(
+            [
+                "sun-bcnn",
+                "eval",
+                "--pred",
+                str(predictions),
+                "--gt",
+                str(corpus / "0003" / "sun.csv"),
+                "--json",
+                str(tmp_path / "m"),
+            ]
+        )
+        == 0
+    )
+    printed = capsys.readouterr().out
+    assert "vector error (deg)" in printed and "ANEES" in printed
+    record = yaml.safe_load((tmp_path / "m" / "metrics.json").read_text())
+    assert record["figures"]["images"] == 16.0
+
+
+def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
+    assert (
+        main(["sun-bcnn", "predict", str(corpus / "0003"), "--model", str(tmp_path / "none"), "-o", str(tmp_path / "p.csv")]) == 2
+    )
+    assert "model directory not found" in capsys.readouterr().err
+    assert main(["sun-bcnn", "train", "--corpus", str(tmp_path), "-o", str(tmp_path / "m"), *TINY]) == 2
+    assert "corpus manifest not found" in capsys.readouterr().err
+    assert main(["sun-bcnn", "train", "--corpus", str(corpus), "-o", str(tmp_path / "m"), *TINY, "--widths", "4,x"]) == 2
+    assert "--widths '4,x' must be comma-separated integers" in capsys.readouterr().err
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,sx,sy,sz,zenith,azimuth,c_zz,c_za,c_az,c_aa\n0,1,1,0,0,0,1,0,0,1\n")
+    assert main(["sun-bcnn", "eval", "--pred", str(bad), "--gt", str(corpus / "0003" / "sun.csv")]) == 2
+    assert "bad.csv:2: sun vector of frame 0 is not unit length" in capsys.readouterr().err
