@@ -142,6 +142,7 @@ def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
         vignetting=float(rng.uniform(0.0, 0.4)),
         full_well=float(rng.uniform(2000.0, 12000.0)),
         read_noise=float(rng.uniform(0.5, 3.0)),
+        sharpening=float(rng.uniform(0.0, 1.5)),
         jpeg_quality=jpeg,
     )
     config = SimConfig(

@@ -89,7 +89,8 @@ class CameraModel:
     metered on the left); otherwise the gain is ``gain``. vignetting: relative fall-off at the image corners
     (quadratic in the radius). full_well: electrons at saturation, for shot noise (0: none); read_noise: std
     in grey levels of the linear signal. gamma: the encoding exponent (image = linear^(1/gamma)); 1 keeps the
-    render linear. jpeg_quality: 1-100 compresses each image, 0 writes it losslessly."""
+    render linear. sharpening: the in-camera unsharp mask (amount; radius 1 px) most machine-vision cameras
+    apply after encoding. jpeg_quality: 1-100 compresses each image, 0 writes it losslessly."""
 
     auto_exposure: bool = True
     target: float = 0.42
@@ -99,6 +100,7 @@ class CameraModel:
     vignetting: float = 0.25
     full_well: float = 6000.0
     read_noise: float = 1.0
+    sharpening: float = 1.0
     jpeg_quality: int = 0
 
     def __post_init__(self) -> None:
@@ -110,6 +112,7 @@ class CameraModel:
             (0.0 <= self.vignetting < 1.0, "camera vignetting must be in [0, 1)"),
             (self.full_well >= 0.0 and self.read_noise >= 0.0, "camera full_well and read_noise must be >= 0"),
             (0 <= self.jpeg_quality <= 100, "camera jpeg_quality must be in [0, 100] (0: no compression)"),
+            (0.0 <= self.sharpening <= 3.0, "camera sharpening must be in [0, 3]"),
         ]
         for ok, message in checks:
             if not ok:
@@ -118,7 +121,7 @@ class CameraModel:
     @classmethod
     def linear(cls) -> CameraModel:
         """The render as it is: no exposure control, noise, vignetting, gamma or compression."""
-        return cls(auto_exposure=False, gamma=1.0, vignetting=0.0, full_well=0.0, read_noise=0.0)
+        return cls(auto_exposure=False, gamma=1.0, vignetting=0.0, full_well=0.0, read_noise=0.0, sharpening=0.0)
 
 
 class ImageDegrader:
@@ -191,6 +194,11 @@ class ImageDegrader:
         encoded = np.clip(linear, 0.0, 1.0)
         if model.gamma != 1.0:
             encoded = encoded ** np.float32(1.0 / model.gamma)
+        if model.sharpening:
+            import cv2
+
+            blurred = cv2.GaussianBlur(encoded, (0, 0), 1.0)
+            encoded = np.clip(encoded + np.float32(model.sharpening) * (encoded - blurred), 0.0, 1.0)
         out = np.round(encoded * 255.0).astype(np.uint8)
         if model.jpeg_quality:
             import cv2

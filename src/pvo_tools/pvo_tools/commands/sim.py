@@ -68,6 +68,7 @@ def register(sub: Any) -> None:
     cam.add_argument("--vignetting", type=float, default=0.25, help="relative fall-off at the corners (default 0.25)")
     cam.add_argument("--full-well", type=float, default=6000.0, help="electrons at saturation, for shot noise (0: none)")
     cam.add_argument("--read-noise", type=float, default=1.0, help="read noise std, grey levels (default 1)")
+    cam.add_argument("--sharpening", type=float, default=1.0, help="in-camera unsharp mask amount, 0-3 (default 1)")
     cam.add_argument("--jpeg", type=int, default=0, help="JPEG quality 1-100 (default 0: lossless PNG only)")
     sim.add_argument("--quiet", "-q", action="store_true", help="no progress output")
 
@@ -91,6 +92,7 @@ def camera_model(args: argparse.Namespace) -> CameraModel:
         vignetting=args.vignetting,
         full_well=args.full_well,
         read_noise=args.read_noise,
+        sharpening=args.sharpening,
         jpeg_quality=args.jpeg,
     )
 
