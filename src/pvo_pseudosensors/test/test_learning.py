@@ -108,6 +108,21 @@ def test_the_cache_is_built_once_and_rebuilt_when_images_change(sequences, tmp_p
     assert not torch.equal(changed[3]["left"], cached)
 
 
+def test_a_flat_folder_of_left_images_is_a_source(tmp_path: Path) -> None:
+    import shutil
+
+    root = write_sequence(tmp_path / "kitti", frames=4)
+    flat = tmp_path / "devon"
+    flat.mkdir()
+    for k, image in enumerate(sorted((root / "image_0").glob("*.png"))):
+        shutil.copy(image, flat / f"grey-rectified-left-{k + 1:06d}.png")
+    data = FrameDataset([Source(flat, "devon")], DataSpec(SIZE))
+    assert len(data) == 4
+    assert torch.equal(data[2]["left"], FrameDataset([Source(root, "kitti")], DataSpec(SIZE))[2]["left"])
+    with pytest.raises(ValueError, match="left images only"):
+        FrameDataset([Source(flat, "devon")], DataSpec(SIZE, right=True))
+
+
 def test_missing_truth_is_one_line_naming_the_file(tmp_path: Path) -> None:
     root = write_sequence(tmp_path / "s", frames=3)
     (root / "sun.csv").unlink()

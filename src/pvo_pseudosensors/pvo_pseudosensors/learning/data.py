@@ -29,16 +29,22 @@ IMAGE_SUFFIXES = (".png", ".pgm", ".ppm", ".jpg")
 
 @dataclass(frozen=True)
 class Source:
-    """One sequence directory (KITTI layout) and where it came from."""
+    """One sequence directory and where it came from: the KITTI layout (``image_0``/``image_1`` or
+    ``image_2``/``image_3``), or a flat folder of left images (the Devon Island release), found by itself."""
 
     root: Path
     name: str
     split: str = ""
 
     def images(self, side: str, colour: bool) -> list[Path]:
-        folder = self.root / (
-            ("image_2" if side == "left" else "image_3") if colour else ("image_0" if side == "left" else "image_1")
-        )
+        names = ("image_2", "image_3") if colour else ("image_0", "image_1")
+        folder = self.root / names[0 if side == "left" else 1]
+        if not folder.is_dir() and self.root.is_dir():
+            flat = sorted(p for p in self.root.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if flat and side != "left":
+                raise DataFormatError(self.root, "a flat folder of images holds left images only (no right camera)")
+            if flat:
+                return flat
         if not folder.is_dir():
             raise DataFormatError(folder, "image directory not found")
         paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
