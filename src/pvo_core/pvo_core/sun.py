@@ -78,3 +78,39 @@ def angular_errors(predicted: ArrayLike, truth: ArrayLike) -> dict[str, Array]:
     tz, ta = unit_zenith_azimuth(t)
     angle = np.arctan2(np.linalg.norm(np.cross(p, t), axis=1), np.sum(p * t, axis=1))
     return {"vector": angle, "zenith": np.abs(pz - tz), "azimuth": np.abs(wrap_angle(pa - ta))}
+
+
+def zenith_azimuth_residuals(predicted: ArrayLike, truth: ArrayLike) -> Array:
+    """(N, 2) residuals predicted - true over (zenith, azimuth) of unit vectors (N, 3), azimuth wrapped."""
+    pz, pa = unit_zenith_azimuth(np.asarray(predicted, dtype=float))
+    tz, ta = unit_zenith_azimuth(np.asarray(truth, dtype=float))
+    return np.column_stack([pz - tz, wrap_angle(pa - ta)])
+
+
+def calibrate_tau(residuals: ArrayLike, covariances: ArrayLike, keep: ArrayLike | None = None, target: float = 1.0) -> float:
+    """The model precision tau of Method II: the covariances (N, 2, 2) plus tau^-1 I give an ANEES of
+    ``target`` over the residuals (N, 2) (rows where ``keep``; the thesis's code kept cosine distances < 0.3).
+    Returns inf when the covariances alone are already wide enough (ANEES <= target)."""
+    r = np.asarray(residuals, dtype=float)
+    c = np.asarray(covariances, dtype=float)
+    if keep is not None:
+        r, c = r[np.asarray(keep, dtype=bool)], c[np.asarray(keep, dtype=bool)]
+    if len(r) == 0:
+        raise ValueError("no residual to calibrate tau on")
+
+    def anees(inverse_tau: float) -> float:
+        widened = c + inverse_tau * np.eye(2)
+        return float(np.mean(np.einsum("ni,nij,nj->n", r, np.linalg.inv(widened), r)) / 2.0)
+
+    floor = 1e-12
+    if anees(floor) <= target:
+        return float("inf")
+    low, high = floor, 1.0
+    while anees(high) > target:  # widen until the ANEES falls below the target
+        high *= 10.0
+        if high > 1e6:
+            raise ValueError("residuals too large to calibrate tau")
+    for _ in range(200):  # bisection in log space: the ANEES falls monotonically as tau^-1 grows
+        middle = np.sqrt(low * high)
+        low, high = (middle, high) if anees(middle) > target else (low, middle)
+    return float(1.0 / np.sqrt(low * high))

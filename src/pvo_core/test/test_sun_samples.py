@@ -39,3 +39,17 @@ def test_angular_errors() -> None:
 def test_bad_sample_shapes_are_refused() -> None:
     with pytest.raises(ValueError, match="samples must be"):
         sample_mean_and_covariance(np.zeros((1, 4, 3)))
+
+
+def test_calibrated_tau_gives_the_target_anees() -> None:
+    from pvo_core.sun import calibrate_tau
+
+    rng = np.random.default_rng(1)
+    covariance = np.tile(np.diag([1e-4, 4e-4]), (500, 1, 1))  # overconfident: the errors are larger
+    residuals = rng.normal(0, 0.05, (500, 2))
+    tau = calibrate_tau(residuals, covariance)
+    widened = covariance + np.eye(2) / tau
+    anees = np.mean(np.einsum("ni,nij,nj->n", residuals, np.linalg.inv(widened), residuals)) / 2.0
+    assert anees == pytest.approx(1.0, rel=1e-6)
+    assert 1.0 / tau == pytest.approx(0.05**2, rel=0.25)  # it recovers most of the missing variance
+    assert calibrate_tau(residuals, covariance * 1e4) == np.inf  # already wide enough: nothing to add

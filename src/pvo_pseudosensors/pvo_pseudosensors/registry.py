@@ -25,6 +25,7 @@ class ModelEntry:
     spec: Callable[[Any], DataSpec]
     predict: Callable[..., Any]
     evaluate: Callable[..., dict[str, float]]
+    calibrate: Callable[..., dict[str, float]] | None = None  # model dir, validation sequences -> card figures
     prediction_header: str = ""
     options: dict[str, str] = field(default_factory=dict)  # option help per config field
 
@@ -39,11 +40,21 @@ def _sun_bcnn() -> ModelEntry:
 
         return SunTask(config)
 
-    def predict(model_dir, sequence, samples=25, seed=0, cache_dir=None):
+    def predict(model_dir, sequence, samples=25, seed=0, cache_dir=None, mode="full"):
         from .sun_bcnn.infer import load_sun_bcnn, predict_sequence
 
         model, card = load_sun_bcnn(model_dir)
-        return predict_sequence(model, card, sequence, samples=samples, seed=seed, cache_dir=cache_dir)
+        return predict_sequence(model, card, sequence, samples=samples, seed=seed, cache_dir=cache_dir, mode=mode)
+
+    def calibrate(model_dir, sequences, samples=25, mode="full", cache_dir=None):
+        from .learning.checkpoint import write_card
+        from .sun_bcnn.infer import calibrate, load_sun_bcnn
+
+        model, card = load_sun_bcnn(model_dir)
+        figures = calibrate(model, card, sequences, samples=samples, mode=mode, cache_dir=cache_dir)
+        card.calibration = {**figures, "mode": mode}
+        write_card(model_dir, card)
+        return figures
 
     def evaluate(predictions, truth):
         from .sun_bcnn.infer import evaluate_predictions
@@ -58,6 +69,7 @@ def _sun_bcnn() -> ModelEntry:
         spec=lambda config: config.spec,
         predict=predict,
         evaluate=evaluate,
+        calibrate=calibrate,
         prediction_header=SUN_PREDICTIONS_HEADER,
         options={
             "height": "input height (px)",

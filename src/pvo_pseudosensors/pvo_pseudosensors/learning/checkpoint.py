@@ -38,6 +38,7 @@ class ModelCard:
     commit: str = ""
     validation: dict[str, float] = field(default_factory=dict)
     training: dict[str, Any] = field(default_factory=dict)  # epochs, best epoch, seconds, threads, processes
+    calibration: dict[str, Any] = field(default_factory=dict)  # set after training, on the validation split
     notes: str = ""
     created: str = ""
 
@@ -69,6 +70,15 @@ def current_commit(directory: Path | None = None) -> str:
         return rev.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return ""
+
+
+def write_card(directory: Path, card: ModelCard) -> Path:
+    """Rewrite ``model.yaml`` (e.g. after calibration), whole or not at all."""
+    path = Path(directory) / CARD
+    temporary = path.parent / f".{CARD}.tmp"
+    temporary.write_text(card.to_yaml())
+    temporary.replace(path)
+    return path
 
 
 def save_model(directory: Path, model: torch.nn.Module, card: ModelCard) -> Path:

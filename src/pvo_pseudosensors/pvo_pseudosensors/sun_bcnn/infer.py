@@ -46,6 +46,9 @@ class SunPredictions:
         return path
 
 
+MODES = ("full", "head")
+
+
 def predict_sequence(
     model: SunBCNN,
     card: ModelCard,
@@ -54,19 +57,26 @@ def predict_sequence(
     batch: int = 32,
     seed: int = 0,
     cache_dir: Path | None = None,
+    mode: str = "full",
+    tau: float | None = None,
 ) -> SunPredictions:
-    """Every left image of ``sequence`` through ``samples`` dropout passes (seeded); tau from the card
-    (``calibration.tau``, infinite until calibrated)."""
+    """Every left image of ``sequence`` through ``samples`` dropout passes (seeded). mode "full": dropout in
+    the backbone and the head, every pass through the whole network (the thesis); "head": the backbone once
+    without dropout, the passes through the head only. tau: the model precision added to the covariance
+    (default: the card's ``calibration.tau``, infinite until calibrated)."""
+    if mode not in MODES:
+        raise ValueError(f"unknown MC mode {mode!r}: choose one of {', '.join(MODES)}")
     config = SunBCNNConfig.from_card(card)
     spec = config.spec
     data = FrameDataset([Source(Path(sequence), Path(sequence).name)], type(spec)(spec.size, colour=spec.colour), cache_dir)
-    tau = float(card.hyperparameters.get("tau", card.training.get("tau", np.inf)) or np.inf)
+    if tau is None:
+        tau = float(card.calibration.get("tau", np.inf))
     vectors, covariances, frames = [], [], []
     generator = torch.Generator().manual_seed(seed)
     for start in range(0, len(data), batch):
         items = [data[i] for i in range(start, min(start + batch, len(data)))]
         images = torch.stack([item["left"] for item in items])
-        draws = _draws(model, images, samples, int(torch.randint(0, 2**31 - 1, (1,), generator=generator)))
+        draws = _draws(model, images, samples, int(torch.randint(0, 2**31 - 1, (1,), generator=generator)), mode)
         mean, covariance = sample_mean_and_covariance(draws, tau)
         vectors.append(mean)
         covariances.append(covariance)
@@ -76,16 +86,64 @@ def predict_sequence(
     return SunPredictions(np.asarray(frames), vectors_all, zenith, azimuth, np.concatenate(covariances))
 
 
-def _draws(model: SunBCNN, images: torch.Tensor, samples: int, seed: int) -> Array:
+def _draws(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, mode: str = "full") -> Array:
+    """(samples, B, 3) MC-dropout draws; the global RNG is left as it was."""
     state = torch.get_rng_state()
     torch.manual_seed(seed)
-    model.train()  # dropout on: the MC samples
     try:
         with torch.no_grad():
-            return torch.stack([model(images) for _ in range(samples)]).double().numpy()
+            if mode == "head":
+                model.eval()
+                pooled = model.pooled(images)  # once, deterministic
+                model.head.train()
+                draws = [model.direction(pooled) for _ in range(samples)]
+            else:
+                model.train()  # dropout on everywhere
+                draws = [model(images) for _ in range(samples)]
+            return torch.stack(draws).double().numpy()
     finally:
         model.eval()
         torch.set_rng_state(state)
+
+
+def calibrate(
+    model: SunBCNN,
+    card: ModelCard,
+    sequences: list[Path],
+    samples: int = 25,
+    mode: str = "full",
+    max_cosine_distance: float = 0.3,
+    cache_dir: Path | None = None,
+) -> dict[str, float]:
+    """tau on ``sequences`` (the validation split) so that ANEES = 1 over the predictions within
+    ``max_cosine_distance`` of the truth (as the thesis's code); the figures before and after."""
+    from pvo_core.readers import read_kitti_sun_csv
+    from pvo_core.sun import calibrate_tau, zenith_azimuth_residuals
+
+    residuals, covariances, distances = [], [], []
+    for sequence in sequences:
+        predictions = predict_sequence(model, card, sequence, samples, mode=mode, tau=np.inf, cache_dir=cache_dir)
+        truth = read_kitti_sun_csv(Path(sequence) / "sun.csv")[predictions.frames]
+        residuals.append(zenith_azimuth_residuals(predictions.vectors, truth))
+        covariances.append(predictions.covariance)
+        distances.append(1.0 - np.sum(predictions.vectors * truth, axis=1))
+    r, c, d = np.vstack(residuals), np.concatenate(covariances), np.concatenate(distances)
+    keep = d < max_cosine_distance
+    tau = calibrate_tau(r, c, keep)
+
+    def anees(extra: float) -> float:
+        widened = c[keep] + extra * np.eye(2)
+        return float(np.mean(np.einsum("ni,nij,nj->n", r[keep], np.linalg.inv(widened), r[keep])) / 2.0)
+
+    return {
+        "tau": tau,
+        "images": float(len(r)),
+        "kept": float(keep.sum()),
+        "anees_without_tau": anees(1e-12),
+        "anees": anees(0.0 if np.isinf(tau) else 1.0 / tau),
+        "samples": float(samples),
+        "max_cosine_distance": max_cosine_distance,
+    }
 
 
 def evaluate_predictions(predictions: Array, truth: Array) -> dict[str, float]:

@@ -40,11 +40,18 @@ class SunBCNN(nn.Module):
             nn.Linear(config.hidden, 3),
         )
 
+    def pooled(self, image: torch.Tensor) -> torch.Tensor:
+        """The backbone: (B, C, H, W) in [0, 1] -> (B, 2 x last width) average- and max-pooled features."""
+        x = self.features(image - 0.5)
+        return torch.cat([x.mean(dim=(2, 3)), x.amax(dim=(2, 3))], dim=1)
+
+    def direction(self, pooled: torch.Tensor) -> torch.Tensor:
+        """The head: pooled features -> (B, 3) unit vectors towards the sun."""
+        return nn.functional.normalize(self.head(pooled), dim=1)
+
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         """(B, C, H, W) in [0, 1] -> (B, 3) unit vectors towards the sun."""
-        x = self.features(image - 0.5)
-        pooled = torch.cat([x.mean(dim=(2, 3)), x.amax(dim=(2, 3))], dim=1)  # average and max pooling
-        return nn.functional.normalize(self.head(pooled), dim=1)
+        return self.direction(self.pooled(image))
 
 
 @dataclass

@@ -36,6 +36,8 @@ def register(sub: Any) -> None:
         _train_parser(actions, entry)
         _predict_parser(actions, entry)
         _eval_parser(actions, entry)
+        if entry.calibrate is not None:
+            _calibrate_parser(actions, entry)
 
 
 def _option(name: str) -> str:
@@ -74,6 +76,19 @@ def _predict_parser(actions: Any, entry: ModelEntry) -> None:
     predict.add_argument("--out", "-o", type=Path, required=True, help="prediction file (CSV)")
     predict.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
     predict.add_argument("--seed", type=int, default=0, help="seed of the dropout samples (default 0)")
+    predict.add_argument(
+        "--mode", default="full", help="MC sampling: full (dropout everywhere, every pass) | head (backbone once)"
+    )
+
+
+def _calibrate_parser(actions: Any, entry: ModelEntry) -> None:
+    calibrate = actions.add_parser("calibrate", help=f"calibrate {entry.name}'s uncertainty on a corpus's validation split")
+    calibrate.set_defaults(handler=lambda args: run_calibrate(args, entry))
+    calibrate.add_argument("--model", type=Path, required=True, help="model directory; its model.yaml gets the result")
+    calibrate.add_argument("--corpus", type=Path, required=True, help="corpus whose validation split to use")
+    calibrate.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
+    calibrate.add_argument("--mode", default="full", help="MC sampling: full | head (default full)")
+    calibrate.add_argument("--max-sequences", type=int, default=0, help="at most this many sequences (0: all)")
 
 
 def _eval_parser(actions: Any, entry: ModelEntry) -> None:
@@ -174,9 +189,25 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
 def run_predict(args: argparse.Namespace, entry: ModelEntry) -> int:
     if args.samples < 2:
         raise ValueError(f"--samples must be >= 2 (the covariance needs two), got {args.samples}")
-    predictions = entry.predict(args.model, args.sequence, samples=args.samples, seed=args.seed)
+    predictions = entry.predict(args.model, args.sequence, samples=args.samples, seed=args.seed, mode=args.mode)
     path = predictions.write_csv(args.out)
     print(f"{path}: {len(predictions.frames)} predictions ({args.samples} MC samples each)")
+    return 0
+
+
+def run_calibrate(args: argparse.Namespace, entry: ModelEntry) -> int:
+    from pvo_core.readers import read_corpus_manifest
+
+    manifest = read_corpus_manifest(args.corpus)
+    sequences = [s.root for s in manifest.split("validation")][: args.max_sequences or None]
+    if not sequences:
+        raise ValueError(f"{manifest.path}: no sequence in the validation split")
+    assert entry.calibrate is not None
+    figures = entry.calibrate(args.model, sequences, samples=args.samples, mode=args.mode, cache_dir=args.corpus / ".cache")
+    print(
+        f"{args.model}: tau {figures['tau']:.4g} (tau^-1 {1 / figures['tau']:.4g} rad^2) on {int(figures['kept'])} of "
+        f"{int(figures['images'])} validation images; ANEES {figures['anees_without_tau']:.2f} -> {figures['anees']:.2f}"
+    )
     return 0
 
 
