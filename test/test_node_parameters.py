@@ -18,6 +18,8 @@ def _nodes():
     from pvo_fusion.fusion_node import FusionNode, FusionNodeConfig
     from pvo_pseudosensors.simulated_sun import SimulatedSunConfig
     from pvo_pseudosensors.simulated_sun_node import SimulatedSunNode
+    from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensorConfig
+    from pvo_pseudosensors.sun_bcnn_node import SunBCNNNode
 
     from pvo_fusion.config import FusionConfig
 
@@ -25,6 +27,7 @@ def _nodes():
         "stereo_vo": (StereoVONode, (VOConfig(), StereoVONodeConfig()), ROOT / "src/pvo_frontend/config/stereo_vo.yaml"),
         "fusion": (FusionNode, (FusionConfig(), FusionNodeConfig()), ROOT / "src/pvo_fusion/config/fusion.yaml"),
         "simulated_sun": (SimulatedSunNode, (SimulatedSunConfig(),), ROOT / "src/pvo_pseudosensors/config/simulated_sun.yaml"),
+        "sun_bcnn": (SunBCNNNode, (SunBCNNSensorConfig(),), ROOT / "src/pvo_pseudosensors/config/sun_bcnn.yaml"),
     }
 
 
@@ -32,7 +35,7 @@ def _plain(value):
     return list(value) if hasattr(value, "__len__") and not isinstance(value, str) else value
 
 
-@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun"])
+@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun", "sun_bcnn"])
 def test_declared_parameters_equal_the_config_fields_and_the_yaml(name: str, ros_context) -> None:
     from pvo_core.config import flatten
 
@@ -53,7 +56,7 @@ def test_declared_parameters_equal_the_config_fields_and_the_yaml(name: str, ros
         node.destroy_node()
 
 
-@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun"])
+@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun", "sun_bcnn"])
 def test_runtime_change_of_an_algorithm_parameter_is_refused_with_the_reason(name: str, ros_context) -> None:
     from pvo_core.config import flatten
     from rclpy.parameter import Parameter
@@ -103,6 +106,7 @@ def test_fusion_applies_path_period_at_run_time_and_validates_it(ros_context) ->
         ("pvo_fusion", "fusion", "path_period:=-1.0", "path_period must be >= 0 s, got -1.0"),
         ("pvo_fusion", "fusion", "initial_pose:=[0.0,0.0]", "initial_pose: a pose needs 7 finite numbers"),
         ("pvo_pseudosensors", "simulated_sun", "every_n:=0", "invalid simulated sun configuration: every_n must be >= 1, got 0"),
+        ("pvo_pseudosensors", "sun_bcnn", "mode:=sideways", "unknown mode 'sideways': choose one of full, head"),
     ],
 )
 def test_a_wrong_parameter_is_one_clear_line_and_exit_2(ros_env, package: str, node: str, parameter: str, message: str) -> None:

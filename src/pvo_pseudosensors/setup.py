@@ -12,12 +12,18 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/models/sun_bcnn", glob("models/sun_bcnn/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="pvo maintainers",
     maintainer_email="maintainers@pvo-project.org",
-    description="Pseudo-sensors of pvo: simulated sun (and later Sun-BCNN, DPC-Net, HydraNet)",
+    description="Pseudo-sensors of pvo: the learning harness, Sun-BCNN, the simulated sun (and later DPC-Net, HydraNet)",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["simulated_sun = pvo_pseudosensors.simulated_sun_node:main"]},
+    entry_points={
+        "console_scripts": [
+            "simulated_sun = pvo_pseudosensors.simulated_sun_node:main",
+            "sun_bcnn = pvo_pseudosensors.sun_bcnn_node:main",
+        ]
+    },
 )

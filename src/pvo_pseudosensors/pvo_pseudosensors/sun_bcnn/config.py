@@ -19,7 +19,7 @@ class SunBCNNConfig:
     height: int = 94
     width: int = 310
     colour: bool = False
-    widths: tuple[int, ...] = (16, 32, 64, 96)
+    widths: tuple[int, ...] = (8, 16, 32, 64)
     hidden: int = 128
     dropout: float = 0.2
 

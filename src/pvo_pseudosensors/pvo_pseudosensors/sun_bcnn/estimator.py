@@ -1,0 +1,90 @@
+"""Sun-BCNN as a sensor: one image in, the sun direction with its covariance out (no ROS; the node wraps it)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from pvo_core.sun import sample_mean_and_covariance, unit_zenith_azimuth
+
+from .infer import MODES, _draws, load_sun_bcnn
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SunBCNNSensorConfig:
+    """model: the model directory ("" = the model shipped in the package); every_n: one estimate every N
+    images (the thesis used every 10th); samples: MC-dropout passes; mode: full | head (see `infer`);
+    seed: of the dropout samples; threads: torch threads."""
+
+    model: str = ""
+    every_n: int = 10
+    samples: int = 25
+    mode: str = "full"
+    seed: int = 0
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        if self.every_n < 1 or self.samples < 2 or self.threads < 1:
+            raise ValueError("every_n and threads must be >= 1 and samples >= 2")
+        if self.mode not in MODES:
+            raise ValueError(f"unknown mode {self.mode!r}: choose one of {', '.join(MODES)}")
+
+
+def shipped_model() -> Path:
+    """The model directory installed with the package (share/pvo_pseudosensors/models/sun_bcnn)."""
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+    try:
+        return Path(get_package_share_directory("pvo_pseudosensors")) / "models" / "sun_bcnn"
+    except (PackageNotFoundError, ValueError):
+        return Path(__file__).resolve().parents[2] / "models" / "sun_bcnn"
+
+
+@dataclass
+class SunEstimate:
+    """Unit vector towards the sun (3,) in the camera optical frame, zenith and azimuth (rad), covariance
+    (2, 2) over (zenith, azimuth) in rad²."""
+
+    direction: Array
+    zenith: float
+    azimuth: float
+    covariance: Array
+
+
+class SunBCNNSensor:
+    """Loads the model once (``ModelFileError``, one line, when it cannot) and estimates from 8-bit images of
+    any size (resized to the model's input; colour or grey converted to what the model takes)."""
+
+    def __init__(self, config: SunBCNNSensorConfig) -> None:
+        self.config = config
+        torch.set_num_threads(config.threads)
+        self.model, self.card = load_sun_bcnn(Path(config.model) if config.model else shipped_model())
+        self.height, self.width = (int(v) for v in self.card.input["size"])
+        self.colour = bool(self.card.input.get("colour", False))
+        self.tau = float(self.card.calibration.get("tau", np.inf))
+        self.count = 0
+
+    def estimate(self, image: NDArray[np.uint8]) -> SunEstimate:
+        """The estimate for one image (H, W) or (H, W, 3), uint8; ``ValueError`` naming what is wrong."""
+        import cv2
+
+        if image.dtype != np.uint8 or image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
+            raise ValueError(f"Sun-BCNN takes 8-bit grey or RGB images, got {image.dtype} of shape {image.shape}")
+        if self.colour and image.ndim == 2:
+            raise ValueError("this Sun-BCNN model was trained on colour images; the input is grey")
+        if not self.colour and image.ndim == 3:
+            image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+        resized = cv2.resize(image, (self.width, self.height), interpolation=cv2.INTER_AREA)
+        tensor = torch.from_numpy(resized.astype(np.float32) / 255.0)
+        tensor = tensor.permute(2, 0, 1)[None] if tensor.ndim == 3 else tensor[None, None]
+        seed = self.config.seed + self.count
+        self.count += 1
+        draws = _draws(self.model, tensor, self.config.samples, seed, self.config.mode)
+        mean, covariance = sample_mean_and_covariance(draws, self.tau)
+        zenith, azimuth = unit_zenith_azimuth(mean)
+        return SunEstimate(mean[0], float(zenith[0]), float(azimuth[0]), covariance[0])

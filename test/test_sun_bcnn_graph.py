@@ -1,0 +1,112 @@
+"""The sun_bcnn node over DDS: images in, sun directions with covariance out, exactly what the ROS-free
+sensor computes; a bad image or a missing model is reported and the node keeps running."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from pvo_core.msgconv import fill_stamp
+from pvo_tools.testing import Spinner, wait_for
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+
+from pvo_msgs.msg import SunDirection
+
+pytestmark = pytest.mark.ros
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+
+
+@pytest.fixture()
+def tiny_model(tmp_path: Path) -> Path:
+    import torch
+    from pvo_pseudosensors.learning.checkpoint import save_model
+    from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
+    from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask
+
+    config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.2)
+    torch.manual_seed(0)
+    card = SunTask(config).card()
+    card.calibration = {"tau": 100.0}
+    return save_model(tmp_path / "model", SunBCNN(config), card)
+
+
+def image_message(pixels: np.ndarray, stamp_ns: int, encoding: str = "mono8") -> Image:
+    msg = Image()
+    fill_stamp(msg.header.stamp, stamp_ns)
+    msg.header.frame_id = "camera_left_optical"
+    msg.height, msg.width = pixels.shape[:2]
+    msg.encoding = encoding
+    msg.step = pixels.shape[1] * (1 if pixels.ndim == 2 else pixels.shape[2]) * pixels.itemsize
+    msg.data = pixels.tobytes()
+    return msg
+
+
+def test_images_in_sun_directions_out(ros_context, tiny_model: Path) -> None:
+    from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
+    from pvo_pseudosensors.sun_bcnn_node import SunBCNNNode
+
+    parameters = [Parameter("model", value=str(tiny_model)), Parameter("every_n", value=2), Parameter("samples", value=5)]
+    node = SunBCNNNode(context=ros_context, parameter_overrides=parameters)
+    talker = Node("camera", context=ros_context)
+    publisher = talker.create_publisher(Image, "/stereo/left/image_rect", RELIABLE)
+    received: list[SunDirection] = []
+    statuses: list[DiagnosticArray] = []
+    talker.create_subscription(SunDirection, "/pvo/sun/direction", received.append, RELIABLE)
+    talker.create_subscription(DiagnosticArray, "/pvo/sun_bcnn/status", statuses.append, RELIABLE)
+    rng = np.random.default_rng(0)
+    images = [rng.integers(0, 256, (120, 320), dtype=np.uint8) for _ in range(6)]
+    try:
+        with Spinner(ros_context, node), Spinner(ros_context, talker):
+            wait_for(lambda: publisher.get_subscription_count() > 0 and node.count_publishers("/pvo/sun/direction") > 0, 10)
+            for k, pixels in enumerate(images[:4]):
+                publisher.publish(image_message(pixels, 1_000_000_000 + k * 100_000_000))
+            wait_for(lambda: len(received) >= 2, 30)
+            # a 16-bit image: rejected and reported; the node goes on with the next good one
+            publisher.publish(image_message(np.zeros((120, 320), np.uint16), 1_400_000_000, "mono16"))
+            publisher.publish(image_message(images[4], 1_500_000_000))
+            publisher.publish(image_message(images[5], 1_600_000_000))
+            wait_for(lambda: len(received) >= 3 and any(s.status[0].level == DiagnosticStatus.WARN for s in statuses), 30)
+    finally:
+        node.destroy_node()
+        talker.destroy_node()
+
+    assert len(received) == 3  # images 0, 2 and (after the rejected one, 5th input) image 5
+    reference = SunBCNNSensor(SunBCNNSensorConfig(model=str(tiny_model), every_n=2, samples=5))
+    for msg, pixels in zip(received, (images[0], images[2], images[5]), strict=True):
+        expected = reference.estimate(pixels)
+        direction = np.array([msg.direction.x, msg.direction.y, msg.direction.z])
+        np.testing.assert_allclose(direction, expected.direction, atol=1e-12)
+        covariance = np.asarray(msg.covariance).reshape(2, 2)
+        np.testing.assert_allclose(covariance, expected.covariance, atol=1e-15)
+        assert np.all(np.linalg.eigvalsh(covariance) >= 0.01 - 1e-12)  # tau^-1 = 0.01 was added
+        assert msg.header.frame_id == "camera_left_optical"
+    warning = next(s.status[0] for s in statuses if s.status[0].level == DiagnosticStatus.WARN)
+    assert "unsupported image encoding 'mono16'" in warning.message
+
+
+def test_a_missing_model_is_reported_and_the_node_keeps_running(ros_context, tmp_path: Path) -> None:
+    from pvo_pseudosensors.sun_bcnn_node import SunBCNNNode
+
+    node = SunBCNNNode(context=ros_context, parameter_overrides=[Parameter("model", value=str(tmp_path / "none"))])
+    talker = Node("camera", context=ros_context)
+    publisher = talker.create_publisher(Image, "/stereo/left/image_rect", RELIABLE)
+    received: list[SunDirection] = []
+    statuses: list[DiagnosticArray] = []
+    talker.create_subscription(SunDirection, "/pvo/sun/direction", received.append, RELIABLE)
+    talker.create_subscription(DiagnosticArray, "/pvo/sun_bcnn/status", statuses.append, RELIABLE)
+    try:
+        with Spinner(ros_context, node), Spinner(ros_context, talker):
+            wait_for(lambda: publisher.get_subscription_count() > 0, 10)
+            publisher.publish(image_message(np.zeros((40, 80), np.uint8), 1_000_000_000))
+            wait_for(lambda: bool(statuses), 20)
+    finally:
+        node.destroy_node()
+        talker.destroy_node()
+    assert received == []
+    assert statuses[0].status[0].level == DiagnosticStatus.ERROR
+    assert "model directory not found" in statuses[0].status[0].message
