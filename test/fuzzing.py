@@ -76,6 +76,33 @@ def covariance_variants(msg: Any, field: str, size: int) -> list[Variant]:
     ]
 
 
+def image_variants(msg: Any) -> list[Variant]:
+    """Bad versions of a good ``sensor_msgs/Image`` (mono8); ``reason``: words the rejection must contain."""
+
+    def truncate(m: Any) -> None:
+        m.data = bytes(m.data)[: len(m.data) // 2]
+
+    def empty(m: Any) -> None:
+        m.data = b""
+
+    def zero_width(m: Any) -> None:
+        m.width = 0
+
+    def wide_pixels(m: Any) -> None:
+        m.encoding = "mono16"
+
+    def unknown(m: Any) -> None:
+        m.encoding = "yuv422"
+
+    return [
+        Variant("unknown encoding", _with(msg, unknown), "unsupported image encoding 'yuv422'"),
+        Variant("16-bit pixels", _with(msg, wide_pixels), "unsupported image encoding 'mono16'"),
+        Variant("empty image", _with(msg, empty), "image data of 0 bytes does not match"),
+        Variant("truncated image", _with(msg, truncate), "does not match"),
+        Variant("zero width", _with(msg, zero_width), "does not match 0x"),
+    ]
+
+
 def set_stamp(stamp: Any, nanoseconds: int) -> None:
     stamp.sec, stamp.nanosec = divmod(int(nanoseconds), 1_000_000_000)
 

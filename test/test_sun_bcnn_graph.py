@@ -110,3 +110,33 @@ def test_a_missing_model_is_reported_and_the_node_keeps_running(ros_context, tmp
     assert received == []
     assert statuses[0].status[0].level == DiagnosticStatus.ERROR
     assert "model directory not found" in statuses[0].status[0].message
+
+
+def test_every_bad_image_is_rejected_with_its_reason(ros_context, tiny_model: Path) -> None:
+    from fuzzing import image_variants
+    from pvo_pseudosensors.sun_bcnn_node import SunBCNNNode
+
+    parameters = [Parameter("model", value=str(tiny_model)), Parameter("every_n", value=1), Parameter("samples", value=3)]
+    node = SunBCNNNode(context=ros_context, parameter_overrides=parameters)
+    talker = Node("camera", context=ros_context)
+    publisher = talker.create_publisher(Image, "/stereo/left/image_rect", RELIABLE)
+    received: list[SunDirection] = []
+    statuses: list[DiagnosticArray] = []
+    talker.create_subscription(SunDirection, "/pvo/sun/direction", received.append, RELIABLE)
+    talker.create_subscription(DiagnosticArray, "/pvo/sun_bcnn/status", statuses.append, RELIABLE)
+    good = image_message(np.random.default_rng(1).integers(0, 256, (60, 160), dtype=np.uint8), 1_000_000_000)
+    variants = image_variants(good)
+    try:
+        with Spinner(ros_context, node), Spinner(ros_context, talker):
+            wait_for(lambda: publisher.get_subscription_count() > 0, 10)
+            for variant in variants:
+                publisher.publish(variant.message)
+            publisher.publish(good)
+            wait_for(lambda: len(statuses) >= len(variants) + 1, 30)
+    finally:
+        node.destroy_node()
+        talker.destroy_node()
+    messages = [s.status[0].message for s in statuses]
+    for variant, message in zip(variants, messages, strict=False):
+        assert variant.reason in message, (variant.name, message)
+    assert len(received) == 1 and statuses[-1].status[0].level == DiagnosticStatus.OK  # alive, and right after
