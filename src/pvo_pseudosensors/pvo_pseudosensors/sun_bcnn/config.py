@@ -14,7 +14,9 @@ ARCHITECTURE = "sun-bcnn"
 class SunBCNNConfig:
     """height, width: the input (px); colour: RGB or grey; widths: channels of the convolutional blocks (each
     a stride-2 3x3 convolution and a 3x3 one); hidden: the fully connected layer; dropout: probability after
-    every block and the hidden layer (kept on for MC sampling)."""
+    every block and the hidden layer (kept on for MC sampling); mirror: in training, each image is mirrored
+    left-right at random with the sun's x negated (a mirrored world has a mirrored sun: twice the suns to
+    learn from a corpus of few sequences)."""
 
     height: int = 94
     width: int = 310
@@ -22,6 +24,7 @@ class SunBCNNConfig:
     widths: tuple[int, ...] = (8, 16, 32, 64)
     hidden: int = 128
     dropout: float = 0.2
+    mirror: bool = True
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:

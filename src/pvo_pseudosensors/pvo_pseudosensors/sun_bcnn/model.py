@@ -65,8 +65,13 @@ class SunTask:
         return SunBCNN(self.config)
 
     def loss(self, model: nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        predicted = model(batch["left"])
-        return (1.0 - (predicted * batch["sun"]).sum(dim=1)).mean()
+        images, sun = batch["left"], batch["sun"]
+        if self.config.mirror and model.training:
+            flip = torch.rand(len(images)) < 0.5  # the global RNG: seeded, and checkpointed for --resume
+            images = torch.where(flip[:, None, None, None], images.flip(-1), images)
+            sun = torch.where(flip[:, None], sun * torch.tensor([-1.0, 1.0, 1.0]), sun)
+        predicted = model(images)
+        return (1.0 - (predicted * sun).sum(dim=1)).mean()
 
     def card(self) -> ModelCard:
         spec = self.config.spec

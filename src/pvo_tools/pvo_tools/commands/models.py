@@ -61,7 +61,7 @@ def _train_parser(actions: Any, entry: ModelEntry) -> None:
         default = field.default
         text = entry.options.get(field.name, field.name)
         if isinstance(default, bool):
-            model.add_argument(_option(field.name), action="store_true", help=text)
+            model.add_argument(_option(field.name), action=argparse.BooleanOptionalAction, default=default, help=text)
         elif isinstance(default, tuple):
             model.add_argument(_option(field.name), default=",".join(map(str, default)), help=f"{text} (default {default})")
         else:
