@@ -135,7 +135,7 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
     config = _model_config(args, entry)
     if int(os.environ.get("RANK", "0")) != 0:  # under torchrun only the first process talks
         args.quiet = True
-        sys.stdout = sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - for the life of this worker process
+        sys.stdout = sys.stderr = open(os.devnull, "w")  # for the life of this worker process
     loop = TrainConfig(**{name: getattr(args, name) for name in TRAIN_DEFAULTS})
     manifest = read_corpus_manifest(args.corpus)
     cache = args.cache or Path(args.corpus) / ".cache"
