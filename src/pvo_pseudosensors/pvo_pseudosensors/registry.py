@@ -78,6 +78,7 @@ def _sun_bcnn() -> ModelEntry:
             "widths": "channels of the convolutional blocks, comma-separated",
             "hidden": "units of the fully connected layer",
             "dropout": "dropout probability (kept on for MC sampling)",
+            "grid": "rows,columns of the region pooling before the head (1,1: global)",
             "mirror": "mirror training images left-right at random (the sun's x negated)",
         },
     )

@@ -26,7 +26,7 @@ from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
 from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask
 
 SIZE = (24, 64)  # the tiny model's input (height, width)
-TINY = SunBCNNConfig(height=SIZE[0], width=SIZE[1], widths=(4, 8), hidden=8, dropout=0.1)
+TINY = SunBCNNConfig(height=SIZE[0], width=SIZE[1], widths=(4, 8), hidden=8, dropout=0.1, grid=(1, 1), mirror=False)
 
 
 def write_sequence(root: Path, frames: int = 12, seed: int = 0, size: tuple[int, int] = (48, 128)) -> Path:
@@ -298,3 +298,28 @@ def test_each_bad_checkpoint_is_one_line_naming_the_file(saved: Path, damage: st
 def test_another_input_size_is_refused(saved: Path) -> None:
     with pytest.raises(ModelFileError, match=r"model.yaml: made for 24x64 \(HxW\) input, not 48x128"):
         load_model(saved, "sun-bcnn", build, (48, 128))
+
+
+def test_mirroring_negates_the_suns_x_with_the_image() -> None:
+    class Equivariant(torch.nn.Module):
+        """Reads the sun's x from which side of the image is brighter: mirroring the image mirrors the answer."""
+
+        def forward(self, images: torch.Tensor) -> torch.Tensor:
+            half = images.shape[-1] // 2
+            x = images[..., half:].mean(dim=(1, 2, 3)) - images[..., :half].mean(dim=(1, 2, 3))
+            return torch.nn.functional.normalize(torch.stack([x, torch.zeros_like(x), torch.full_like(x, 0.1)], dim=1), dim=1)
+
+    ramp = torch.linspace(0, 1, 16).repeat(4, 1, 8, 1)  # brighter to the right: the sun to the right (+x)
+    batch = {"left": ramp, "sun": torch.nn.functional.normalize(torch.tensor([[1.0, 0.0, 0.1]] * 4), dim=1)}
+    task = SunTask(replace(TINY, mirror=True))
+    model = Equivariant().train()
+    plain = float(SunTask(replace(TINY, mirror=False)).loss(model, batch))
+    torch.manual_seed(0)
+    assert float(task.loss(model, batch)) == pytest.approx(plain, abs=1e-6)  # flipped or not, the same error
+
+    class Constant(torch.nn.Module):
+        def forward(self, images: torch.Tensor) -> torch.Tensor:
+            return batch["sun"][: len(images)]
+
+    torch.manual_seed(0)
+    assert float(task.loss(Constant().train(), batch)) > 0.5  # some samples were mirrored: their sun moved to -x

@@ -14,7 +14,8 @@ ARCHITECTURE = "sun-bcnn"
 class SunBCNNConfig:
     """height, width: the input (px); colour: RGB or grey; widths: channels of the convolutional blocks (each
     a stride-2 3x3 convolution and a 3x3 one); hidden: the fully connected layer; dropout: probability after
-    every block and the hidden layer (kept on for MC sampling); mirror: in training, each image is mirrored
+    every block and the hidden layer (kept on for MC sampling); grid: rows and columns of the average pooling
+    before the head (where things are in the image says where the sun is; (1, 1) is global pooling); mirror: in training, each image is mirrored
     left-right at random with the sun's x negated (a mirrored world has a mirrored sun: twice the suns to
     learn from a corpus of few sequences)."""
 
@@ -25,10 +26,13 @@ class SunBCNNConfig:
     hidden: int = 128
     dropout: float = 0.2
     mirror: bool = True
+    grid: tuple[int, ...] = (2, 4)
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:
             raise ValueError("Sun-BCNN needs an input of at least 16 px, at least one block and dropout in [0, 1)")
+        if len(self.grid) != 2 or min(self.grid) < 1:
+            raise ValueError(f"grid must be two positive numbers (rows, columns), got {self.grid}")
 
     @property
     def spec(self) -> DataSpec:
@@ -38,4 +42,5 @@ class SunBCNNConfig:
     def from_card(cls, card: Any) -> SunBCNNConfig:
         values = dict(card.hyperparameters)
         values["widths"] = tuple(values["widths"])
+        values["grid"] = tuple(values.get("grid", (1, 1)))
         return cls(**values)

@@ -34,16 +34,18 @@ class SunBCNN(nn.Module):
         self.features = nn.Sequential(*layers)
         self.head = nn.Sequential(
             nn.Flatten(),
-            nn.Linear(channels * 2, config.hidden),
+            nn.Linear(channels * (1 + config.grid[0] * config.grid[1]), config.hidden),
             nn.ReLU(inplace=True),
             nn.Dropout(config.dropout),
             nn.Linear(config.hidden, 3),
         )
 
     def pooled(self, image: torch.Tensor) -> torch.Tensor:
-        """The backbone: (B, C, H, W) in [0, 1] -> (B, 2 x last width) average- and max-pooled features."""
+        """The backbone: (B, C, H, W) in [0, 1] -> (B, (1 + grid cells) x last width): max-pooled features and
+        features average-pooled over a grid of image regions."""
         x = self.features(image - 0.5)
-        return torch.cat([x.mean(dim=(2, 3)), x.amax(dim=(2, 3))], dim=1)
+        regions = nn.functional.adaptive_avg_pool2d(x, self.config.grid).flatten(1)
+        return torch.cat([x.amax(dim=(2, 3)), regions], dim=1)
 
     def direction(self, pooled: torch.Tensor) -> torch.Tensor:
         """The head: pooled features -> (B, 3) unit vectors towards the sun."""
