@@ -15,9 +15,9 @@ class SunBCNNConfig:
     """height, width: the input (px); colour: RGB or grey; widths: channels of the convolutional blocks (each
     a stride-2 3x3 convolution and a 3x3 one); hidden: the fully connected layer; dropout: probability after
     every block and the hidden layer (kept on for MC sampling); grid: rows and columns of the average pooling
-    before the head (where things are in the image says where the sun is; (1, 1) is global pooling); mirror: in training, each image is mirrored
-    left-right at random with the sun's x negated (a mirrored world has a mirrored sun: twice the suns to
-    learn from a corpus of few sequences)."""
+    before the head (where things are in the image says where the sun is; (1, 1) is global pooling);
+    mirror: in training, each image is mirrored left-right at random with the sun's x negated (a mirrored
+    world has a mirrored sun: twice the suns to learn from a corpus of few sequences)."""
 
     height: int = 94
     width: int = 310
