@@ -160,5 +160,9 @@ def evaluate_predictions(predictions: Array, truth: Array) -> dict[str, float]:
     for name, values in errors.items():
         out[f"{name}_mean_deg"] = float(np.degrees(values.mean()))
         out[f"{name}_median_deg"] = float(np.degrees(np.median(values)))
+        out[f"{name}_std_deg"] = float(np.degrees(values.std()))
     out["anees"] = float(nees.mean() / 2.0)
+    close = 1.0 - np.sum(vectors * truth / np.linalg.norm(truth, axis=1, keepdims=True), axis=1) < 0.3
+    out["anees_filtered"] = float(nees[close].mean() / 2.0) if close.any() else float("nan")  # the thesis's code
+    out["filtered_images"] = float(close.sum())
     return out
