@@ -218,7 +218,12 @@ def test_two_processes_under_torchrun_match_one(sequences, tmp_path: Path) -> No
     env = dict(os.environ, OMP_NUM_THREADS="1")
     single = subprocess.run([sys.executable, str(script), *roots, str(tmp_path / "one")], env=env, capture_output=True, text=True)
     assert single.returncode == 0, single.stderr[-2000:]
-    torchrun = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-port", "29561"]
+    import socket
+
+    with socket.socket() as probe:  # a free port for the rendezvous (a fixed one may be taken)
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    torchrun = [sys.executable, "-m", "torch.distributed.run", "--nproc-per-node", "2", "--master-port", str(port)]
     double = subprocess.run([*torchrun, str(script), *roots, str(tmp_path / "two")], env=env, capture_output=True, text=True)
     assert double.returncode == 0, double.stderr[-2000:]
     one, two = weights(tmp_path / "one"), weights(tmp_path / "two")
