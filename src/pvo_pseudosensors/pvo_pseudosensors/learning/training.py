@@ -284,6 +284,12 @@ def fit(
         )
     if processes.main and history:
         _plot(out, history)
+    if processes.world > 1:
+        # leave together: a process that exits while another still holds the group's connections can abort
+        import torch.distributed as dist
+
+        dist.barrier()
+        dist.destroy_process_group()
     return TrainResult(out, best_epoch + 1, best, len(history), stopped, history, seconds=time.perf_counter() - started)
 
 
