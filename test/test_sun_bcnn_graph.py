@@ -3,7 +3,11 @@ sensor computes; a bad image or a missing model is reported and the node keeps r
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -46,34 +50,53 @@ def image_message(pixels: np.ndarray, stamp_ns: int, encoding: str = "mono8") ->
     return msg
 
 
-def test_images_in_sun_directions_out(ros_context, tiny_model: Path) -> None:
-    from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
+@dataclass
+class Graph:
+    """The sun_bcnn node, a camera publishing left images, and what comes back."""
+
+    node: Any
+    camera: Node
+    publisher: Any
+    received: list[SunDirection] = field(default_factory=list)
+    statuses: list[DiagnosticArray] = field(default_factory=list)
+
+
+@contextmanager
+def sun_bcnn_graph(ros_context, **parameters: Any) -> Iterator[Graph]:
+    """Start the node with ``parameters`` and a camera; spin both for the with-block, then tear down."""
     from pvo_pseudosensors.sun_bcnn_node import SunBCNNNode
 
-    parameters = [Parameter("model", value=str(tiny_model)), Parameter("every_n", value=2), Parameter("samples", value=5)]
-    node = SunBCNNNode(context=ros_context, parameter_overrides=parameters)
-    talker = Node("camera", context=ros_context)
-    publisher = talker.create_publisher(Image, "/stereo/left/image_rect", RELIABLE)
-    received: list[SunDirection] = []
-    statuses: list[DiagnosticArray] = []
-    talker.create_subscription(SunDirection, "/pvo/sun/direction", received.append, RELIABLE)
-    talker.create_subscription(DiagnosticArray, "/pvo/sun_bcnn/status", statuses.append, RELIABLE)
-    rng = np.random.default_rng(0)
-    images = [rng.integers(0, 256, (120, 320), dtype=np.uint8) for _ in range(6)]
+    overrides = [Parameter(name, value=value) for name, value in parameters.items()]
+    node = SunBCNNNode(context=ros_context, parameter_overrides=overrides)
+    camera = Node("camera", context=ros_context)
+    graph = Graph(node, camera, camera.create_publisher(Image, "/stereo/left/image_rect", RELIABLE))
+    camera.create_subscription(SunDirection, "/pvo/sun/direction", graph.received.append, RELIABLE)
+    camera.create_subscription(DiagnosticArray, "/pvo/sun_bcnn/status", graph.statuses.append, RELIABLE)
     try:
-        with Spinner(ros_context, node), Spinner(ros_context, talker):
-            wait_for(lambda: publisher.get_subscription_count() > 0 and node.count_publishers("/pvo/sun/direction") > 0, 10)
-            for k, pixels in enumerate(images[:4]):
-                publisher.publish(image_message(pixels, 1_000_000_000 + k * 100_000_000))
-            wait_for(lambda: len(received) >= 2, 30)
-            # a 16-bit image: rejected and reported; the node goes on with the next good one
-            publisher.publish(image_message(np.zeros((120, 320), np.uint16), 1_400_000_000, "mono16"))
-            publisher.publish(image_message(images[4], 1_500_000_000))
-            publisher.publish(image_message(images[5], 1_600_000_000))
-            wait_for(lambda: len(received) >= 3 and any(s.status[0].level == DiagnosticStatus.WARN for s in statuses), 30)
+        with Spinner(ros_context, node), Spinner(ros_context, camera):
+            # both directions matched before anything is sent: a late match would lose the first messages
+            wait_for(lambda: graph.publisher.get_subscription_count() > 0 and node.publisher.get_subscription_count() > 0, 10)
+            yield graph
     finally:
         node.destroy_node()
-        talker.destroy_node()
+        camera.destroy_node()
+
+
+def test_images_in_sun_directions_out(ros_context, tiny_model: Path) -> None:
+    from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
+
+    rng = np.random.default_rng(0)
+    images = [rng.integers(0, 256, (120, 320), dtype=np.uint8) for _ in range(6)]
+    with sun_bcnn_graph(ros_context, model=str(tiny_model), every_n=2, samples=5) as graph:
+        for k, pixels in enumerate(images[:4]):
+            graph.publisher.publish(image_message(pixels, 1_000_000_000 + k * 100_000_000))
+        wait_for(lambda: len(graph.received) >= 2, 30)
+        # a 16-bit image: rejected and reported; the node goes on with the next good one
+        graph.publisher.publish(image_message(np.zeros((120, 320), np.uint16), 1_400_000_000, "mono16"))
+        graph.publisher.publish(image_message(images[4], 1_500_000_000))
+        graph.publisher.publish(image_message(images[5], 1_600_000_000))
+        wait_for(lambda: len(graph.received) >= 3 and any(s.status[0].level == DiagnosticStatus.WARN for s in graph.statuses), 30)
+    received, statuses = graph.received, graph.statuses
 
     assert len(received) == 3  # images 0, 2 and (after the rejected one, 5th input) image 5
     reference = SunBCNNSensor(SunBCNNSensorConfig(model=str(tiny_model), every_n=2, samples=5))
@@ -90,23 +113,10 @@ def test_images_in_sun_directions_out(ros_context, tiny_model: Path) -> None:
 
 
 def test_a_missing_model_is_reported_and_the_node_keeps_running(ros_context, tmp_path: Path) -> None:
-    from pvo_pseudosensors.sun_bcnn_node import SunBCNNNode
-
-    node = SunBCNNNode(context=ros_context, parameter_overrides=[Parameter("model", value=str(tmp_path / "none"))])
-    talker = Node("camera", context=ros_context)
-    publisher = talker.create_publisher(Image, "/stereo/left/image_rect", RELIABLE)
-    received: list[SunDirection] = []
-    statuses: list[DiagnosticArray] = []
-    talker.create_subscription(SunDirection, "/pvo/sun/direction", received.append, RELIABLE)
-    talker.create_subscription(DiagnosticArray, "/pvo/sun_bcnn/status", statuses.append, RELIABLE)
-    try:
-        with Spinner(ros_context, node), Spinner(ros_context, talker):
-            wait_for(lambda: publisher.get_subscription_count() > 0, 10)
-            publisher.publish(image_message(np.zeros((40, 80), np.uint8), 1_000_000_000))
-            wait_for(lambda: bool(statuses), 20)
-    finally:
-        node.destroy_node()
-        talker.destroy_node()
+    with sun_bcnn_graph(ros_context, model=str(tmp_path / "none")) as graph:
+        graph.publisher.publish(image_message(np.zeros((40, 80), np.uint8), 1_000_000_000))
+        wait_for(lambda: bool(graph.statuses), 20)
+    received, statuses = graph.received, graph.statuses
     assert received == []
     assert statuses[0].status[0].level == DiagnosticStatus.ERROR
     assert "model directory not found" in statuses[0].status[0].message
@@ -114,28 +124,15 @@ def test_a_missing_model_is_reported_and_the_node_keeps_running(ros_context, tmp
 
 def test_every_bad_image_is_rejected_with_its_reason(ros_context, tiny_model: Path) -> None:
     from fuzzing import image_variants
-    from pvo_pseudosensors.sun_bcnn_node import SunBCNNNode
 
-    parameters = [Parameter("model", value=str(tiny_model)), Parameter("every_n", value=1), Parameter("samples", value=3)]
-    node = SunBCNNNode(context=ros_context, parameter_overrides=parameters)
-    talker = Node("camera", context=ros_context)
-    publisher = talker.create_publisher(Image, "/stereo/left/image_rect", RELIABLE)
-    received: list[SunDirection] = []
-    statuses: list[DiagnosticArray] = []
-    talker.create_subscription(SunDirection, "/pvo/sun/direction", received.append, RELIABLE)
-    talker.create_subscription(DiagnosticArray, "/pvo/sun_bcnn/status", statuses.append, RELIABLE)
     good = image_message(np.random.default_rng(1).integers(0, 256, (60, 160), dtype=np.uint8), 1_000_000_000)
     variants = image_variants(good)
-    try:
-        with Spinner(ros_context, node), Spinner(ros_context, talker):
-            wait_for(lambda: publisher.get_subscription_count() > 0, 10)
-            for variant in variants:
-                publisher.publish(variant.message)
-            publisher.publish(good)
-            wait_for(lambda: len(statuses) >= len(variants) + 1, 30)
-    finally:
-        node.destroy_node()
-        talker.destroy_node()
+    with sun_bcnn_graph(ros_context, model=str(tiny_model), every_n=1, samples=3) as graph:
+        for variant in variants:
+            graph.publisher.publish(variant.message)
+        graph.publisher.publish(good)
+        wait_for(lambda: len(graph.statuses) >= len(variants) + 1, 30)
+    received, statuses = graph.received, graph.statuses
     messages = [s.status[0].message for s in statuses]
     for variant, message in zip(variants, messages, strict=False):
         assert variant.reason in message, (variant.name, message)
