@@ -129,7 +129,7 @@ def test_overcast_has_no_cast_shadows_and_sunny_does(tmp_path: Path) -> None:
 def test_supersampling_keeps_every_pixel_where_it_was(tmp_path: Path) -> None:
     import cv2
 
-    _render(tmp_path / "one", camera=CameraModel.linear())
+    _render(tmp_path / "one", camera=CameraModel.linear(), supersample=1)
     _render(tmp_path / "two", camera=CameraModel.linear(), supersample=2)
     a = cv2.imread(str(tmp_path / "one" / "image_0" / "000001.png"), cv2.IMREAD_GRAYSCALE)
     b = cv2.imread(str(tmp_path / "two" / "image_0" / "000001.png"), cv2.IMREAD_GRAYSCALE)

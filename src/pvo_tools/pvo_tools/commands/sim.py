@@ -39,7 +39,7 @@ def register(sub: Any) -> None:
         "--supersample",
         type=int,
         default=0,
-        help="render N times larger, average down (1-4; default 0: urban 1, planetary 2)",
+        help="render N times larger, average down (1-4; default 0: 2 for both presets)",
     )
     sim.add_argument("--depth", action="store_true", help="also write depth_0/*.png (16-bit, metres x 256)")
     sim.add_argument("--seed", type=int, default=0, help="world and noise seed (default 0)")
