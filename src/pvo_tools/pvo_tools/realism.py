@@ -21,7 +21,7 @@ from pvo_core.readers import KittiSequence
 from pvo_core.results import RunResult
 from pvo_frontend.offline import run_sequence, summarise, track_monocular
 from pvo_frontend.vo import VOConfig
-from pvo_sim.realism import ImageStatistics, compare, image_statistics
+from pvo_sim.realism import compare, image_statistics
 
 from pvo_sim import KITTI_FOCAL_PER_PIXEL_WIDTH, SimConfig, simulate
 
@@ -190,10 +190,6 @@ def run_realism(options: RealismOptions, say: Callable[[str], None] = print) -> 
         inputs={"data": str(options.data), "compare": [f"{label}={folder}" for label, folder in options.compare]},
     )
     return result, sets
-
-
-def statistics_of(image_set: ImageSet) -> ImageStatistics:
-    return image_set.figures["_statistics"]
 
 
 def contact_sheet(sets: list[ImageSet], columns: int = 3, width: int = 400) -> Image:

@@ -14,6 +14,7 @@ from pvo_core.sun import angular_errors, sample_mean_and_covariance, unit_zenith
 
 from ..learning.checkpoint import ModelCard, load_model
 from ..learning.data import FrameDataset, Source
+from ..learning.spec import DataSpec
 from .model import ARCHITECTURE, SunBCNN, SunBCNNConfig
 
 Array = NDArray[np.float64]
@@ -68,7 +69,7 @@ def predict_sequence(
         raise ValueError(f"unknown MC mode {mode!r}: choose one of {', '.join(MODES)}")
     config = SunBCNNConfig.from_card(card)
     spec = config.spec
-    data = FrameDataset([Source(Path(sequence), Path(sequence).name)], type(spec)(spec.size, colour=spec.colour), cache_dir)
+    data = FrameDataset([Source(Path(sequence), Path(sequence).name)], DataSpec(spec.size, colour=spec.colour), cache_dir)
     if tau is None:
         tau = float(card.calibration.get("tau", np.inf))
     vectors, covariances, frames = [], [], []

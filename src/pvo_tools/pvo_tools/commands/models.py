@@ -128,9 +128,28 @@ def _corpus_command(manifest: Any) -> str:
     )
 
 
+def _dataset(sources: list, spec: Any, cache: Path, label: str, quiet: bool) -> Any:
+    """The dataset of ``sources``, with a progress bar while images are decoded into the cache (none when warm)."""
+    from pvo_pseudosensors.learning import FrameDataset
+
+    bar: Progress | None = None
+
+    def decoded() -> None:
+        nonlocal bar
+        if bar is None:
+            images = sum(len(s.images("left", spec.colour)) for s in sources) * (2 if spec.right else 1)
+            bar = Progress(images, f"{label}: decoding images into {cache}")
+        bar.update()
+
+    data = FrameDataset(sources, spec, cache, progress=None if quiet else decoded)
+    if bar is not None:
+        bar.close()
+    return data
+
+
 def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
     from pvo_core.readers import read_corpus_manifest
-    from pvo_pseudosensors.learning import FrameDataset, Source, TrainConfig, fit
+    from pvo_pseudosensors.learning import Source, TrainConfig, fit
 
     config = _model_config(args, entry)
     if int(os.environ.get("RANK", "0")) != 0:  # under torchrun only the first process talks
@@ -145,14 +164,8 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
         sequences = manifest.split(split)[: args.max_sequences or None]
         if not sequences:
             raise ValueError(f"{manifest.path}: no sequence in the {split} split")
-        bar = None if args.quiet else Progress(len(sequences), f"{split}: decoding and caching sequences")
-        sources = []
-        for sequence in sequences:
-            sources.append(Source(sequence.root, sequence.name, split))
-        sets[split] = FrameDataset(sources, spec, cache)
-        if bar:
-            bar.update(len(sequences))
-            bar.close()
+        sources = [Source(sequence.root, sequence.name, split) for sequence in sequences]
+        sets[split] = _dataset(sources, spec, cache, split, args.quiet)
     print(f"{entry.name}: {len(sets['train'])} training and {len(sets['validation'])} validation samples", file=sys.stderr)
     bar: Progress | None = None
 
