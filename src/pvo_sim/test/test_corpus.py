@@ -35,6 +35,8 @@ def test_plans_vary_and_depend_only_on_seed_and_index() -> None:
     assert any(p.config.degradations.distortion for p in plans)
     assert any(p.config.degradations.focal_scale != 1.0 for p in plans)
     assert len({p.config.camera for p in plans}) == 200  # every sequence its own camera
+    assert {p.config.scale for p in plans} == {1}  # rendered at the corpus's size unless asked otherwise
+    assert plan_sequence(CorpusConfig(frames=10, seed=3, supersample=2), 4).config.scale == 2
 
 
 def test_sun_elevations_span_low_to_high() -> None:
@@ -61,6 +63,8 @@ def test_bad_corpus_settings_are_refused() -> None:
         CorpusConfig(split=(0.5, 0.5, 0.5))
     with pytest.raises(ValueError, match="overcast"):
         CorpusConfig(overcast=1.5)
+    with pytest.raises(ValueError, match="--supersample must be 1, 2, 3 or 4, got 0"):
+        CorpusConfig(supersample=0)
 
 
 def _render(out: Path, **kwargs) -> corpus_module.CorpusResult:
