@@ -42,12 +42,8 @@ def test_far_tiles_are_the_fine_ones_subsampled_and_edges_match() -> None:
         assert tile.shape == (TILE_SAMPLES + 1, TILE_SAMPLES + 1)
         assert np.array_equal(coarse, tile[::LOD_STEP, ::LOD_STEP])
         # a fine tile's border, read at its own resolution, is the coarse border interpolated: no crack
-        for border, coarse_border in (
-            (tile[0], coarse[0]),
-            (tile[-1], coarse[-1]),
-            (tile[:, 0], coarse[:, 0]),
-            (tile[:, -1], coarse[:, -1]),
-        ):
+        borders = ((tile[0], coarse[0]), (tile[-1], coarse[-1]), (tile[:, 0], coarse[:, 0]), (tile[:, -1], coarse[:, -1]))
+        for border, coarse_border in borders:
             positions = np.arange(len(border))
             assert np.allclose(border, np.interp(positions, positions[::LOD_STEP], coarse_border), atol=1e-12)
     groups = {f'hfield="{name}"': LOD_NEAR_GROUP for name in far} | {f'hfield="{name}_far"': LOD_FAR_GROUP for name in far}
