@@ -67,6 +67,21 @@ def sample_mean_and_covariance(samples: ArrayLike, tau: float = np.inf) -> tuple
     return mean, covariance
 
 
+def aleatoric_covariance(mean: ArrayLike, inverse_concentration: ArrayLike) -> Array:
+    """(N, 2, 2) covariance over (zenith, azimuth) in rad² of a von Mises-Fisher spread about unit vectors
+    ``mean`` (N, 3) with 1/kappa ``inverse_concentration`` (N,): for a concentrated vMF the angular deviation
+    along each tangent direction has variance 1/kappa; an azimuth step moves the vector by sin(zenith) times
+    as much, so its variance is 1/(kappa sin² zenith) (capped near the poles, where azimuth is undefined)."""
+    m = np.asarray(mean, dtype=float)
+    variance = np.asarray(inverse_concentration, dtype=float)
+    zenith, _ = unit_zenith_azimuth(m)
+    sin2 = np.maximum(np.sin(zenith) ** 2, 1e-3)
+    covariance = np.zeros((len(m), 2, 2))
+    covariance[:, 0, 0] = variance
+    covariance[:, 1, 1] = variance / sin2
+    return covariance
+
+
 def angular_errors(predicted: ArrayLike, truth: ArrayLike) -> dict[str, Array]:
     """Per-vector errors (rad) of predicted against true unit vectors (N, 3): the angle between them, and the
     absolute zenith and (wrapped) azimuth differences."""

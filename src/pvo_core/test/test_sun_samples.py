@@ -53,3 +53,18 @@ def test_calibrated_tau_gives_the_target_anees() -> None:
     assert anees == pytest.approx(1.0, rel=1e-6)
     assert 1.0 / tau == pytest.approx(0.05**2, rel=0.25)  # it recovers most of the missing variance
     assert calibrate_tau(residuals, covariance * 1e4) == np.inf  # already wide enough: nothing to add
+
+
+@pytest.mark.parametrize(("zenith", "kappa"), [(1.2, 400.0), (0.5, 2000.0), (2.4, 900.0)])
+def test_aleatoric_covariance_matches_von_mises_fisher_draws(zenith: float, kappa: float) -> None:
+    from pvo_core.sun import aleatoric_covariance, unit_zenith_azimuth, wrap_angle
+    from scipy.stats import vonmises_fisher
+
+    mean = zenith_azimuth_to_vector(zenith, 0.7)
+    draws = vonmises_fisher(mean, kappa).rvs(20000, random_state=np.random.default_rng(3))
+    z, a = unit_zenith_azimuth(draws)
+    empirical = np.cov(np.vstack([z - zenith, wrap_angle(a - 0.7)]))
+    predicted = aleatoric_covariance(mean[None], np.array([1.0 / kappa]))[0]
+    np.testing.assert_allclose(np.diag(predicted), np.diag(empirical), rtol=0.05)
+    assert abs(empirical[0, 1]) < 0.05 * np.sqrt(empirical[0, 0] * empirical[1, 1])  # no correlation
+    assert predicted[0, 1] == predicted[1, 0] == 0.0

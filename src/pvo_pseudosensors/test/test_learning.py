@@ -305,11 +305,19 @@ def test_another_input_size_is_refused(saved: Path) -> None:
         load_model(saved, "sun-bcnn", build, (48, 128))
 
 
+class _Direct(torch.nn.Module):
+    """A stand-in with SunBCNN's interface: the direction from ``direction_of``, no aleatoric output."""
+
+    def forward(self, images: torch.Tensor, with_concentration: bool = False):
+        vectors = self.direction_of(images)
+        return (vectors, None) if with_concentration else vectors
+
+
 def test_mirroring_negates_the_suns_x_with_the_image() -> None:
-    class Equivariant(torch.nn.Module):
+    class Equivariant(_Direct):
         """Reads the sun's x from which side of the image is brighter: mirroring the image mirrors the answer."""
 
-        def forward(self, images: torch.Tensor) -> torch.Tensor:
+        def direction_of(self, images: torch.Tensor) -> torch.Tensor:
             half = images.shape[-1] // 2
             x = images[..., half:].mean(dim=(1, 2, 3)) - images[..., :half].mean(dim=(1, 2, 3))
             return torch.nn.functional.normalize(torch.stack([x, torch.zeros_like(x), torch.full_like(x, 0.1)], dim=1), dim=1)
@@ -322,9 +330,58 @@ def test_mirroring_negates_the_suns_x_with_the_image() -> None:
     torch.manual_seed(0)
     assert float(task.loss(model, batch)) == pytest.approx(plain, abs=1e-6)  # flipped or not, the same error
 
-    class Constant(torch.nn.Module):
-        def forward(self, images: torch.Tensor) -> torch.Tensor:
+    class Constant(_Direct):
+        def direction_of(self, images: torch.Tensor) -> torch.Tensor:
             return batch["sun"][: len(images)]
 
     torch.manual_seed(0)
     assert float(task.loss(Constant().train(), batch)) > 0.5  # some samples were mirrored: their sun moved to -x
+
+
+def test_the_vmf_likelihood_matches_scipy_and_the_loss_teaches_kappa_the_error() -> None:
+    from pvo_pseudosensors.sun_bcnn.model import vmf_negative_log_likelihood
+    from scipy.stats import vonmises_fisher
+
+    mu = np.array([0.0, 0.0, 1.0])
+    for kappa, angle in ((0.5, 2.0), (3.0, 0.4), (80.0, 0.1), (5000.0, 0.01)):
+        s = np.array([np.sin(angle), 0.0, np.cos(angle)])
+        ours = float(vmf_negative_log_likelihood(torch.tensor(kappa, dtype=torch.float64), torch.tensor(np.cos(angle))))
+        assert ours == pytest.approx(-vonmises_fisher(mu, kappa).logpdf(s), rel=1e-9, abs=1e-9)
+    # with the direction held, the NLL is least where 1/kappa is the mean of 1 - cos over the batch (large kappa)
+    cosine = torch.cos(torch.full((64,), 0.05, dtype=torch.float64))
+    kappas = torch.linspace(50, 2000, 400, dtype=torch.float64)
+    nll = torch.stack([vmf_negative_log_likelihood(k, cosine).mean() for k in kappas])
+    assert float(kappas[nll.argmin()]) == pytest.approx(1.0 / float((1 - cosine).mean()), rel=0.02)
+
+
+def test_the_aleatoric_output_learns_larger_covariance_for_noisier_images(tmp_path: Path) -> None:
+    """Images whose sun is hidden (flat) and images showing it (a ramp): the trained kappa is far lower on the
+    flat ones, and the predicted covariance (with no tau) far larger."""
+    from pvo_pseudosensors.sun_bcnn.infer import _draws, combine
+
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    n, (h, w) = 256, SIZE
+    suns = rng.normal(size=(n, 3))
+    suns[:, 2] = np.abs(suns[:, 2]) + 0.5
+    suns /= np.linalg.norm(suns, axis=1, keepdims=True)
+    u, v = np.meshgrid(np.linspace(-1, 1, w), np.linspace(-1, 1, h))
+    hidden = np.arange(n) % 2 == 1
+    images = np.stack([0.5 + 0.3 * (0.0 if flat else 1.0) * (s[0] * u + s[1] * v) for s, flat in zip(suns, hidden, strict=True)])
+    images = torch.tensor(images[:, None], dtype=torch.float32)
+    targets = torch.tensor(suns, dtype=torch.float32)
+    config = replace(TINY, mirror=False, dropout=0.05, aleatoric=True)
+    task, model = SunTask(config), SunBCNN(config)
+    optimiser = torch.optim.Adam(model.parameters(), lr=3e-3)
+    for _ in range(250):
+        optimiser.zero_grad()
+        task.loss(model.train(), {"left": images, "sun": targets}).backward()
+        optimiser.step()
+    draws = _draws(model, images, 8, seed=1)
+    assert draws.inverse_concentration is not None
+    inverse = draws.inverse_concentration.mean(axis=0)
+    assert np.median(inverse[hidden]) > 5 * np.median(inverse[~hidden])
+    _, covariance = combine(draws, np.inf)
+    spread = np.trace(covariance, axis1=1, axis2=2)
+    assert np.median(spread[hidden]) > 3 * np.median(spread[~hidden])
+    assert np.all(np.linalg.eigvalsh(covariance) > 0) and np.allclose(covariance, covariance.transpose(0, 2, 1))

@@ -17,7 +17,10 @@ class SunBCNNConfig:
     every block and the hidden layer (kept on for MC sampling); grid: rows and columns of the average pooling
     before the head (where things are in the image says where the sun is; (1, 1) is global pooling);
     mirror: in training, each image is mirrored left-right at random with the sun's x negated (a mirrored
-    world has a mirrored sun: twice the suns to learn from a corpus of few sequences)."""
+    world has a mirrored sun: twice the suns to learn from a corpus of few sequences); aleatoric: a fourth
+    output, the concentration kappa of a von Mises-Fisher distribution about the predicted direction, trained
+    by its negative log-likelihood, so that hard images (overcast, no shadows in view, blur) get a larger
+    covariance than easy ones (the thesis's single tau cannot: its §5.8.1)."""
 
     height: int = 94
     width: int = 310
@@ -27,6 +30,7 @@ class SunBCNNConfig:
     dropout: float = 0.2
     mirror: bool = True
     grid: tuple[int, ...] = (2, 4)
+    aleatoric: bool = True
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:
@@ -43,4 +47,5 @@ class SunBCNNConfig:
         values = dict(card.hyperparameters)
         values["widths"] = tuple(values["widths"])
         values["grid"] = tuple(values.get("grid", (1, 1)))
+        values.setdefault("aleatoric", False)  # models from before the option had none
         return cls(**values)

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from pvo_core.sun import sample_mean_and_covariance, unit_zenith_azimuth
+from pvo_core.sun import unit_zenith_azimuth
 
-from .infer import MODES, _draws, load_sun_bcnn
+from .infer import MODES, _draws, combine, load_sun_bcnn
 
 Array = NDArray[np.float64]
 
@@ -85,6 +85,6 @@ class SunBCNNSensor:
         seed = self.config.seed + self.count
         self.count += 1
         draws = _draws(self.model, tensor, self.config.samples, seed, self.config.mode)
-        mean, covariance = sample_mean_and_covariance(draws, self.tau)
+        mean, covariance = combine(draws, self.tau)
         zenith, azimuth = unit_zenith_azimuth(mean)
         return SunEstimate(mean[0], float(zenith[0]), float(azimuth[0]), covariance[0])

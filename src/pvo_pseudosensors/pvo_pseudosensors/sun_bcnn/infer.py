@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 from pvo_core.readers import SUN_PREDICTIONS_HEADER
-from pvo_core.sun import angular_errors, sample_mean_and_covariance, unit_zenith_azimuth
+from pvo_core.sun import aleatoric_covariance, angular_errors, sample_mean_and_covariance, unit_zenith_azimuth
 
 from ..learning.checkpoint import ModelCard, load_model
 from ..learning.data import FrameDataset, Source
@@ -78,7 +78,7 @@ def predict_sequence(
         items = [data[i] for i in range(start, min(start + batch, len(data)))]
         images = torch.stack([item["left"] for item in items])
         draws = _draws(model, images, samples, int(torch.randint(0, 2**31 - 1, (1,), generator=generator)), mode)
-        mean, covariance = sample_mean_and_covariance(draws, tau)
+        mean, covariance = combine(draws, tau)
         vectors.append(mean)
         covariances.append(covariance)
         frames += [int(item["frame"]) for item in items]
@@ -87,8 +87,17 @@ def predict_sequence(
     return SunPredictions(np.asarray(frames), vectors_all, zenith, azimuth, np.concatenate(covariances))
 
 
-def _draws(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, mode: str = "full") -> Array:
-    """(samples, B, 3) MC-dropout draws; the global RNG is left as it was."""
+@dataclass
+class Draws:
+    """MC-dropout passes over a batch: unit vectors (S, B, 3) and 1/kappa (S, B) of the aleatoric output
+    (None without it)."""
+
+    vectors: Array
+    inverse_concentration: Array | None
+
+
+def _draws(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, mode: str = "full") -> Draws:
+    """``samples`` MC-dropout passes; the global RNG is left as it was."""
     state = torch.get_rng_state()
     torch.manual_seed(seed)
     try:
@@ -97,14 +106,26 @@ def _draws(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, mode: 
                 model.eval()
                 pooled = model.pooled(images)  # once, deterministic
                 model.head.train()
-                draws = [model.direction(pooled) for _ in range(samples)]
+                passes = [model.outputs(pooled) for _ in range(samples)]
             else:
                 model.train()  # dropout on everywhere
-                draws = [model(images) for _ in range(samples)]
-            return torch.stack(draws).double().numpy()
+                passes = [model.outputs(model.pooled(images)) for _ in range(samples)]
+            vectors = torch.stack([v for v, _ in passes]).double().numpy()
+            kappas = [k for _, k in passes]
+            inverse = None if kappas[0] is None else (1.0 / torch.stack(kappas)).double().numpy()  # type: ignore[arg-type]
+            return Draws(vectors, inverse)
     finally:
         model.eval()
         torch.set_rng_state(state)
+
+
+def combine(draws: Draws, tau: float) -> tuple[Array, Array]:
+    """Method I mean (B, 3) and the covariance (B, 2, 2) over (zenith, azimuth): Method II's sample
+    covariance (epistemic) + tau^-1 I + the mean over passes of the aleatoric vMF covariance."""
+    mean, covariance = sample_mean_and_covariance(draws.vectors, tau)
+    if draws.inverse_concentration is not None:
+        covariance = covariance + aleatoric_covariance(mean, draws.inverse_concentration.mean(axis=0))
+    return mean, covariance
 
 
 def calibrate(

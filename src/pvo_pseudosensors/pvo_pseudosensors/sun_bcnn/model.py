@@ -2,11 +2,15 @@
 
 A small CNN for a CPU (input and widths in :class:`SunBCNNConfig`), dropout after the convolutional blocks
 and the fully connected layer, a unit-norm 3-vector output in the camera's optical frame (x right, y down,
-z forward), trained with the loss 1 - s·ŝ (thesis eq. 5.3). Prediction (MC dropout) is in :mod:`.infer`.
+z forward), trained with the loss 1 - s·ŝ (thesis eq. 5.3); optionally (``aleatoric``) a concentration kappa
+of a von Mises-Fisher distribution about it, trained by its negative log-likelihood with the direction held
+fixed (so the direction learns exactly as the thesis's, and kappa learns how far off it tends to be).
+Prediction (MC dropout) is in :mod:`.infer`.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import torch
@@ -37,7 +41,7 @@ class SunBCNN(nn.Module):
             nn.Linear(channels * (1 + config.grid[0] * config.grid[1]), config.hidden),
             nn.ReLU(inplace=True),
             nn.Dropout(config.dropout),
-            nn.Linear(config.hidden, 3),
+            nn.Linear(config.hidden, 4 if config.aleatoric else 3),
         )
 
     def pooled(self, image: torch.Tensor) -> torch.Tensor:
@@ -47,18 +51,34 @@ class SunBCNN(nn.Module):
         regions = nn.functional.adaptive_avg_pool2d(x, self.config.grid).flatten(1)
         return torch.cat([x.amax(dim=(2, 3)), regions], dim=1)
 
+    def outputs(self, pooled: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The head: pooled features -> (B, 3) unit vectors towards the sun and (B,) concentrations kappa
+        (>= 1; None without the aleatoric output)."""
+        raw = self.head(pooled)
+        vectors = nn.functional.normalize(raw[:, :3], dim=1)
+        return vectors, (nn.functional.softplus(raw[:, 3]) + 1.0 if self.config.aleatoric else None)
+
     def direction(self, pooled: torch.Tensor) -> torch.Tensor:
         """The head: pooled features -> (B, 3) unit vectors towards the sun."""
-        return nn.functional.normalize(self.head(pooled), dim=1)
+        return self.outputs(pooled)[0]
 
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
-        """(B, C, H, W) in [0, 1] -> (B, 3) unit vectors towards the sun."""
-        return self.direction(self.pooled(image))
+    def forward(self, image: torch.Tensor, with_concentration: bool = False):
+        """(B, C, H, W) in [0, 1] -> (B, 3) unit vectors towards the sun; with_concentration: also the (B,)
+        kappas, as :meth:`outputs` (through forward, so that DistributedDataParallel syncs the gradients)."""
+        vectors, kappa = self.outputs(self.pooled(image))
+        return (vectors, kappa) if with_concentration else vectors
+
+
+def vmf_negative_log_likelihood(kappa: torch.Tensor, cosine: torch.Tensor) -> torch.Tensor:
+    """-log p(s | mu, kappa) of the von Mises-Fisher distribution on the sphere, for mu·s = ``cosine``:
+    -log kappa + log(2 pi (1 - exp(-2 kappa))) + kappa (1 - cosine), stable for any kappa > 0."""
+    return -torch.log(kappa) + math.log(2.0 * math.pi) + torch.log(-torch.expm1(-2.0 * kappa)) + kappa * (1.0 - cosine)
 
 
 @dataclass
 class SunTask:
-    """Sun-BCNN for the training loop: loss 1 - s·ŝ averaged over the batch."""
+    """Sun-BCNN for the training loop: loss 1 - s·ŝ averaged over the batch, plus the von Mises-Fisher
+    negative log-likelihood of the true sun about the (fixed) prediction with the aleatoric output."""
 
     config: SunBCNNConfig
     architecture: str = ARCHITECTURE
@@ -72,8 +92,12 @@ class SunTask:
             flip = torch.rand(len(images)) < 0.5  # the global RNG: seeded, and checkpointed for --resume
             images = torch.where(flip[:, None, None, None], images.flip(-1), images)
             sun = torch.where(flip[:, None], sun * torch.tensor([-1.0, 1.0, 1.0]), sun)
-        predicted = model(images)
-        return (1.0 - (predicted * sun).sum(dim=1)).mean()
+        predicted, kappa = model(images, with_concentration=True)
+        cosine = (predicted * sun).sum(dim=1)
+        loss = (1.0 - cosine).mean()
+        if kappa is not None:
+            loss = loss + vmf_negative_log_likelihood(kappa, cosine.detach()).mean()
+        return loss
 
     def card(self) -> ModelCard:
         spec = self.config.spec
