@@ -67,6 +67,39 @@ def sample_mean_and_covariance(samples: ArrayLike, tau: float = np.inf) -> tuple
     return mean, covariance
 
 
+def angle_mean(samples: ArrayLike) -> Array:
+    """The thesis's Method II mean (§5.9.3): the arithmetic mean of the samples' zenith and azimuth angles
+    (S, N, 3) -> (N, 3) unit vectors. As the text has it, the azimuths are averaged as numbers: samples on
+    both sides of the +-pi cut average to the wrong side (one reason Method I wins in Table 5.7)."""
+    draws = np.asarray(samples, dtype=float)
+    zenith, azimuth = unit_zenith_azimuth(draws / np.linalg.norm(draws, axis=2, keepdims=True))
+    return zenith_azimuth_to_vector(zenith.mean(axis=0), azimuth.mean(axis=0))
+
+
+def zenith_azimuth_jacobian(vectors: ArrayLike) -> Array:
+    """d(zenith, azimuth)/ds (N, 2, 3) at unit vectors (N, 3) of eq. 5.7 (zenith = atan2(hypot(sx, sz), -sy),
+    azimuth = atan2(sx, sz))."""
+    s = np.asarray(vectors, dtype=float)
+    sx, sy, sz = s[:, 0], s[:, 1], s[:, 2]
+    r2 = np.maximum(sx**2 + sz**2, 1e-12)
+    r = np.sqrt(r2)
+    rho2 = r2 + sy**2
+    jacobian = np.zeros((len(s), 2, 3))
+    jacobian[:, 0] = np.stack([-sy * sx / (r * rho2), r / rho2, -sy * sz / (r * rho2)], axis=1)
+    jacobian[:, 1] = np.stack([sz / r2, np.zeros_like(sx), -sx / r2], axis=1)
+    return jacobian
+
+
+def vector_covariance_in_angles(samples: ArrayLike, mean: ArrayLike) -> Array:
+    """The thesis's Method I covariance (§5.9.4): the 3x3 sample covariance of the unit vectors (S, N, 3),
+    propagated to (zenith, azimuth) through eq. 5.7 linearised at ``mean`` (N, 3) -> (N, 2, 2) rad²."""
+    draws = np.asarray(samples, dtype=float)
+    deviations = draws - draws.mean(axis=0)
+    covariance3 = np.einsum("sni,snj->nij", deviations, deviations) / (draws.shape[0] - 1)
+    jacobian = zenith_azimuth_jacobian(np.asarray(mean, dtype=float))
+    return np.einsum("nij,njk,nlk->nil", jacobian, covariance3, jacobian)
+
+
 def aleatoric_covariance(mean: ArrayLike, inverse_concentration: ArrayLike) -> Array:
     """(N, 2, 2) covariance over (zenith, azimuth) in rad² of a von Mises-Fisher spread about unit vectors
     ``mean`` (N, 3) with 1/kappa ``inverse_concentration`` (N,): for a concentrated vMF the angular deviation

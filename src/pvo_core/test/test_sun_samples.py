@@ -68,3 +68,33 @@ def test_aleatoric_covariance_matches_von_mises_fisher_draws(zenith: float, kapp
     np.testing.assert_allclose(np.diag(predicted), np.diag(empirical), rtol=0.05)
     assert abs(empirical[0, 1]) < 0.05 * np.sqrt(empirical[0, 0] * empirical[1, 1])  # no correlation
     assert predicted[0, 1] == predicted[1, 0] == 0.0
+
+
+def test_method_one_covariance_is_the_propagated_vector_covariance() -> None:
+    from pvo_core.sun import unit_zenith_azimuth, vector_covariance_in_angles, zenith_azimuth_jacobian
+
+    rng = np.random.default_rng(4)
+    mean = zenith_azimuth_to_vector(1.1, -0.6)
+    # the Jacobian against central differences of eq. 5.7
+    step = 1e-6
+    numeric = np.zeros((2, 3))
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = step
+        plus, minus = unit_zenith_azimuth(mean + d), unit_zenith_azimuth(mean - d)
+        numeric[:, i] = (np.array(plus) - np.array(minus)) / (2 * step)
+    np.testing.assert_allclose(zenith_azimuth_jacobian(mean[None])[0], numeric, atol=1e-6)
+    # small spreads: Method I and Method II covariances agree
+    samples = zenith_azimuth_to_vector(1.1 + rng.normal(0, 0.01, 500), -0.6 + rng.normal(0, 0.02, 500))[:, None, :]
+    method_one = vector_covariance_in_angles(samples, mean[None])[0]
+    _, method_two = sample_mean_and_covariance(samples)
+    np.testing.assert_allclose(method_one, method_two[0], rtol=0.03, atol=1e-7)
+
+
+def test_method_two_mean_averages_the_angles_as_numbers() -> None:
+    from pvo_core.sun import angle_mean
+
+    samples = zenith_azimuth_to_vector(np.array([1.0, 1.2]), np.array([0.2, 0.4]))[:, None, :]
+    np.testing.assert_allclose(angle_mean(samples)[0], zenith_azimuth_to_vector(1.1, 0.3), atol=1e-12)
+    across = zenith_azimuth_to_vector(np.array([1.0, 1.0]), np.array([np.pi - 0.1, -np.pi + 0.1]))[:, None, :]
+    np.testing.assert_allclose(angle_mean(across)[0], zenith_azimuth_to_vector(1.0, 0.0), atol=1e-12)  # the wrong side

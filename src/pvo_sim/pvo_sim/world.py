@@ -201,8 +201,6 @@ def _builders() -> dict[str, Callable[[WorldSpec, WorldArea, np.random.Generator
 
 
 PRESETS = ("urban", "planetary")
-LOD_NEAR_GROUP = 3  # geom group of detail drawn only near the camera (pvo_sim.render.RangeCuller.detail)
-LOD_FAR_GROUP = 4  # its coarse twin, drawn only beyond
 #: Supersampling per preset by default: a camera pixel integrates light over its area, a rendered one samples
 #: a point. Without it gravel at grazing angles is a blur (planetary: 70-80 VO features a frame instead of
 #: 80-90, a steeper spectrum) and edges alias: on the 300-frame urban loop at 620x188 the VO drifted 2.63 % for

@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import shapes, textures
-from ..world import LOD_FAR_GROUP, LOD_NEAR_GROUP, WorldArea, WorldParts, WorldSpec, along_path, distance_to_path, image_material
+from ..world import WorldArea, WorldParts, WorldSpec, along_path, distance_to_path, image_material
 
 Array = NDArray[np.float64]
 ROCK_SHAPES = 10
@@ -77,51 +77,24 @@ def build(spec: WorldSpec, area: WorldArea, rng: np.random.Generator) -> WorldPa
 
 
 TILE_SAMPLES = 48  # height-field samples per terrain tile side: the renderer skips tiles out of range
-LOD_STEP = 2  # a full tile also has a coarse twin with every LOD_STEP-th sample, drawn when the tile is far off
 
 
 def _tiles(parts: WorldParts, heights: Array, lo: Array, hi: Array, z: float) -> None:
-    """The terrain as square height-field tiles that share their edge samples (no cracks).
-
-    The terrain is most of what a planetary frame draws (several passes: shadow map, ambient, sun), and a
-    distant tile at full resolution spends triangles on sub-pixel detail. So each full tile also gets a
-    coarse twin (in ``LOD_FAR_GROUP``) that :class:`pvo_sim.render.RangeCuller` draws instead of the fine one
-    (``LOD_NEAR_GROUP``) when the camera is far from it. Along tile edges the samples between coarse ones are
-    put on the line between them, so a fine tile meets a coarse neighbour without a crack."""
+    """The terrain as square height-field tiles that share their edge samples (no cracks)."""
     rows, cols = heights.shape
-    heights = heights.copy()
-    for edge in range(0, rows, TILE_SAMPLES):
-        heights[edge, :] = _on_coarse_lines(heights[edge, :])
-    for edge in range(0, cols, TILE_SAMPLES):
-        heights[:, edge] = _on_coarse_lines(heights[:, edge])
     dx, dy = (hi[0] - lo[0]) / (cols - 1), (hi[1] - lo[1]) / (rows - 1)
     for i0 in range(0, rows - 1, TILE_SAMPLES):
         for j0 in range(0, cols - 1, TILE_SAMPLES):
             i1, j1 = min(i0 + TILE_SAMPLES, rows - 1), min(j0 + TILE_SAMPLES, cols - 1)
-            full = i1 - i0 == TILE_SAMPLES and j1 - j0 == TILE_SAMPLES
             name = f"terrain_{i0}_{j0}"
             block = heights[i0 : i1 + 1, j0 : j1 + 1]
             cx, cy = lo[0] + 0.5 * (j0 + j1) * dx, lo[1] + 0.5 * (i0 + i1) * dy
-            size = f'size="{0.5 * (j1 - j0) * dx:.4f} {0.5 * (i1 - i0) * dy:.4f} {RELIEF} 0.1"'
-            where = f'pos="{cx:.4f} {cy:.4f} {z:.4f}" material="regolith"'
-            twins = [(name, block, f' group="{LOD_NEAR_GROUP}"' if full else "")]
-            if full:
-                twins.append((f"{name}_far", block[::LOD_STEP, ::LOD_STEP], f' group="{LOD_FAR_GROUP}"'))
-            for tile, samples, group in twins:
-                parts.assets.append(f'<hfield name="{tile}" nrow="{samples.shape[0]}" ncol="{samples.shape[1]}" {size}/>')
-                parts.bodies.append(f'<geom type="hfield" hfield="{tile}" {where}{group}/>')
-                parts.hfields[tile] = samples
-
-
-def _on_coarse_lines(line: Array) -> Array:
-    """``line`` with the samples between every LOD_STEP-th one moved onto the straight line between those."""
-    coarse = np.arange(0, len(line), LOD_STEP)
-    if coarse[-1] != len(line) - 1:  # a partial last stretch: its tiles have no coarse twin, keep it as it is
-        tail = line[coarse[-1] :].copy()
-        out = np.interp(np.arange(len(line)), coarse, line[coarse])
-        out[coarse[-1] :] = tail
-        return out
-    return np.interp(np.arange(len(line)), coarse, line[coarse])
+            parts.assets.append(
+                f'<hfield name="{name}" nrow="{block.shape[0]}" ncol="{block.shape[1]}" '
+                f'size="{0.5 * (j1 - j0) * dx:.4f} {0.5 * (i1 - i0) * dy:.4f} {RELIEF} 0.1"/>'
+            )
+            parts.bodies.append(f'<geom type="hfield" hfield="{name}" pos="{cx:.4f} {cy:.4f} {z:.4f}" material="regolith"/>')
+            parts.hfields[name] = block
 
 
 SIZE_CLASSES = (0.1, 0.2, 0.35, 0.6, 1.0, 1.6, 2.4)
