@@ -90,6 +90,31 @@ class TabulatedSunReference:
             raise ValueError(f"need poses (N, 4, 4) and sun vectors (N, 3), got {p.shape} and {s.shape}")
         return cls(stamps_ns, np.einsum("nij,nj->ni", p[:, :3, :3], s))
 
+    @classmethod
+    def from_ephemeris_in_map(
+        cls, stamps_ns: ArrayLike, fixes: ArrayLike, map_positions: ArrayLike
+    ) -> tuple[TabulatedSunReference, Array]:
+        """The ephemeris at the first GPS fix, expressed in a map frame that is not ENU (e.g. a simulator's
+        first-camera frame): ``fixes`` (M, 3) latitude, longitude (deg), altitude (m) and the same places in
+        the map frame ``map_positions`` (M, 3) give the rotation C_map,enu (Umeyama over the track; it must
+        not be a straight line); the table holds C_map,enu s_enu(t) at ``stamps_ns``. Also returns C_map,enu."""
+        from pvo_core.ephemeris import geodetic_to_enu
+        from pvo_core.metrics import umeyama_alignment
+
+        f = np.asarray(fixes, dtype=float)
+        q = np.asarray(map_positions, dtype=float)
+        if f.ndim != 2 or f.shape[1] != 3 or q.shape != f.shape or len(f) < 3:
+            raise ValueError(f"need >= 3 GPS fixes (M, 3) and map positions (M, 3), got {f.shape} and {q.shape}")
+        origin = GeodeticOrigin(float(f[0, 0]), float(f[0, 1]), float(f[0, 2]))
+        enu = geodetic_to_enu(origin, f[:, 0], f[:, 1], f[:, 2])
+        spread = np.linalg.svd(enu - enu.mean(axis=0), compute_uv=False)
+        if spread[1] < 1e-3 * max(spread[0], 1e-9):
+            raise ValueError("the GPS track is a straight line: its rotation about the line is unknown")
+        rotation, _, _ = umeyama_alignment(enu, q)
+        stamps = np.asarray(stamps_ns, dtype=np.int64)
+        directions = sun_direction_enu(origin, stamps * 1e-9) @ rotation.T
+        return cls(stamps, directions), rotation
+
     @property
     def stamps(self) -> NDArray[np.int64]:
         return np.asarray(self._stamps, dtype=np.int64)

@@ -120,3 +120,24 @@ def test_the_default_plausibility_bound_rejects_the_baselines_failures_on_01(pvo
     assert result.counts["vo.rejected.implausible_motion"] == 6
     assert result.counts["vo.gap"] == 6  # each next frame bridges from the newest state
     assert np.isnan(result.poses[:, 0, 3]).sum() == 6  # no state where the motion was impossible
+
+
+def test_ephemeris_in_a_map_frame_found_from_the_gps_track() -> None:
+    from pvo_core.ephemeris import GeodeticOrigin, enu_to_geodetic, sun_direction_enu
+    from pvo_core.lie import so3_exp
+    from pvo_fusion.sun_reference import TabulatedSunReference
+
+    origin = GeodeticOrigin(75.4, -89.8, 30.0)
+    angle = np.linspace(0, 1.5 * np.pi, 40)
+    enu = np.column_stack([30 * np.sin(angle), 30 * (1 - np.cos(angle)), 0.1 * angle])  # a curve, not a line
+    fixes = enu_to_geodetic(origin, enu)
+    c_map_enu = so3_exp(np.array([0.3, -1.2, 2.0]))
+    map_positions = enu @ c_map_enu.T + np.array([5.0, -2.0, 1.0])
+    stamps = (1_215_874_800 + np.arange(5) * 60) * 1_000_000_000
+    table, rotation = TabulatedSunReference.from_ephemeris_in_map(stamps, fixes, map_positions)
+    np.testing.assert_allclose(rotation, c_map_enu, atol=1e-6)
+    expected = sun_direction_enu(origin, stamps * 1e-9) @ c_map_enu.T
+    np.testing.assert_allclose(table.directions, expected, atol=1e-6)
+    with pytest.raises(ValueError, match="straight line"):
+        line = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
+        TabulatedSunReference.from_ephemeris_in_map(stamps, enu_to_geodetic(origin, line), line)

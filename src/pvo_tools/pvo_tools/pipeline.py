@@ -1,9 +1,10 @@
-"""The node graph's algorithms as plain objects over a recorded bag: what ``stereo_vo`` → ``simulated_sun`` →
-``fusion`` compute, without ROS. The demo runs it beside the real graph to check that both agree."""
+"""The node graph's algorithms as plain objects over a recorded bag: what ``stereo_vo`` → ``simulated_sun`` or
+``sun_bcnn`` → ``fusion`` compute, without ROS. The demo runs it beside the real graph to check that both agree."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,13 +45,15 @@ class PipelineResult:
 def run_pipeline(
     sample: StereoSample,
     vo_config: VOConfig,
-    sun_config: SimulatedSunConfig,
+    sun_config: Any,
     fusion_config: FusionConfig,
     sun_reference: SunReference | None,
     initial_pose: Array,
 ) -> PipelineResult:
-    """Every stereo pair through :class:`StereoVO`, every ground-truth sun vector through the simulated sun
-    sensor, and both through a :class:`FusionGraph` in arrival order (:func:`pvo_fusion.run_offline`)."""
+    """Every stereo pair through :class:`StereoVO`; the sun from every ground-truth sun vector through the
+    simulated sun sensor (``sun_config``: a :class:`SimulatedSunConfig`) or from every left image through
+    Sun-BCNN (a :class:`~pvo_pseudosensors.sun_bcnn.estimator.SunBCNNSensorConfig`); both through a
+    :class:`FusionGraph` in arrival order (:func:`pvo_fusion.run_offline`)."""
     camera = StereoCamera.from_camera_infos(sample.left_info, sample.right_info)
     vo = StereoVO(camera, vo_config)
     stamps = sample.frame_stamps
@@ -65,13 +68,33 @@ def run_pipeline(
             previous = int(stamp)
         poses.append(result.pose)
         covariances.append(result.pose_covariance)
-    sensor = SimulatedSunSensor(sun_config)
+    sun = simulated_sun(sample, sun_config) if isinstance(sun_config, SimulatedSunConfig) else learned_sun(sample, sun_config)
+    graph = FusionGraph(fusion_config, sun_reference)
+    graph.set_initial_pose(initial_pose)
+    fused = run_offline(graph, stamps, ordered_events(measurements, sun_events(sun)), covariance_every=1)
+    return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused)
+
+
+def simulated_sun(sample: StereoSample, config: SimulatedSunConfig) -> list[SunMeasurement]:
+    """What ``simulated_sun`` publishes for the sample's ground-truth sun vectors."""
+    sensor = SimulatedSunSensor(config)
     sun = []
     for stamp in sorted(sample.sun):
         measured = sensor.measure(sample.sun[stamp])
         if measured is not None:
             sun.append(SunMeasurement(int(stamp), measured[0], measured[1]))
-    graph = FusionGraph(fusion_config, sun_reference)
-    graph.set_initial_pose(initial_pose)
-    fused = run_offline(graph, stamps, ordered_events(measurements, sun_events(sun)), covariance_every=1)
-    return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused)
+    return sun
+
+
+def learned_sun(sample: StereoSample, config: Any) -> list[SunMeasurement]:
+    """What ``sun_bcnn`` publishes for the sample's left images (every N-th, the first included)."""
+    from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensor
+
+    sensor = SunBCNNSensor(config)
+    sun = []
+    for k, stamp in enumerate(sample.frame_stamps):
+        if k % config.every_n:
+            continue
+        estimate = sensor.estimate(image_to_array(sample.pairs[int(stamp)][0]))
+        sun.append(SunMeasurement(int(stamp), estimate.direction, estimate.covariance))
+    return sun

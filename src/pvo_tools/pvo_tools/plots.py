@@ -13,7 +13,7 @@ Array = NDArray[np.float64]
 COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red")
 
 
-def _pyplot():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -25,7 +25,7 @@ def _pyplot():
 def plot_demo(out: Path, name: str, ground_truth: Array, estimates: dict[str, Array]) -> list[Path]:
     """``trajectory.png`` (top view: camera x right, z forward of the first frame) and ``errors.png`` (position
     and rotation error per frame) of the estimates against the ground truth."""
-    plt = _pyplot()
+    plt = pyplot()
     written = []
     fig, ax = plt.subplots(figsize=(7, 7))
     ax.plot(ground_truth[:, 0, 3], ground_truth[:, 2, 3], "k-", lw=2, label="ground truth")

@@ -18,12 +18,14 @@ Array = NDArray[np.float64]
 LEFT, RIGHT = "/stereo/left/image_rect", "/stereo/right/image_rect"
 LEFT_INFO, RIGHT_INFO = "/stereo/left/camera_info", "/stereo/right/camera_info"
 GROUND_TRUTH, GROUND_TRUTH_SUN = "/ground_truth/odometry", "/ground_truth/sun_direction"
+GPS = "/gps/fix"
 
 
 @dataclass
 class StereoSample:
     """Messages of a stereo bag (deserialised, rosbags types): pairs by stamp (ns), the first camera_info of each
-    side, ground-truth poses T_world,cam and camera-frame sun vectors by stamp."""
+    side, ground-truth poses T_world,cam, camera-frame sun vectors and GPS fixes (latitude, longitude in
+    degrees, altitude in m) by stamp."""
 
     path: Path
     pairs: dict[int, tuple[Any, Any]]
@@ -31,6 +33,7 @@ class StereoSample:
     right_info: Any
     ground_truth: dict[int, Array] = field(default_factory=dict)
     sun: dict[int, Array] = field(default_factory=dict)
+    gps: dict[int, Array] = field(default_factory=dict)
 
     @property
     def frame_stamps(self) -> NDArray[np.int64]:
@@ -52,7 +55,8 @@ def read_stereo_sample(path: Path) -> StereoSample:
     infos: dict[str, Any] = {}
     ground_truth: dict[int, Array] = {}
     sun: dict[int, Array] = {}
-    wanted = {LEFT, RIGHT, LEFT_INFO, RIGHT_INFO, GROUND_TRUTH, GROUND_TRUTH_SUN}
+    gps: dict[int, Array] = {}
+    wanted = {LEFT, RIGHT, LEFT_INFO, RIGHT_INFO, GROUND_TRUTH, GROUND_TRUTH_SUN, GPS}
     with open_bag(path) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
         for connection, _, raw in iter_messages(reader, connections):
@@ -66,6 +70,9 @@ def read_stereo_sample(path: Path) -> StereoSample:
                 infos.setdefault(connection.topic, msg)
             elif connection.topic == GROUND_TRUTH:
                 ground_truth[stamp] = pose_to_matrix(msg.pose.pose)
+            elif connection.topic == GPS:
+                if msg.status.status >= 0:  # STATUS_NO_FIX is -1
+                    gps[stamp] = np.array([msg.latitude, msg.longitude, msg.altitude])
             else:
                 sun[stamp] = np.array([msg.direction.x, msg.direction.y, msg.direction.z])
     for topic in (LEFT_INFO, RIGHT_INFO):
@@ -74,4 +81,4 @@ def read_stereo_sample(path: Path) -> StereoSample:
     pairs = {s: (lefts[s], rights[s]) for s in sorted(set(lefts) & set(rights))}
     if len(pairs) < 2:
         raise BagError(f"{path}: fewer than 2 stereo pairs on {LEFT} and {RIGHT}")
-    return StereoSample(Path(path), pairs, infos[LEFT_INFO], infos[RIGHT_INFO], ground_truth, sun)
+    return StereoSample(Path(path), pairs, infos[LEFT_INFO], infos[RIGHT_INFO], ground_truth, sun, gps)

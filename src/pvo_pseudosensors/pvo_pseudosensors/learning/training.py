@@ -322,3 +322,32 @@ def _plot(out: Path, history: list[dict[str, float]]) -> None:
     figure.tight_layout()
     figure.savefig(out / "loss.png", dpi=100)
     plt.close(figure)
+
+
+@dataclass
+class FineTune:
+    """``task`` with its network starting from the trained weights of ``initial`` (a model directory of the
+    same architecture and settings; :class:`~.checkpoint.ModelFileError` when it does not fit). The card
+    records where it started."""
+
+    task: Any
+    initial: Path
+
+    @property
+    def architecture(self) -> str:
+        return self.task.architecture
+
+    def build(self) -> torch.nn.Module:
+        from .checkpoint import load_model
+
+        model, _ = load_model(Path(self.initial), self.task.architecture, lambda _card: self.task.build())
+        model.train()
+        return model
+
+    def loss(self, model: torch.nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        return self.task.loss(model, batch)
+
+    def card(self) -> ModelCard:
+        card = self.task.card()
+        card.notes = (card.notes + " " if card.notes else "") + f"fine-tuned from {self.initial}"
+        return card

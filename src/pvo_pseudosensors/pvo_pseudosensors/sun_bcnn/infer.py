@@ -65,26 +65,40 @@ def predict_sequence(
     the backbone and the head, every pass through the whole network (the thesis); "head": the backbone once
     without dropout, the passes through the head only. tau: the model precision added to the covariance
     (default: the card's ``calibration.tau``, infinite until calibrated)."""
-    if mode not in MODES:
-        raise ValueError(f"unknown MC mode {mode!r}: choose one of {', '.join(MODES)}")
-    config = SunBCNNConfig.from_card(card)
-    spec = config.spec
-    data = FrameDataset([Source(Path(sequence), Path(sequence).name)], DataSpec(spec.size, colour=spec.colour), cache_dir)
+    frames, draws = sample_sequence(model, card, sequence, samples, batch, seed, cache_dir, mode)
     if tau is None:
         tau = float(card.calibration.get("tau", np.inf))
-    vectors, covariances, frames = [], [], []
+    mean, covariance = combine(draws, tau)
+    zenith, azimuth = unit_zenith_azimuth(mean)
+    return SunPredictions(frames, mean, zenith, azimuth, covariance)
+
+
+def sample_sequence(
+    model: SunBCNN,
+    card: ModelCard,
+    sequence: Path,
+    samples: int = 25,
+    batch: int = 32,
+    seed: int = 0,
+    cache_dir: Path | None = None,
+    mode: str = "full",
+) -> tuple[NDArray[np.int64], Draws]:
+    """The frame numbers (N,) of ``sequence``'s left images and their MC-dropout draws (samples, N, ...)."""
+    if mode not in MODES:
+        raise ValueError(f"unknown MC mode {mode!r}: choose one of {', '.join(MODES)}")
+    spec = SunBCNNConfig.from_card(card).spec
+    data = FrameDataset([Source(Path(sequence), Path(sequence).name)], DataSpec(spec.size, colour=spec.colour), cache_dir)
+    vectors, inverse, frames = [], [], []
     generator = torch.Generator().manual_seed(seed)
     for start in range(0, len(data), batch):
         items = [data[i] for i in range(start, min(start + batch, len(data)))]
         images = torch.stack([item["left"] for item in items])
         draws = _draws(model, images, samples, int(torch.randint(0, 2**31 - 1, (1,), generator=generator)), mode)
-        mean, covariance = combine(draws, tau)
-        vectors.append(mean)
-        covariances.append(covariance)
+        vectors.append(draws.vectors)
+        inverse.append(draws.inverse_concentration)
         frames += [int(item["frame"]) for item in items]
-    vectors_all = np.vstack(vectors)
-    zenith, azimuth = unit_zenith_azimuth(vectors_all)
-    return SunPredictions(np.asarray(frames), vectors_all, zenith, azimuth, np.concatenate(covariances))
+    kappas = None if inverse[0] is None else np.concatenate(inverse, axis=1)
+    return np.asarray(frames), Draws(np.concatenate(vectors, axis=1), kappas)
 
 
 @dataclass

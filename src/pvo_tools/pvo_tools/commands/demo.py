@@ -1,7 +1,11 @@
 """`pvo demo`: the main job. The embedded sample bags replayed through the real node graph over DDS —
-``pvo bag play`` → ``stereo_vo`` → ``simulated_sun`` (GT-Sun-10) → ``fusion`` — recorded, evaluated against the
-ground truth (VO alone and fused), checked against the same algorithms run without ROS, and written up in
-``runs/demo/<sample>/`` (report.md, metrics.json, trajectory.png, errors.png, the recorded bag, node logs)."""
+``pvo bag play`` → ``stereo_vo`` → a sun sensor → ``fusion`` — recorded, evaluated against the ground truth
+(VO alone and fused), checked against the same algorithms run without ROS, and written up in
+``runs/demo/<sample>/`` (report.md, metrics.json, trajectory.png, errors.png, the recorded bag, node logs).
+
+The sun sensor: ``sun_bcnn`` (Sun-BCNN on the left images, the shipped model) where the bag has GPS fixes,
+with the fusion's sun reference from the ephemeris at the first fix; elsewhere (the KITTI sample: no GPS)
+``simulated_sun`` (GT-Sun-10) with the reference from the ground truth."""
 
 from __future__ import annotations
 
@@ -46,6 +50,13 @@ def register(sub: Any) -> None:
     demo.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1: real time)")
     demo.add_argument("--sun-error", type=float, default=10.0, help="simulated sun mean error, degrees (default 10: GT-Sun-10)")
     demo.add_argument("--timeout", type=float, default=120.0, help="seconds to wait for the graph to finish a bag")
+    demo.add_argument(
+        "--sun",
+        choices=SUN_SOURCES,
+        default="auto",
+        help="sun sensor: sun-bcnn, simulated (GT-Sun) or auto (default: sun-bcnn where the bag has /gps/fix)",
+    )
+    demo.add_argument("--sun-model", default="", help="Sun-BCNN model directory (default: the shipped model)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     root = repository_root()
     bags = args.bags or [(root or Path.cwd()) / s for s in SAMPLES]
-    settings = DemoSettings(rate=args.rate, sun_error_deg=args.sun_error, timeout_s=args.timeout)
+    settings = DemoSettings(args.rate, args.sun_error, args.timeout, args.sun, args.sun_model)
     domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
     start = time.perf_counter()
     results = []
@@ -82,11 +93,16 @@ def write_params(path: Path, parameters: dict[str, dict[str, Any]]) -> Path:
     return path
 
 
+SUN_SOURCES = ("auto", "sun-bcnn", "simulated")
+
+
 @dataclass(frozen=True)
 class DemoSettings:
     rate: float = 1.0
     sun_error_deg: float = 10.0
     timeout_s: float = 120.0
+    sun: str = "auto"  # one of SUN_SOURCES
+    sun_model: str = ""  # Sun-BCNN model directory; "" = the shipped one
 
 
 @dataclass
@@ -110,6 +126,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     """One sample bag through the graph, recorded, evaluated and compared with the ROS-free objects."""
     import shutil
 
+    import numpy as np
     from pvo_core.msgconv import pose_to_xyz_xyzw, xyz_xyzw_to_pose
     from pvo_fusion.sun_reference import TabulatedSunReference
     from pvo_pseudosensors.simulated_sun import SimulatedSunConfig
@@ -123,24 +140,42 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     sample = read_stereo_sample(bag)
     stamps = sample.frame_stamps
     ground_truth = sample.ground_truth_at(stamps)
-    sun_stamps = sorted(s for s in sample.sun if s in sample.ground_truth)
-    if not sun_stamps:
-        raise PvoError(f"{bag}: no /ground_truth/sun_direction at a ground-truth stamp: the simulated sun has nothing to read")
+    learned = settings.sun == "sun-bcnn" or (settings.sun == "auto" and len(sample.gps) >= 3)
     if out.exists():
         if any(out.iterdir()) and not (out / "params.yaml").is_file():
             raise PvoError(f"{out} exists and is not an earlier demo output (no params.yaml); not replaced")
         shutil.rmtree(out)
     out.mkdir(parents=True)
     reference_table = out / "sun_reference.csv"
-    TabulatedSunReference.write(
-        reference_table,
-        sun_stamps,
-        TabulatedSunReference.from_ground_truth(
-            sun_stamps, sample.ground_truth_at(sun_stamps), [sample.sun[s] for s in sun_stamps]
-        ).directions,
-    )
+    sun_config: Any
+    if learned:
+        from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensorConfig
+
+        fixes = [s for s in sorted(sample.gps) if s in sample.ground_truth]
+        if len(fixes) < 3:
+            raise PvoError(f"{bag}: fewer than 3 /gps/fix at ground-truth stamps: no ephemeris for Sun-BCNN's reference")
+        reference, _ = TabulatedSunReference.from_ephemeris_in_map(
+            stamps, [sample.gps[s] for s in fixes], sample.ground_truth_at(np.array(fixes))[:, :3, 3]
+        )
+        TabulatedSunReference.write(reference_table, stamps, reference.directions)
+        sun_config = SunBCNNSensorConfig(model=settings.sun_model)
+        sun_node, sun_parameters = "sun_bcnn", {"model": settings.sun_model}
+    else:
+        sun_stamps = sorted(s for s in sample.sun if s in sample.ground_truth)
+        if not sun_stamps:
+            raise PvoError(
+                f"{bag}: no /ground_truth/sun_direction at a ground-truth stamp: the simulated sun has nothing to read"
+            )
+        TabulatedSunReference.write(
+            reference_table,
+            sun_stamps,
+            TabulatedSunReference.from_ground_truth(
+                sun_stamps, sample.ground_truth_at(sun_stamps), [sample.sun[s] for s in sun_stamps]
+            ).directions,
+        )
+        sun_config = SimulatedSunConfig(mean_error_deg=settings.sun_error_deg)
+        sun_node, sun_parameters = "simulated_sun", {"mean_error_deg": settings.sun_error_deg}
     initial_pose = pose_to_xyz_xyzw(ground_truth[0])
-    sun_config = SimulatedSunConfig(mean_error_deg=settings.sun_error_deg)
     fusion_overrides = {
         "prior.source": "given",
         "inputs.sun.reference": "table",
@@ -148,12 +183,12 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     }
     parameters = {
         "stereo_vo": {},
-        "simulated_sun": {"mean_error_deg": settings.sun_error_deg},
+        sun_node: sun_parameters,
         "fusion": {**fusion_overrides, "initial_pose": initial_pose, "path_period": 0.0, "path_max_poses": 0},
     }
     params_file = write_params(out / "params.yaml", parameters)
     recorded_bag = out / "recorded"
-    run_graph(bag, params_file, recorded_bag, out / "logs", settings, domain_id, len(stamps))
+    run_graph(bag, params_file, recorded_bag, out / "logs", settings, domain_id, len(stamps), sun_node)
     graph_seconds = time.perf_counter() - start
 
     from pvo_frontend.vo import VOConfig
@@ -169,16 +204,24 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         TabulatedSunReference.read(reference_table),
         xyz_xyzw_to_pose(initial_pose),
     )
-    result = evaluate_sample(bag.name, recorded_bag, stamps, ground_truth, ros_free, out)
+    result = evaluate_sample(bag.name, recorded_bag, stamps, ground_truth, ros_free, out, sun_node)
     result.seconds = time.perf_counter() - start
     result.figures["timing"] = {"graph_s": graph_seconds, "total_s": result.seconds}
     return result
 
 
 def run_graph(
-    bag: Path, params_file: Path, recorded_bag: Path, log_dir: Path, settings: DemoSettings, domain_id: int, frames: int
+    bag: Path,
+    params_file: Path,
+    recorded_bag: Path,
+    log_dir: Path,
+    settings: DemoSettings,
+    domain_id: int,
+    frames: int,
+    sun_node: str = "simulated_sun",
 ) -> None:
-    """stereo_vo, simulated_sun and fusion as processes; the bag played and the outputs recorded in this process."""
+    """stereo_vo, the sun node (simulated_sun or sun_bcnn) and fusion as processes; the bag played and the
+    outputs recorded in this process."""
     import rclpy
     from rclpy.context import Context
     from rclpy.node import Node
@@ -195,7 +238,7 @@ def run_graph(
     try:
         for package, executable in (
             ("pvo_frontend", "stereo_vo"),
-            ("pvo_pseudosensors", "simulated_sun"),
+            ("pvo_pseudosensors", sun_node),
             ("pvo_fusion", "fusion"),
         ):
             nodes.start(package, executable, params_file, log_dir, env)
@@ -206,11 +249,14 @@ def run_graph(
         try:
             with Spinner(context, recorder_node):
                 # Every edge of the graph, publishers and subscribers, as this process sees them.
+                sun_input = (
+                    {"/stereo/left/image_rect": (0, 2)} if sun_node == "sun_bcnn" else {"/ground_truth/sun_direction": (0, 1)}
+                )
                 wait_for_graph(
                     player_node,
                     {
                         "/stereo/left/image_rect": (0, 1),
-                        "/ground_truth/sun_direction": (0, 1),
+                        **sun_input,
                         "/pvo/vo/relative": (1, 2),
                         "/pvo/sun/direction": (1, 2),
                         "/pvo/fusion/odometry": (1, 1),
@@ -260,7 +306,9 @@ def run_graph(
         )
 
 
-def evaluate_sample(name: str, recorded_bag: Path, stamps: Any, ground_truth: Any, ros_free: Any, out: Path) -> SampleResult:
+def evaluate_sample(
+    name: str, recorded_bag: Path, stamps: Any, ground_truth: Any, ros_free: Any, out: Path, sun_node: str = "simulated_sun"
+) -> SampleResult:
     """Metrics of VO alone and fused against the ground truth, agreement with the ROS-free run, report files."""
     from pvo_core.evaluation import evaluate, pose_consistency
     from pvo_core.results import RunResult
@@ -323,7 +371,7 @@ def evaluate_sample(name: str, recorded_bag: Path, stamps: Any, ground_truth: An
     record.write(out)
     plot_demo(out, name, ground_truth, {label: estimates[key][0] for label, key in ESTIMATES})
     (out / "report.md").write_text(
-        f"# pvo demo: {name}\n\nThe sample replayed through stereo_vo -> simulated_sun -> fusion over DDS "
+        f"# pvo demo: {name}\n\nThe sample replayed through stereo_vo -> {sun_node} -> fusion over DDS "
         "and recorded (`recorded/`), evaluated against its ground truth.\n\n```\n"
         + table
         + "\n```\n\n![trajectory](trajectory.png)\n\n![errors](errors.png)\n"

@@ -1,0 +1,439 @@
+"""Sun-BCNN, thesis ch. 5 on the project's corpus and on real KITTI images.
+
+1. Accuracy (Table 5.1) per test sequence of the corpus and overall, with and without the aleatoric output,
+   both MC modes (full / head) with their time per image; a calibration plot (predicted sigma against the
+   actual error).
+2. Cloud cover (§5.10.1): sunny against overcast test sequences.
+3. Method I against Method II (Tables 5.7, 5.8): the mean and the covariance of the MC samples.
+4. Fusion (Table 5.2 on synthetic): not run by this command yet (see the report).
+5. Real images: the synthetic model on the KITTI 06 clip and the 07 left images; the synthetic model
+   fine-tuned on 07 and a model trained on 07 alone, both tested on 06. 07 is split by frame (0-127 train,
+   128-159 validation: model selection and tau calibration); 06 is never trained on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..paths import data_directory
+
+TITLE = "Sun-BCNN (ch. 5): accuracy, cloud cover, Method I/II on the corpus's test split; KITTI transfer and fine-tuning"
+Array = NDArray[np.float64]
+KITTI_TRAIN_FRAMES = range(0, 128)  # of the 07 clip (frames 0-159)
+KITTI_VALIDATION_FRAMES = range(128, 160)
+
+
+@dataclass
+class Evaluated:
+    """One model on one image set: the prediction rows (N, 10) and Table 5.1's figures."""
+
+    label: str
+    rows: Array
+    truth: Array
+    figures: dict[str, float] = field(default_factory=dict)
+
+
+def prediction_rows(predictions: Any) -> Array:
+    """(N, 10): frame, s (3), zenith, azimuth, covariance (4) — the columns of `pvo sun-bcnn predict`."""
+    p = predictions
+    return np.column_stack([p.frames, p.vectors, p.zenith, p.azimuth, p.covariance.reshape(-1, 4)])
+
+
+def evaluate(label: str, rows: Array, truth: Array) -> Evaluated:
+    from pvo_pseudosensors.sun_bcnn.infer import evaluate_predictions
+
+    return Evaluated(label, rows, truth, evaluate_predictions(rows, truth))
+
+
+def predicted_sigma(rows: Array) -> Array:
+    """Per image, the predicted angular standard deviation per tangent axis (rad): the mean of the zenith
+    variance and the azimuth variance scaled by sin² zenith, square-rooted."""
+    sin2 = np.sin(rows[:, 4]) ** 2
+    return np.sqrt(0.5 * (rows[:, 6] + sin2 * rows[:, 9]))
+
+
+def actual_error(rows: Array, truth: Array) -> Array:
+    from pvo_core.sun import angular_errors
+
+    return angular_errors(rows[:, 1:4], truth)["vector"]
+
+
+def calibration_curve(rows: Array, truth: Array, bins: int = 8) -> tuple[Array, Array]:
+    """Images binned by predicted sigma (equal counts): mean predicted sigma and the actual per-axis RMS
+    error (the RMS angle over sqrt 2, what sigma would be for an isotropic tangent error), degrees."""
+    sigma, error = predicted_sigma(rows), actual_error(rows, truth)
+    order = np.argsort(sigma)
+    groups = np.array_split(order, bins)
+    predicted = np.array([np.degrees(sigma[g].mean()) for g in groups if len(g)])
+    actual = np.array([np.degrees(np.sqrt(np.mean(error[g] ** 2) / 2.0)) for g in groups if len(g)])
+    return predicted, actual
+
+
+def method_comparison(draws: Any, truth: Array, tau: float) -> dict[str, dict[str, float]]:
+    """Tables 5.7 and 5.8: errors of the Method I / II means, ANEES of each covariance method with each
+    mean (each covariance with the same tau^-1 I and aleatoric terms added)."""
+    from pvo_core.sun import (
+        aleatoric_covariance,
+        angle_mean,
+        angular_errors,
+        sample_mean_and_covariance,
+        unit_zenith_azimuth,
+        vector_covariance_in_angles,
+        wrap_angle,
+    )
+
+    mean_one, covariance_two = sample_mean_and_covariance(draws.vectors)
+    means = {"Method I": mean_one, "Method II": angle_mean(draws.vectors)}
+    extra = np.zeros_like(covariance_two) + (0.0 if np.isinf(tau) else np.eye(2) / tau)
+    if draws.inverse_concentration is not None:
+        extra = extra + aleatoric_covariance(mean_one, draws.inverse_concentration.mean(axis=0))
+    covariances = {"Method I": vector_covariance_in_angles(draws.vectors, mean_one) + extra, "Method II": covariance_two + extra}
+    true_zenith, true_azimuth = unit_zenith_azimuth(truth)
+    out: dict[str, dict[str, float]] = {}
+    for mean_name, mean in means.items():
+        errors = angular_errors(mean, truth)
+        zenith, azimuth = unit_zenith_azimuth(mean)
+        residual = np.column_stack([zenith - true_zenith, wrap_angle(azimuth - true_azimuth)])
+        row = {
+            f"{k}_{s}_deg": float(np.degrees(f(v)))
+            for k, v in errors.items()
+            for s, f in (("mean", np.mean), ("median", np.median), ("std", np.std))
+        }
+        for cov_name, covariance in covariances.items():
+            nees = np.einsum("ni,nij,nj->n", residual, np.linalg.inv(covariance + 1e-12 * np.eye(2)), residual)
+            row[f"anees_cov_{cov_name}"] = float(nees.mean() / 2.0)
+        out[mean_name] = row
+    return out
+
+
+def time_per_image(model: Any, card: Any, count: int, mode: str, samples: int = 25) -> float:
+    """Milliseconds per image through :class:`SunBCNNSensor`'s path (one image at a time, one thread)."""
+    import torch
+    from pvo_pseudosensors.sun_bcnn.infer import _draws, combine
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        size = tuple(int(v) for v in card.input["size"])
+        generator = torch.Generator().manual_seed(0)
+        tensors = [torch.rand(1, 1, *size, generator=generator) for _ in range(count)]
+        _draws(model, tensors[0], samples, 0, mode)  # warm-up
+        start = time.perf_counter()
+        for k, tensor in enumerate(tensors):
+            combine(_draws(model, tensor, samples, k, mode), np.inf)
+        return 1000.0 * (time.perf_counter() - start) / len(tensors)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def stage_kitti(data: Path, sequence: str, frames: range, out: Path) -> Path:
+    """A sequence folder (links to the clip's left images, renumbered from 0, and their rows of the sun CSV)
+    that the learning datasets read like a corpus sequence."""
+    clip = data / "kitti" / "sequences" / sequence / "image_0"
+    rows = (data / "kitti" / "sun" / f"kitti_sun_test_{sequence}.csv").read_text().splitlines()
+    images = sorted(clip.glob("*.png"))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "image_0").mkdir(exist_ok=True)
+    lines = []
+    for new, frame in enumerate(frames):
+        link = out / "image_0" / f"{new:06d}.png"
+        if not link.exists():
+            link.symlink_to(images[frame].resolve())
+        lines.append(rows[frame])
+    (out / "sun.csv").write_text("\n".join(lines) + "\n")
+    return out
+
+
+def kitti_truth(data: Path, sequence: str, frames: NDArray[np.int64]) -> Array:
+    from pvo_core.readers import read_kitti_sun_csv
+
+    return read_kitti_sun_csv(data / "kitti" / "sun" / f"kitti_sun_test_{sequence}.csv")[frames]
+
+
+def train_on_kitti(
+    task: Any, train: Path, validation: Path, out: Path, epochs: int, learning_rate: float, say: Any, commands: dict[str, str]
+) -> Path:
+    from pvo_pseudosensors.learning import FrameDataset, Source, TrainConfig, fit
+
+    spec = task.task.config.spec if hasattr(task, "task") else task.config.spec
+    cache = out.parent / ".cache"
+    train_set = FrameDataset([Source(train, "07-train", "train")], spec, cache)
+    validation_set = FrameDataset([Source(validation, "07-validation", "validation")], spec, cache)
+    config = TrainConfig(epochs=epochs, batch_size=16, learning_rate=learning_rate, patience=6, seed=0)
+    extra = {"corpus": {"path": "KITTI 07 frames 0-127 (validation 128-159)"}, "commands": commands}
+    fit(task, train_set, validation_set, config, out, say=say, card_extra=extra)
+    return out
+
+
+COLUMNS = (
+    ("N", "images", 5, "d"),
+    ("vec mean", "vector_mean_deg", 8, ".2f"),
+    ("median", "vector_median_deg", 7, ".2f"),
+    ("std", "vector_std_deg", 6, ".2f"),
+    ("zen mean", "zenith_mean_deg", 8, ".2f"),
+    ("median", "zenith_median_deg", 7, ".2f"),
+    ("azi mean", "azimuth_mean_deg", 8, ".2f"),
+    ("median", "azimuth_median_deg", 7, ".2f"),
+    ("ANEES", "anees", 7, ".2f"),
+    ("filt.", "anees_filtered", 6, ".2f"),
+)
+
+
+def format_table(results: list[Evaluated]) -> str:
+    """Table 5.1's columns (degrees; ANEES without and with the cosine-distance filter), one row per result."""
+    lines = [f"{'':<40}" + " ".join(f"{title:>{width}}" for title, _, width, _ in COLUMNS)]
+    for r in results:
+        cells = [
+            format(int(r.figures[key]) if kind == "d" else r.figures[key], f">{width}{kind}") for _, key, width, kind in COLUMNS
+        ]
+        lines.append(f"{r.label:<40}" + " ".join(cells))
+    return "\n".join(lines)
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--corpus", type=Path, required=True, help="the corpus the models were trained on (its test split)")
+    parser.add_argument("--model", type=Path, required=True, help="the Sun-BCNN model (calibrated), with the aleatoric output")
+    parser.add_argument("--homoscedastic", type=Path, help="the same model trained without the aleatoric output (calibrated)")
+    parser.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
+    parser.add_argument("--samples", type=int, default=25, help="MC-dropout passes (default 25)")
+    parser.add_argument("--finetune-epochs", type=int, default=20, help="epochs on KITTI 07 (default 20)")
+    parser.add_argument("--skip-kitti", action="store_true", help="skip experiment 5 (no training)")
+    parser.add_argument("--out", "-o", type=Path, default=Path("runs/sun-bcnn-experiment"), help="output directory")
+    parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
+
+
+def run(args: argparse.Namespace) -> int:
+    import shlex
+
+    from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
+    from pvo_core.results import RunResult
+    from pvo_pseudosensors.learning.training import FineTune
+    from pvo_pseudosensors.sun_bcnn.infer import Draws, calibrate, combine, load_sun_bcnn, predict_sequence, sample_sequence
+    from pvo_pseudosensors.sun_bcnn.model import SunTask
+
+    from ..plots import pyplot
+
+    def say(line: str) -> None:
+        if not args.quiet:
+            print(line, file=sys.stderr, flush=True)
+
+    started = time.perf_counter()
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    manifest = read_corpus_manifest(args.corpus)
+    test = manifest.split("test")
+    if not test:
+        raise ValueError(f"{manifest.path}: no sequence in the test split")
+    cache = Path(args.corpus) / ".cache"
+    models = {"aleatoric": args.model} | ({"homoscedastic": args.homoscedastic} if args.homoscedastic else {})
+    loaded = {name: load_sun_bcnn(path) for name, path in models.items()}
+    report = ["# pvo experiment sun-bcnn", "", f"Command: `pvo experiment sun-bcnn {shlex.join(sys.argv[3:])}`", ""]
+    figures: dict[str, float] = {}
+    tables: dict[str, Any] = {}
+
+    # 1-3: the corpus's test split
+    per_model: dict[str, dict[str, Any]] = {}
+    for name, (model, card) in loaded.items():
+        tau = float(card.calibration.get("tau", np.inf))
+        per_sequence, all_rows, all_truth, all_draws_vectors, all_inverse = [], [], [], [], []
+        for sequence in test:
+            say(f"{name}: predicting test sequence {sequence.name} ...")
+            frames, draws = sample_sequence(model, card, sequence.root, args.samples, cache_dir=cache)
+            mean, covariance = combine(draws, tau)
+            predictions = _predictions(frames, mean, covariance)
+            truth = read_kitti_sun_csv(sequence.root / "sun.csv")[frames]
+            rows = prediction_rows(predictions)
+            per_sequence.append(
+                (
+                    sequence,
+                    evaluate(
+                        f"{sequence.name} ({sequence.preset}{', overcast' if 'overcast' in sequence.conditions else ''})",
+                        rows,
+                        truth,
+                    ),
+                )
+            )
+            all_rows.append(rows)
+            all_truth.append(truth)
+            all_draws_vectors.append(draws.vectors)
+            all_inverse.append(draws.inverse_concentration)
+        rows, truth = np.vstack(all_rows), np.vstack(all_truth)
+        overall = evaluate(f"all {len(test)} test sequences", rows, truth)
+        overcast = [r for s, r in per_sequence if "overcast" in s.conditions]
+        sunny = [r for s, r in per_sequence if "overcast" not in s.conditions]
+        groups = {}
+        for label, members in (("sunny", sunny), ("overcast", overcast)):
+            if members:
+                groups[label] = evaluate(
+                    f"{label} ({len(members)} sequences)",
+                    np.vstack([m.rows for m in members]),
+                    np.vstack([m.truth for m in members]),
+                )
+        draws_all = Draws(
+            np.concatenate(all_draws_vectors, axis=1), None if all_inverse[0] is None else np.concatenate(all_inverse, axis=1)
+        )
+        per_model[name] = {
+            "per_sequence": per_sequence,
+            "overall": overall,
+            "groups": groups,
+            "draws": draws_all,
+            "truth": truth,
+            "tau": tau,
+            "card": card,
+            "model": model,
+        }
+        for key, value in overall.figures.items():
+            figures[f"{name}.{key}"] = value
+        for label, group in groups.items():
+            figures[f"{name}.{label}.vector_median_deg"] = group.figures["vector_median_deg"]
+            figures[f"{name}.{label}.anees"] = group.figures["anees"]
+
+    default = per_model["aleatoric"]
+    model, card = loaded["aleatoric"]
+    say("head-only MC mode and timing ...")
+    head_rows, head_truth = [], []
+    for sequence in test:
+        p = predict_sequence(model, card, sequence.root, args.samples, cache_dir=cache, mode="head")
+        head_rows.append(prediction_rows(p))
+        head_truth.append(read_kitti_sun_csv(sequence.root / "sun.csv")[p.frames])
+    head = evaluate("aleatoric, head-only MC", np.vstack(head_rows), np.vstack(head_truth))
+    timing = {mode: time_per_image(model, card, 40, mode, args.samples) for mode in ("full", "head")}
+    figures.update({"ms_per_image_full": timing["full"], "ms_per_image_head": timing["head"]})
+    figures.update({f"head.{k}": v for k, v in head.figures.items()})
+
+    report += ["## 1. Accuracy on the corpus's test split (Table 5.1's columns; degrees)", ""]
+    for name, result in per_model.items():
+        report += [
+            f"### {name} model (`{models[name]}`, tau^-1 = {0.0 if np.isinf(result['tau']) else 1 / result['tau']:.4g} rad²)",
+            "",
+            "```",
+        ]
+        report.append(format_table([r for _, r in result["per_sequence"]] + [result["overall"]]))
+        report += ["```", ""]
+    report += [f"MC modes of the aleatoric model (N = {args.samples}; time per image on one thread, batch 1):", "", "```"]
+    report.append(
+        format_table([replace(default["overall"], label="full (dropout everywhere)"), replace(head, label="head only")])
+    )
+    report += ["```", "", f"Time per image: full {timing['full']:.1f} ms, head only {timing['head']:.1f} ms.", ""]
+
+    fig, axes = pyplot().subplots(1, 2, figsize=(11, 4.5))
+    for name, result in per_model.items():
+        predicted, actual = calibration_curve(np.vstack([r.rows for _, r in result["per_sequence"]]), result["truth"])
+        axes[0].plot(predicted, actual, "o-", label=name)
+        anees = [r.figures["anees"] for _, r in result["per_sequence"]]
+        axes[1].plot(range(len(anees)), anees, "o", label=name)
+    top = max(axes[0].get_xlim()[1], axes[0].get_ylim()[1])
+    axes[0].plot([0, top], [0, top], "k--", lw=1, label="ideal")
+    axes[0].set_xlabel("predicted sigma per axis (deg)")
+    axes[0].set_ylabel("actual RMS error per axis (deg)")
+    axes[0].set_title("calibration (test split, 8 equal-count bins)")
+    axes[0].legend()
+    axes[1].axhspan(0.7, 1.5, color="0.9")
+    axes[1].set_yscale("log")
+    axes[1].set_xlabel("test sequence")
+    axes[1].set_ylabel("ANEES")
+    axes[1].set_title("ANEES per test sequence")
+    axes[1].legend()
+    fig.tight_layout()
+    fig.savefig(out / "calibration.png", dpi=110)
+    report += ["![calibration](calibration.png)", ""]
+
+    report += ["## 2. Cloud cover (§5.10.1)", "", "```"]
+    report.append(
+        format_table([replace(g, label=f"{name}: {g.label}") for name, r in per_model.items() for g in r["groups"].values()])
+    )
+    report += ["```", ""]
+
+    report += ["## 3. Method I vs Method II (Tables 5.7, 5.8), aleatoric model, test split", ""]
+    methods = method_comparison(default["draws"], default["truth"], default["tau"])
+    tables["methods"] = methods
+    report += [
+        "| mean | vector mean | median | std | zenith mean | azimuth mean | ANEES, cov. Method I | ANEES, cov. Method II |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for mean_name, row in methods.items():
+        report.append(
+            f"| {mean_name} | {row['vector_mean_deg']:.2f} | {row['vector_median_deg']:.2f} | {row['vector_std_deg']:.2f} | "
+            f"{row['zenith_mean_deg']:.2f} | {row['azimuth_mean_deg']:.2f} | "
+            f"{row['anees_cov_Method I']:.2f} | {row['anees_cov_Method II']:.2f} |"
+        )
+    report += ["", "## 4. Fusion on long synthetic sequences (Table 5.2)", "", "Not run by this command yet.", ""]
+
+    if not args.skip_kitti:
+        data = data_directory(args.data)
+        report += ["## 5. Real images (KITTI)", ""]
+        kitti_results: list[Evaluated] = []
+
+        def on_kitti(label: str, directory: Path, sequence: str) -> Evaluated:
+            m, c = load_sun_bcnn(directory)
+            p = predict_sequence(m, c, data / "kitti" / "sequences" / sequence, args.samples, cache_dir=out / ".cache")
+            result = evaluate(label, prediction_rows(p), kitti_truth(data, sequence, p.frames))
+            p.write_csv(out / f"kitti{sequence}_{directory.name}.csv")
+            return result
+
+        kitti_results.append(on_kitti("synthetic model, KITTI 06 (51)", args.model, "06"))
+        kitti_results.append(on_kitti("synthetic model, KITTI 07 (160)", args.model, "07"))
+        train = stage_kitti(data, "07", KITTI_TRAIN_FRAMES, out / "kitti07-train")
+        validation = stage_kitti(data, "07", KITTI_VALIDATION_FRAMES, out / "kitti07-validation")
+        config = replace(loaded["aleatoric"][0].config)
+        command = f"pvo experiment sun-bcnn {shlex.join(sys.argv[3:])}"
+        say("fine-tuning the synthetic model on KITTI 07 ...")
+        tuned = train_on_kitti(
+            FineTune(SunTask(config), args.model),
+            train,
+            validation,
+            out / "kitti-finetuned",
+            args.finetune_epochs,
+            3e-4,
+            say,
+            {"train": command},
+        )
+        say("training on KITTI 07 alone ...")
+        alone = train_on_kitti(
+            SunTask(config), train, validation, out / "kitti07-only", 2 * args.finetune_epochs, 1e-3, say, {"train": command}
+        )
+        for directory in (tuned, alone):
+            m, c = load_sun_bcnn(directory)
+            c.calibration = {
+                **calibrate(m, c, [validation], samples=args.samples, cache_dir=out / ".cache"),
+                "mode": "full",
+                "on": "KITTI 07 frames 128-159",
+            }
+            from pvo_pseudosensors.learning.checkpoint import write_card
+
+            write_card(directory, c)
+        kitti_results.append(on_kitti("fine-tuned on 07, KITTI 06", tuned, "06"))
+        kitti_results.append(on_kitti("trained on 07 alone, KITTI 06", alone, "06"))
+        report += ["```", format_table(kitti_results), "```", ""]
+        for r in kitti_results:
+            figures[f"kitti.{r.label}.vector_median_deg"] = r.figures["vector_median_deg"]
+            figures[f"kitti.{r.label}.anees"] = r.figures["anees"]
+
+    report.append(f"Wall time {time.perf_counter() - started:.0f} s.")
+    (out / "report.md").write_text("\n".join(report) + "\n")
+    inputs = {
+        "corpus": str(args.corpus),
+        "corpus_sha256": manifest.sha256,
+        "model": str(args.model),
+        "homoscedastic": str(args.homoscedastic or ""),
+    }
+    RunResult("experiment", "sun-bcnn", figures=figures, tables=tables, inputs=inputs).write(out)
+    print("\n".join(report))
+    print(f"wrote {out}/report.md, calibration.png and metrics.json")
+    return 0
+
+
+def _predictions(frames: NDArray[np.int64], mean: Array, covariance: Array) -> Any:
+    from pvo_core.sun import unit_zenith_azimuth
+    from pvo_pseudosensors.sun_bcnn.infer import SunPredictions
+
+    zenith, azimuth = unit_zenith_azimuth(mean)
+    return SunPredictions(frames, mean, zenith, azimuth, covariance)
