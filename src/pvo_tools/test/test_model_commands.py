@@ -103,3 +103,30 @@ def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     bad.write_text("frame,sx,sy,sz,zenith,azimuth,c_zz,c_za,c_az,c_aa\n0,1,1,0,0,0,1,0,0,1\n")
     assert main(["sun-bcnn", "eval", "--pred", str(bad), "--gt", str(corpus / "0003" / "sun.csv")]) == 2
     assert "bad.csv:2: sun vector of frame 0 is not unit length" in capsys.readouterr().err
+
+
+def test_experiment_reports_every_table(corpus: Path, pvo_data: Path, tmp_path: Path, capsys) -> None:
+    """`pvo experiment sun-bcnn` on a tiny model: every table of the report, the calibration plot, and the
+    KITTI models fine-tuned and trained on 07 frames 0-127 (calibrated on 128-159), tested on 06."""
+    import json
+
+    model = tmp_path / "model"
+    train = ["sun-bcnn", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "2", "--batch-size", "16", *TINY]
+    assert main(train) == 0
+    out = tmp_path / "experiment"
+    args = ["experiment", "sun-bcnn", "--corpus", str(corpus), "--model", str(model), "--homoscedastic", str(model)]
+    assert main([*args, "--samples", "4", "--finetune-epochs", "1", "--data", str(pvo_data), "-o", str(out), "-q"]) == 0
+    report = (out / "report.md").read_text()
+    for heading in ("## 1. Accuracy", "## 2. Cloud cover", "## 3. Method I vs Method II", "## 5. Real images"):
+        assert heading in report, heading
+    assert "fine-tuned on 07, KITTI 06" in report and "trained on 07 alone, KITTI 06" in report
+    assert (out / "calibration.png").stat().st_size > 10_000
+    figures = json.loads((out / "metrics.json").read_text())["figures"]
+    assert 0.0 <= figures["aleatoric.vector_median_deg"] <= 180.0 and figures["ms_per_image_full"] > 0
+    tuned = yaml.safe_load((out / "kitti-finetuned" / "model.yaml").read_text())
+    assert "fine-tuned from" in tuned["notes"] and tuned["calibration"]["on"] == "KITTI 07 frames 128-159"
+    staged = (out / "kitti07-validation" / "sun.csv").read_text().splitlines()
+    truth = (pvo_data / "kitti" / "sun" / "kitti_sun_test_07.csv").read_text().splitlines()
+    assert staged == truth[128:160]  # the validation rows are frames 128-159, renumbered from 0
+    rows = (out / "kitti06_kitti-finetuned.csv").read_text().splitlines()
+    assert len(rows) == 52  # header + the 51 frames of the 06 clip

@@ -226,6 +226,7 @@ def run(args: argparse.Namespace) -> int:
             print(line, file=sys.stderr, flush=True)
 
     started = time.perf_counter()
+    command = "pvo " + shlex.join(getattr(args, "argv", sys.argv[1:]))
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     manifest = read_corpus_manifest(args.corpus)
@@ -235,7 +236,7 @@ def run(args: argparse.Namespace) -> int:
     cache = Path(args.corpus) / ".cache"
     models = {"aleatoric": args.model} | ({"homoscedastic": args.homoscedastic} if args.homoscedastic else {})
     loaded = {name: load_sun_bcnn(path) for name, path in models.items()}
-    report = ["# pvo experiment sun-bcnn", "", f"Command: `pvo experiment sun-bcnn {shlex.join(sys.argv[3:])}`", ""]
+    report = ["# pvo experiment sun-bcnn", "", f"Command: `{command}`", ""]
     figures: dict[str, float] = {}
     tables: dict[str, Any] = {}
 
@@ -255,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
                 (
                     sequence,
                     evaluate(
-                        f"{sequence.name} ({sequence.preset}{', overcast' if 'overcast' in sequence.conditions else ''})",
+                        f"{sequence.name} {sequence.preset}{' overcast' if 'overcast' in sequence.conditions else ''}",
                         rows,
                         truth,
                     ),
@@ -384,7 +385,6 @@ def run(args: argparse.Namespace) -> int:
         train = stage_kitti(data, "07", KITTI_TRAIN_FRAMES, out / "kitti07-train")
         validation = stage_kitti(data, "07", KITTI_VALIDATION_FRAMES, out / "kitti07-validation")
         config = replace(loaded["aleatoric"][0].config)
-        command = f"pvo experiment sun-bcnn {shlex.join(sys.argv[3:])}"
         say("fine-tuning the synthetic model on KITTI 07 ...")
         tuned = train_on_kitti(
             FineTune(SunTask(config), args.model),
