@@ -13,7 +13,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -298,14 +298,16 @@ def render_corpus(
     out: Path,
     jobs: int = 1,
     progress: Callable[[int, int], None] | None = None,
+    indices: Sequence[int] | None = None,
 ) -> CorpusResult:
     """Render every sequence of ``corpus`` into ``out`` not already there with the same configuration;
-    ``progress(frames_done, frames_to_render)`` at the start and after each sequence rendered."""
+    ``progress(frames_done, frames_to_render)`` at the start and after each sequence rendered. indices:
+    only these sequences (e.g. a corpus's test sequences rendered longer: plans depend on (seed, index) only)."""
     if jobs < 1:
         raise ValueError(f"--jobs must be >= 1, got {jobs}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    plans = [plan_sequence(corpus, i) for i in range(corpus.sequences)]
+    plans = [plan_sequence(corpus, i) for i in (range(corpus.sequences) if indices is None else indices)]
     previous = {e.get("name"): e for e in read_manifest(out).get("sequences", [])}
     entries: dict[str, dict[str, Any]] = {}
     kept, todo = [], []

@@ -115,7 +115,20 @@ def test_experiment_reports_every_table(corpus: Path, pvo_data: Path, tmp_path: 
     assert main(train) == 0
     out = tmp_path / "experiment"
     args = ["experiment", "sun-bcnn", "--corpus", str(corpus), "--model", str(model), "--homoscedastic", str(model)]
-    assert main([*args, "--samples", "4", "--finetune-epochs", "1", "--data", str(pvo_data), "-o", str(out), "-q"]) == 0
+    options = [
+        "--samples",
+        "4",
+        "--finetune-epochs",
+        "1",
+        "--fusion-sequences",
+        "0",
+        "--data",
+        str(pvo_data),
+        "-o",
+        str(out),
+        "-q",
+    ]
+    assert main([*args, *options]) == 0
     report = (out / "report.md").read_text()
     for heading in ("## 1. Accuracy", "## 2. Cloud cover", "## 3. Method I vs Method II", "## 5. Real images"):
         assert heading in report, heading

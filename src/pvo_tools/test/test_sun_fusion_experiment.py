@@ -1,0 +1,62 @@
+"""Experiment 4 of `pvo experiment sun-bcnn` on a tiny rendered corpus: the test sequences rendered longer
+(the same draws, a longer world), the project's VO and a Sun-BCNN fused with GT-Sun rows beside them."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports mujoco
+
+
+def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
+    from pvo_pseudosensors.learning.checkpoint import save_model
+    from pvo_pseudosensors.sun_bcnn.config import SunBCNNConfig
+    from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask
+    from pvo_sim.corpus import CorpusConfig, render_corpus
+    from pvo_tools.experiments.sun_bcnn import (
+        FUSION_ROWS,
+        fusion_changes,
+        fusion_experiment,
+        fusion_inputs,
+        render_fusion_sequences,
+    )
+
+    corpus = CorpusConfig(sequences=6, frames=3, width=320, height=120, seed=7)  # test split: 0000 and 0005
+    try:
+        render_corpus(corpus, tmp_path / "corpus", jobs=1)
+    except ValueError as exc:
+        if "no offscreen renderer" in str(exc):
+            pytest.skip(str(exc))
+        raise
+    folders = render_fusion_sequences(tmp_path / "corpus", 2, 30, tmp_path / "long", jobs=2, say=lambda _: None)
+    assert [f.name for f in folders] == ["0000", "0005"]
+    import yaml
+
+    short = {e["name"]: e["config"] for e in yaml.safe_load((tmp_path / "corpus" / "manifest.yaml").read_text())["sequences"]}
+    long = {e["name"]: e["config"] for e in yaml.safe_load((tmp_path / "long" / "manifest.yaml").read_text())["sequences"]}
+    for folder in folders:  # the same draws (place, time, path, preset, camera, degradations), only longer
+        assert {**short[folder.name], "frames": 30} == long[folder.name]
+        assert len(list((folder / "image_0").glob("*.png"))) == 30
+
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(0)
+    config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.1, grid=(1, 1))
+    save_model(tmp_path / "model", SunBCNN(config), SunTask(config).card())
+    from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn
+
+    model, card = load_sun_bcnn(tmp_path / "model")
+    inputs = [fusion_inputs(folder, model, card, samples=4) for folder in folders]
+    for seq, learned in inputs:
+        assert len(seq.ground_truth) == len(seq.vo_poses) == 30 and [m.stamp for m in learned] == list(seq.stamps[::10])
+    table = fusion_experiment([seq for seq, _ in inputs], [learned for _, learned in inputs])
+    assert set(table) == {"0000", "0005"} and all(set(rows) == set(FUSION_ROWS) for rows in table.values())
+    for rows in table.values():
+        for row in rows.values():
+            assert all(np.isfinite(row[e][k]) for e in ("online", "smoothed") for k in ("trans", "rot"))
+        assert rows["GT-Sun-10"]["smoothed"]["rot"] != rows["Without Sun"]["smoothed"]["rot"]  # the sun was fused
+    changes = fusion_changes(table)
+    assert set(changes) == set(FUSION_ROWS[1:])
