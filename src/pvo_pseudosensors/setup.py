@@ -13,6 +13,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/models/sun_bcnn", glob("models/sun_bcnn/*")),
+        ("share/" + package_name + "/models/sun_bcnn_kitti", glob("models/sun_bcnn_kitti/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -385,3 +385,11 @@ def test_the_aleatoric_output_learns_larger_covariance_for_noisier_images(tmp_pa
     spread = np.trace(covariance, axis1=1, axis2=2)
     assert np.median(spread[hidden]) > 3 * np.median(spread[~hidden])
     assert np.all(np.linalg.eigvalsh(covariance) > 0) and np.allclose(covariance, covariance.transpose(0, 2, 1))
+
+
+def test_the_model_parameter_names_a_shipped_model_or_a_path(tmp_path: Path) -> None:
+    from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
+
+    assert resolve_model("").parts[-2:] == ("models", "sun_bcnn")
+    assert resolve_model("sun_bcnn_kitti").parts[-2:] == ("models", "sun_bcnn_kitti")
+    assert resolve_model(str(tmp_path)) == tmp_path

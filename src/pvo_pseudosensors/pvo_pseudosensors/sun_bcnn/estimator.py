@@ -17,7 +17,8 @@ Array = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class SunBCNNSensorConfig:
-    """model: the model directory ("" = the model shipped in the package); every_n: one estimate every N
+    """model: the model directory ("" = the model shipped in the package, trained on the synthetic corpus;
+    "sun_bcnn_kitti" = the shipped one fine-tuned on KITTI); every_n: one estimate every N
     images (the thesis used every 10th); samples: MC-dropout passes; mode: full | head (see `infer`);
     seed: of the dropout samples; threads: torch threads."""
 
@@ -35,14 +36,27 @@ class SunBCNNSensorConfig:
             raise ValueError(f"unknown mode {self.mode!r}: choose one of {', '.join(MODES)}")
 
 
-def shipped_model() -> Path:
-    """The model directory installed with the package (share/pvo_pseudosensors/models/sun_bcnn)."""
+SHIPPED = ("sun_bcnn", "sun_bcnn_kitti")  # trained on the synthetic corpus / fine-tuned on KITTI 07
+
+
+def shipped_model(name: str = "sun_bcnn") -> Path:
+    """A model directory installed with the package (share/pvo_pseudosensors/models/NAME)."""
     from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
     try:
-        return Path(get_package_share_directory("pvo_pseudosensors")) / "models" / "sun_bcnn"
+        return Path(get_package_share_directory("pvo_pseudosensors")) / "models" / name
     except (PackageNotFoundError, ValueError):
-        return Path(__file__).resolve().parents[2] / "models" / "sun_bcnn"
+        return Path(__file__).resolve().parents[2] / "models" / name
+
+
+def resolve_model(model: str) -> Path:
+    """The ``model`` parameter as a directory: "" is the shipped synthetic model, a shipped model's name
+    (``sun_bcnn``, ``sun_bcnn_kitti``) that is not a local path is that model, anything else a path."""
+    if not model:
+        return shipped_model()
+    if model in SHIPPED and not Path(model).exists():
+        return shipped_model(model)
+    return Path(model)
 
 
 @dataclass
@@ -63,7 +77,7 @@ class SunBCNNSensor:
     def __init__(self, config: SunBCNNSensorConfig) -> None:
         self.config = config
         torch.set_num_threads(config.threads)
-        self.model, self.card = load_sun_bcnn(Path(config.model) if config.model else shipped_model())
+        self.model, self.card = load_sun_bcnn(resolve_model(config.model))
         self.height, self.width = (int(v) for v in self.card.input["size"])
         self.colour = bool(self.card.input.get("colour", False))
         self.tau = float(self.card.calibration.get("tau", np.inf))
