@@ -80,6 +80,8 @@ def _sun_bcnn() -> ModelEntry:
             "dropout": "dropout probability (kept on for MC sampling)",
             "grid": "rows,columns of the region pooling before the head (1,1: global)",
             "mirror": "mirror training images left-right at random (the sun's x negated)",
+            "aleatoric": "a von Mises-Fisher concentration per image (heteroscedastic covariance)",
+            "augment": "photometric jitter in training (gain, gamma, noise)",
         },
     )
 

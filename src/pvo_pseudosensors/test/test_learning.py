@@ -26,7 +26,9 @@ from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
 from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask
 
 SIZE = (24, 64)  # the tiny model's input (height, width)
-TINY = SunBCNNConfig(height=SIZE[0], width=SIZE[1], widths=(4, 8), hidden=8, dropout=0.1, grid=(1, 1), mirror=False)
+TINY = SunBCNNConfig(
+    height=SIZE[0], width=SIZE[1], widths=(4, 8), hidden=8, dropout=0.1, grid=(1, 1), mirror=False, augment=False, aleatoric=False
+)
 
 
 def write_sequence(root: Path, frames: int = 12, seed: int = 0, size: tuple[int, int] = (48, 128)) -> Path:
@@ -203,7 +205,7 @@ from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
 from pvo_pseudosensors.sun_bcnn.model import SunTask
 
 roots, out = sys.argv[1:-1], Path(sys.argv[-1])
-config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.0, mirror=False)  # no per-process randomness
+config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.0, mirror=False, augment=False)  # no per-process randomness
 train = FrameDataset([Source(Path(r), Path(r).name) for r in roots[:-1]], config.spec)
 validation = FrameDataset([Source(Path(roots[-1]), "v")], config.spec)
 fit(SunTask(config), train, validation, TrainConfig(epochs=3, batch_size=16, learning_rate=3e-3, patience=0, seed=1, threads=1),

@@ -20,7 +20,8 @@ class SunBCNNConfig:
     world has a mirrored sun: twice the suns to learn from a corpus of few sequences); aleatoric: a fourth
     output, the concentration kappa of a von Mises-Fisher distribution about the predicted direction, trained
     by its negative log-likelihood, so that hard images (overcast, no shadows in view, blur) get a larger
-    covariance than easy ones (the thesis's single tau cannot: its §5.8.1)."""
+    covariance than easy ones (the thesis's single tau cannot: its §5.8.1); augment: photometric jitter in
+    training (gain, gamma, noise per image)."""
 
     height: int = 94
     width: int = 310
@@ -31,6 +32,7 @@ class SunBCNNConfig:
     mirror: bool = True
     grid: tuple[int, ...] = (2, 4)
     aleatoric: bool = True
+    augment: bool = True
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:
@@ -47,5 +49,6 @@ class SunBCNNConfig:
         values = dict(card.hyperparameters)
         values["widths"] = tuple(values["widths"])
         values["grid"] = tuple(values.get("grid", (1, 1)))
-        values.setdefault("aleatoric", False)  # models from before the option had none
+        values.setdefault("aleatoric", False)  # models from before the options had neither
+        values.setdefault("augment", False)
         return cls(**values)

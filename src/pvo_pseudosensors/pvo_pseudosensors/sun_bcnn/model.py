@@ -4,7 +4,8 @@ A small CNN for a CPU (input and widths in :class:`SunBCNNConfig`), dropout afte
 and the fully connected layer, a unit-norm 3-vector output in the camera's optical frame (x right, y down,
 z forward), trained with the loss 1 - s·ŝ (thesis eq. 5.3); optionally (``aleatoric``) a concentration kappa
 of a von Mises-Fisher distribution about it, trained by its negative log-likelihood with the direction held
-fixed (so the direction learns exactly as the thesis's, and kappa learns how far off it tends to be).
+fixed and from a small head of its own on the pooled features, which it does not train (so the direction learns
+exactly as the thesis's, and kappa learns how far off it tends to be).
 Prediction (MC dropout) is in :mod:`.infer`.
 """
 
@@ -18,6 +19,8 @@ from torch import nn
 
 from ..learning.checkpoint import ModelCard
 from .config import ARCHITECTURE, SunBCNNConfig
+
+CONCENTRATION_HIDDEN = 32  # units of the aleatoric head
 
 
 class SunBCNN(nn.Module):
@@ -36,12 +39,19 @@ class SunBCNN(nn.Module):
             ]
             channels = width
         self.features = nn.Sequential(*layers)
+        pooled = channels * (1 + config.grid[0] * config.grid[1])
         self.head = nn.Sequential(
             nn.Flatten(),
-            nn.Linear(channels * (1 + config.grid[0] * config.grid[1]), config.hidden),
+            nn.Linear(pooled, config.hidden),
             nn.ReLU(inplace=True),
             nn.Dropout(config.dropout),
-            nn.Linear(config.hidden, 4 if config.aleatoric else 3),
+            nn.Linear(config.hidden, 3),
+        )
+        # kappa reads the pooled features without training them: the direction learns exactly as without it
+        self.concentration = (
+            nn.Sequential(nn.Linear(pooled, CONCENTRATION_HIDDEN), nn.ReLU(inplace=True), nn.Linear(CONCENTRATION_HIDDEN, 1))
+            if config.aleatoric
+            else None
         )
 
     def pooled(self, image: torch.Tensor) -> torch.Tensor:
@@ -54,9 +64,10 @@ class SunBCNN(nn.Module):
     def outputs(self, pooled: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The head: pooled features -> (B, 3) unit vectors towards the sun and (B,) concentrations kappa
         (>= 1; None without the aleatoric output)."""
-        raw = self.head(pooled)
-        vectors = nn.functional.normalize(raw[:, :3], dim=1)
-        return vectors, (nn.functional.softplus(raw[:, 3]) + 1.0 if self.config.aleatoric else None)
+        vectors = nn.functional.normalize(self.head(pooled), dim=1)
+        if self.concentration is None:
+            return vectors, None
+        return vectors, nn.functional.softplus(self.concentration(pooled.detach())[:, 0]) + 1.0
 
     def direction(self, pooled: torch.Tensor) -> torch.Tensor:
         """The head: pooled features -> (B, 3) unit vectors towards the sun."""
@@ -67,6 +78,16 @@ class SunBCNN(nn.Module):
         kappas, as :meth:`outputs` (through forward, so that DistributedDataParallel syncs the gradients)."""
         vectors, kappa = self.outputs(self.pooled(image))
         return (vectors, kappa) if with_concentration else vectors
+
+
+def photometric_jitter(images: torch.Tensor) -> torch.Tensor:
+    """Per image: a gain in [0.6, 1.4], a gamma in [exp(-0.4), exp(0.4)] and Gaussian noise of up to 3 % —
+    what another camera, exposure or sensor would change, not where the sun is (the global RNG: seeded)."""
+    n = len(images)
+    gain = torch.empty(n, 1, 1, 1).uniform_(0.6, 1.4)
+    gamma = torch.exp(torch.empty(n, 1, 1, 1).uniform_(-0.4, 0.4))
+    noise = torch.empty(n, 1, 1, 1).uniform_(0.0, 0.03) * torch.randn_like(images)
+    return ((images.clamp(0.0, 1.0) * gain).clamp(1e-6, 1.0) ** gamma + noise).clamp(0.0, 1.0)
 
 
 def vmf_negative_log_likelihood(kappa: torch.Tensor, cosine: torch.Tensor) -> torch.Tensor:
@@ -88,6 +109,8 @@ class SunTask:
 
     def loss(self, model: nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         images, sun = batch["left"], batch["sun"]
+        if self.config.augment and model.training:
+            images = photometric_jitter(images)
         if self.config.mirror and model.training:
             flip = torch.rand(len(images)) < 0.5  # the global RNG: seeded, and checkpointed for --resume
             images = torch.where(flip[:, None, None, None], images.flip(-1), images)
