@@ -205,7 +205,8 @@ from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
 from pvo_pseudosensors.sun_bcnn.model import SunTask
 
 roots, out = sys.argv[1:-1], Path(sys.argv[-1])
-config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.0, mirror=False, augment=False)  # no per-process randomness
+# no per-process randomness: no dropout, mirroring or jitter
+config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.0, mirror=False, augment=False)
 train = FrameDataset([Source(Path(r), Path(r).name) for r in roots[:-1]], config.spec)
 validation = FrameDataset([Source(Path(roots[-1]), "v")], config.spec)
 fit(SunTask(config), train, validation, TrainConfig(epochs=3, batch_size=16, learning_rate=3e-3, patience=0, seed=1, threads=1),
