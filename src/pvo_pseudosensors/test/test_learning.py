@@ -396,3 +396,17 @@ def test_the_model_parameter_names_a_shipped_model_or_a_path(tmp_path: Path) -> 
     assert resolve_model("").parts[-2:] == ("models", "sun_bcnn")
     assert resolve_model("sun_bcnn_kitti").parts[-2:] == ("models", "sun_bcnn_kitti")
     assert resolve_model(str(tmp_path)) == tmp_path
+
+
+def test_photometric_jitter_changes_brightness_not_geometry() -> None:
+    from pvo_pseudosensors.sun_bcnn.model import photometric_jitter
+
+    ramp = torch.linspace(0.1, 0.9, 64).repeat(8, 1, 24, 1)  # brighter to the right in every image
+    torch.manual_seed(3)
+    jittered = photometric_jitter(ramp)
+    torch.manual_seed(3)
+    assert torch.equal(jittered, photometric_jitter(ramp))  # seeded
+    assert jittered.shape == ramp.shape and float(jittered.min()) >= 0.0 and float(jittered.max()) <= 1.0
+    assert not torch.allclose(jittered, ramp, atol=0.02)
+    columns = jittered.mean(dim=(1, 2))  # (8, 64): the ramp still rises left to right in every image
+    assert bool((columns[:, -8:].mean(dim=1) > columns[:, :8].mean(dim=1) + 0.2).all())
