@@ -143,3 +143,17 @@ def test_experiment_reports_every_table(corpus: Path, pvo_data: Path, tmp_path: 
     assert staged == truth[128:160]  # the validation rows are frames 128-159, renumbered from 0
     rows = (out / "kitti06_kitti-finetuned.csv").read_text().splitlines()
     assert len(rows) == 52  # header + the 51 frames of the 06 clip
+
+
+def test_training_on_two_corpora_joins_their_splits(corpus: Path, tmp_path: Path, capsys) -> None:
+    import shutil
+
+    other = tmp_path / "other"
+    shutil.copytree(corpus, other, ignore=shutil.ignore_patterns(".cache"))
+    model = tmp_path / "model"
+    args = ["sun-bcnn", "train", "--corpus", str(corpus), "--corpus", str(other), "-o", str(model), "--epochs", "1"]
+    assert main([*args, "--batch-size", "16", *TINY]) == 0
+    assert "64 training and 32 validation samples" in capsys.readouterr().err  # 2 x (2 train + 1 validation) x 16
+    card = yaml.safe_load((model / "model.yaml").read_text())
+    assert [c["path"] for c in card["corpus"]["corpora"]] == [str(corpus), str(other)]
+    assert card["commands"]["corpus"].count("pvo sim corpus") == 2

@@ -48,10 +48,16 @@ def _option(name: str) -> str:
 def _train_parser(actions: Any, entry: ModelEntry) -> None:
     train = actions.add_parser("train", help=f"train {entry.name} on a corpus (model selection on its validation split)")
     train.set_defaults(handler=lambda args: run_train(args, entry))
-    train.add_argument("--corpus", type=Path, required=True, help="corpus directory rendered by `pvo sim corpus`")
+    train.add_argument(
+        "--corpus",
+        type=Path,
+        action="append",
+        required=True,
+        help="corpus directory rendered by `pvo sim corpus` (repeat to train on several: their splits are joined)",
+    )
     train.add_argument("--out", "-o", type=Path, required=True, help="model directory (weights, card, history, plots)")
     train.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
-    train.add_argument("--cache", type=Path, help="decoded-image cache (default CORPUS/.cache)")
+    train.add_argument("--cache", type=Path, help="decoded-image cache (default CORPUS/.cache of each corpus)")
     train.add_argument("--max-sequences", type=int, default=0, help="use at most this many sequences per split (0: all)")
     train.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     loop = train.add_argument_group("training loop")
@@ -122,6 +128,7 @@ def _corpus_command(manifest: Any) -> str:
     size = f"{data['width']}x{data['height']}"
     presets = ",".join(data["presets"])
     colour = " --colour" if data.get("colour") else ""
+    colour += f" --supersample {data['supersample']}" if data.get("supersample", 1) != 1 else ""
     return (
         f"pvo sim corpus {manifest.path.parent} --sequences {data['sequences']} --frames {data['frames']} --size {size} "
         f"--presets {presets} --seed {data['seed']}{colour}"
@@ -150,22 +157,25 @@ def _dataset(sources: list, spec: Any, cache: Path, label: str, quiet: bool) -> 
 def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
     from pvo_core.readers import read_corpus_manifest
     from pvo_pseudosensors.learning import Source, TrainConfig, fit
+    from torch.utils.data import ConcatDataset
 
     config = _model_config(args, entry)
     if int(os.environ.get("RANK", "0")) != 0:  # under torchrun only the first process talks
         args.quiet = True
         sys.stdout = sys.stderr = open(os.devnull, "w")  # for the life of this worker process
     loop = TrainConfig(**{name: getattr(args, name) for name in TRAIN_DEFAULTS})
-    manifest = read_corpus_manifest(args.corpus)
-    cache = args.cache or Path(args.corpus) / ".cache"
+    manifests = [read_corpus_manifest(corpus) for corpus in args.corpus]
     spec = entry.spec(config)
     sets = {}
     for split in ("train", "validation"):
-        sequences = manifest.split(split)[: args.max_sequences or None]
-        if not sequences:
-            raise ValueError(f"{manifest.path}: no sequence in the {split} split")
-        sources = [Source(sequence.root, sequence.name, split) for sequence in sequences]
-        sets[split] = _dataset(sources, spec, cache, split, args.quiet)
+        parts = []
+        for manifest in manifests:
+            sequences = manifest.split(split)[: args.max_sequences or None]
+            if not sequences:
+                raise ValueError(f"{manifest.path}: no sequence in the {split} split")
+            sources = [Source(sequence.root, sequence.name, split) for sequence in sequences]
+            parts.append(_dataset(sources, spec, args.cache or manifest.path.parent / ".cache", split, args.quiet))
+        sets[split] = parts[0] if len(parts) == 1 else ConcatDataset(parts)
     print(f"{entry.name}: {len(sets['train'])} training and {len(sets['validation'])} validation samples", file=sys.stderr)
     bar: Progress | None = None
 
@@ -179,9 +189,13 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
             bar = Progress(steps, "  batches")
         bar.update()
 
+    corpora = [{"path": str(m.path.parent), "sha256": m.sha256, "sequences": len(m.sequences)} for m in manifests]
     extra = {
-        "corpus": {"path": str(manifest.path.parent), "sha256": manifest.sha256, "sequences": len(manifest.sequences)},
-        "commands": {"corpus": _corpus_command(manifest), "train": "pvo " + shlex.join(getattr(args, "argv", sys.argv[1:]))},
+        "corpus": corpora[0] if len(corpora) == 1 else {"corpora": corpora},
+        "commands": {
+            "corpus": " && ".join(_corpus_command(m) for m in manifests),
+            "train": "pvo " + shlex.join(getattr(args, "argv", sys.argv[1:])),
+        },
     }
     result = fit(
         entry.task(config),
