@@ -42,7 +42,8 @@ def test_cli_runs_one_sequence_and_writes_the_run_record(pvo_data: Path, tmp_pat
 
 def test_experiments_are_listed_and_unknown_kinds_are_errors() -> None:
     listing = subprocess.run(["pvo", "experiment", "list"], capture_output=True, text=True, timeout=60)
-    assert listing.returncode == 0 and listing.stdout.startswith("sun-sim  Table 5.2")
+    assert listing.returncode == 0 and listing.stdout.startswith("sun-sim   Table 5.2")
+    assert "sun-bcnn  Sun-BCNN (ch. 5)" in listing.stdout
     for command in (["pvo", "experiment", "sun-real"], ["pvo", "bench", "gpu"]):
         bad = subprocess.run(command, capture_output=True, text=True, timeout=60)
         assert bad.returncode == 2 and "invalid choice" in bad.stderr, bad.stderr

@@ -5,7 +5,8 @@
    actual error).
 2. Cloud cover (§5.10.1): sunny against overcast test sequences.
 3. Method I against Method II (Tables 5.7, 5.8): the mean and the covariance of the MC samples.
-4. Fusion (Table 5.2 on synthetic): not run by this command yet (see the report).
+4. Fusion (Table 5.2 on synthetic): the first test sequences rendered longer, this project's VO fused with
+   GT-Sun-10/20/30 and with Sun-BCNN at every 10th frame; online and smoothed ARMSE against VO alone.
 5. Real images: the synthetic model on the KITTI 06 clip and the 07 left images; the synthetic model
    fine-tuned on 07 and a model trained on 07 alone, both tested on 06. 07 is split by frame (0-127 train,
    128-159 validation: model selection and tau calibration); 06 is never trained on.
@@ -25,7 +26,7 @@ from numpy.typing import NDArray
 
 from ..paths import data_directory
 
-TITLE = "Sun-BCNN (ch. 5): accuracy, cloud cover, Method I/II on the corpus's test split; KITTI transfer and fine-tuning"
+TITLE = "Sun-BCNN (ch. 5): accuracy, cloud cover, Method I/II, fusion on the corpus's test sequences; KITTI transfer"
 Array = NDArray[np.float64]
 KITTI_TRAIN_FRAMES = range(0, 128)  # of the 07 clip (frames 0-159)
 KITTI_VALIDATION_FRAMES = range(128, 160)
