@@ -97,19 +97,29 @@ class FrameLedger:
     def __init__(self, capacity: int = 256) -> None:
         self._announced: deque[int] = deque()
         self._arrived: deque[int] = deque(maxlen=capacity)
+        self._reported_late: deque[int] = deque(maxlen=capacity)
         self._capacity = capacity
 
     def announce(self, stamp_ns: int) -> list[int]:
         """Record a camera_info; returns ``[stamp]`` when it comes after a later pair was processed (its own
-        pair can no longer be processed: it would go back in time)."""
+        pair can no longer be processed: it would go back in time) — unless that pair turns up after all
+        (camera_info and images are separate topics), see :meth:`recover`."""
         if stamp_ns in self._arrived or (self._announced and stamp_ns <= self._announced[-1]):
             return []
         if self._arrived and stamp_ns < max(self._arrived):
+            self._reported_late.append(stamp_ns)
             return [stamp_ns]
         self._announced.append(stamp_ns)
         while len(self._announced) > self._capacity:
             self._announced.popleft()
         return []
+
+    def recover(self, stamp_ns: int) -> bool:
+        """True (once) when the pair of ``stamp_ns`` arrives after its late camera_info was reported missing."""
+        if stamp_ns in self._reported_late:
+            self._reported_late.remove(stamp_ns)
+            return True
+        return False
 
     def arrived(self, stamp_ns: int) -> list[int]:
         """Record a pair; returns the announced stamps before it that never arrived."""
@@ -190,6 +200,8 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
     def _on_image(self, side: str, msg: Image) -> None:
         pair = self.sync.add(side, stamp_to_nanoseconds(msg.header.stamp), msg)
         if pair is not None:
+            if self.ledger.recover(pair[0]):  # counted as missing when its camera_info came late: it did arrive
+                self.counts["missing_images"] -= 1
             self._count_missing(self.ledger.arrived(pair[0]))
             self._process(*pair)
 
