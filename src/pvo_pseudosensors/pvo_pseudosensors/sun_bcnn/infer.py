@@ -66,8 +66,11 @@ def predict_sequence(
     without dropout, the passes through the head only. tau: the model precision added to the covariance
     (default: the card's ``calibration.tau``, infinite until calibrated)."""
     frames, draws = sample_sequence(model, card, sequence, samples, batch, seed, cache_dir, mode)
-    if tau is None:
-        tau = float(card.calibration.get("tau", np.inf))
+    return predictions_from_draws(frames, draws, float(card.calibration.get("tau", np.inf)) if tau is None else tau)
+
+
+def predictions_from_draws(frames: NDArray[np.int64], draws: Draws, tau: float) -> SunPredictions:
+    """Method I mean, the covariance of :func:`combine` and their angles, per frame."""
     mean, covariance = combine(draws, tau)
     zenith, azimuth = unit_zenith_azimuth(mean)
     return SunPredictions(frames, mean, zenith, azimuth, covariance)

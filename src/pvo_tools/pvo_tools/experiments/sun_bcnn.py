@@ -160,11 +160,18 @@ def kitti_truth(data: Path, sequence: str, frames: NDArray[np.int64]) -> Array:
 
 
 def train_on_kitti(
-    task: Any, train: Path, validation: Path, out: Path, epochs: int, learning_rate: float, say: Any, commands: dict[str, str]
+    task: Any,
+    spec: Any,
+    train: Path,
+    validation: Path,
+    out: Path,
+    epochs: int,
+    learning_rate: float,
+    say: Any,
+    commands: dict[str, str],
 ) -> Path:
     from pvo_pseudosensors.learning import FrameDataset, Source, TrainConfig, fit
 
-    spec = task.task.config.spec if hasattr(task, "task") else task.config.spec
     cache = out.parent / ".cache"
     train_set = FrameDataset([Source(train, "07-train", "train")], spec, cache)
     validation_set = FrameDataset([Source(validation, "07-validation", "validation")], spec, cache)
@@ -326,7 +333,14 @@ def run(args: argparse.Namespace) -> int:
     from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
     from pvo_core.results import RunResult
     from pvo_pseudosensors.learning.training import FineTune
-    from pvo_pseudosensors.sun_bcnn.infer import Draws, calibrate, combine, load_sun_bcnn, predict_sequence, sample_sequence
+    from pvo_pseudosensors.sun_bcnn.infer import (
+        Draws,
+        calibrate,
+        load_sun_bcnn,
+        predict_sequence,
+        predictions_from_draws,
+        sample_sequence,
+    )
     from pvo_pseudosensors.sun_bcnn.model import SunTask
 
     from ..plots import pyplot
@@ -358,8 +372,7 @@ def run(args: argparse.Namespace) -> int:
         for sequence in test:
             say(f"{name}: predicting test sequence {sequence.name} ...")
             frames, draws = sample_sequence(model, card, sequence.root, args.samples, cache_dir=cache)
-            mean, covariance = combine(draws, tau)
-            predictions = _predictions(frames, mean, covariance)
+            predictions = predictions_from_draws(frames, draws, tau)
             truth = read_kitti_sun_csv(sequence.root / "sun.csv")[frames]
             rows = prediction_rows(predictions)
             per_sequence.append(
@@ -535,10 +548,11 @@ def run(args: argparse.Namespace) -> int:
         kitti_results.append(on_kitti("synthetic model, KITTI 07 (160)", args.model, "07"))
         train = stage_kitti(data, "07", KITTI_TRAIN_FRAMES, out / "kitti07-train")
         validation = stage_kitti(data, "07", KITTI_VALIDATION_FRAMES, out / "kitti07-validation")
-        config = replace(loaded["aleatoric"][0].config)
+        config = loaded["aleatoric"][0].config
         say("fine-tuning the synthetic model on KITTI 07 ...")
         tuned = train_on_kitti(
             FineTune(SunTask(config), args.model),
+            config.spec,
             train,
             validation,
             out / "kitti-finetuned",
@@ -549,7 +563,15 @@ def run(args: argparse.Namespace) -> int:
         )
         say("training on KITTI 07 alone ...")
         alone = train_on_kitti(
-            SunTask(config), train, validation, out / "kitti07-only", 2 * args.finetune_epochs, 1e-3, say, {"train": command}
+            SunTask(config),
+            config.spec,
+            train,
+            validation,
+            out / "kitti07-only",
+            2 * args.finetune_epochs,
+            1e-3,
+            say,
+            {"train": command},
         )
         for directory in (tuned, alone):
             m, c = load_sun_bcnn(directory)
@@ -580,11 +602,3 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(report))
     print(f"wrote {out}/report.md, calibration.png and metrics.json")
     return 0
-
-
-def _predictions(frames: NDArray[np.int64], mean: Array, covariance: Array) -> Any:
-    from pvo_core.sun import unit_zenith_azimuth
-    from pvo_pseudosensors.sun_bcnn.infer import SunPredictions
-
-    zenith, azimuth = unit_zenith_azimuth(mean)
-    return SunPredictions(frames, mean, zenith, azimuth, covariance)
