@@ -57,7 +57,7 @@ def _sun_bcnn() -> ModelEntry:
         return figures
 
     def evaluate(predictions, truth):
-        from .sun_bcnn.infer import evaluate_predictions
+        from .sun_bcnn.evaluation import evaluate_predictions
 
         return evaluate_predictions(predictions, truth)
 

@@ -360,7 +360,7 @@ def test_the_vmf_likelihood_matches_scipy_and_the_loss_teaches_kappa_the_error()
 def test_the_aleatoric_output_learns_larger_covariance_for_noisier_images(tmp_path: Path) -> None:
     """Images whose sun is hidden (flat) and images showing it (a ramp): the trained kappa is far lower on the
     flat ones, and the predicted covariance (with no tau) far larger."""
-    from pvo_pseudosensors.sun_bcnn.infer import _draws, combine
+    from pvo_pseudosensors.sun_bcnn.infer import combine, draw_samples
 
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
@@ -380,7 +380,7 @@ def test_the_aleatoric_output_learns_larger_covariance_for_noisier_images(tmp_pa
         optimiser.zero_grad()
         task.loss(model.train(), {"left": images, "sun": targets}).backward()
         optimiser.step()
-    draws = _draws(model, images, 8, seed=1)
+    draws = draw_samples(model, images, 8, seed=1)
     assert draws.inverse_concentration is not None
     inverse = draws.inverse_concentration.mean(axis=0)
     assert np.median(inverse[hidden]) > 5 * np.median(inverse[~hidden])

@@ -10,7 +10,7 @@ import torch
 from numpy.typing import NDArray
 from pvo_core.sun import unit_zenith_azimuth
 
-from .infer import MODES, _draws, combine, load_sun_bcnn
+from .infer import MODES, combine, draw_samples, load_sun_bcnn
 
 Array = NDArray[np.float64]
 
@@ -98,7 +98,7 @@ class SunBCNNSensor:
         tensor = tensor.permute(2, 0, 1)[None] if tensor.ndim == 3 else tensor[None, None]
         seed = self.config.seed + self.count
         self.count += 1
-        draws = _draws(self.model, tensor, self.config.samples, seed, self.config.mode)
+        draws = draw_samples(self.model, tensor, self.config.samples, seed, self.config.mode)
         mean, covariance = combine(draws, self.tau)
         zenith, azimuth = unit_zenith_azimuth(mean)
         return SunEstimate(mean[0], float(zenith[0]), float(azimuth[0]), covariance[0])

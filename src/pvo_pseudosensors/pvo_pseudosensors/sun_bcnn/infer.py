@@ -1,5 +1,5 @@
-"""Sun-BCNN on a sequence: MC-dropout samples per image, Method I mean and Method II covariance, the
-prediction file, and its evaluation against the true sun vectors (thesis Table 5.1's columns)."""
+"""Sun-BCNN on a sequence: MC-dropout samples per image, Method I mean and Method II covariance + tau, and
+the prediction file. Its evaluation against the true sun vectors is :mod:`.evaluation`."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 from pvo_core.readers import SUN_PREDICTIONS_HEADER
-from pvo_core.sun import aleatoric_covariance, angular_errors, sample_mean_and_covariance, unit_zenith_azimuth
+from pvo_core.sun import aleatoric_covariance, sample_mean_and_covariance, unit_zenith_azimuth
 
 from ..learning.checkpoint import ModelCard, load_model
 from ..learning.data import FrameDataset, Source
@@ -35,6 +35,10 @@ class SunPredictions:
     zenith: Array
     azimuth: Array
     covariance: Array
+
+    def rows(self) -> Array:
+        """(N, 10): frame, s (3), zenith, azimuth, covariance (4, row-major) — the prediction file's columns."""
+        return np.column_stack([self.frames, self.vectors, self.zenith, self.azimuth, self.covariance.reshape(-1, 4)])
 
     def write_csv(self, path: Path) -> Path:
         rows = [SUN_PREDICTIONS_HEADER]
@@ -96,7 +100,7 @@ def sample_sequence(
     for start in range(0, len(data), batch):
         items = [data[i] for i in range(start, min(start + batch, len(data)))]
         images = torch.stack([item["left"] for item in items])
-        draws = _draws(model, images, samples, int(torch.randint(0, 2**31 - 1, (1,), generator=generator)), mode)
+        draws = draw_samples(model, images, samples, int(torch.randint(0, 2**31 - 1, (1,), generator=generator)), mode)
         vectors.append(draws.vectors)
         inverse.append(draws.inverse_concentration)
         frames += [int(item["frame"]) for item in items]
@@ -113,7 +117,7 @@ class Draws:
     inverse_concentration: Array | None
 
 
-def _draws(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, mode: str = "full") -> Draws:
+def draw_samples(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, mode: str = "full") -> Draws:
     """``samples`` MC-dropout passes; the global RNG is left as it was."""
     state = torch.get_rng_state()
     torch.manual_seed(seed)
@@ -183,25 +187,3 @@ def calibrate(
         "samples": float(samples),
         "max_cosine_distance": max_cosine_distance,
     }
-
-
-def evaluate_predictions(predictions: Array, truth: Array) -> dict[str, float]:
-    """Errors of prediction rows (N, 10: frame, s, zenith, azimuth, covariance) against the true unit
-    vectors of the same frames (N, 3): mean and median vector-angle, zenith and azimuth errors (degrees),
-    and the ANEES over (zenith, azimuth) with the predicted covariances."""
-    vectors = predictions[:, 1:4]
-    errors = angular_errors(vectors, truth)
-    true_zenith, true_azimuth = unit_zenith_azimuth(truth / np.linalg.norm(truth, axis=1, keepdims=True))
-    residual = np.column_stack([predictions[:, 4] - true_zenith, np.angle(np.exp(1j * (predictions[:, 5] - true_azimuth)))])
-    covariance = predictions[:, 6:10].reshape(-1, 2, 2)
-    nees = np.einsum("ni,nij,nj->n", residual, np.linalg.inv(covariance), residual)
-    out = {"images": float(len(vectors))}
-    for name, values in errors.items():
-        out[f"{name}_mean_deg"] = float(np.degrees(values.mean()))
-        out[f"{name}_median_deg"] = float(np.degrees(np.median(values)))
-        out[f"{name}_std_deg"] = float(np.degrees(values.std()))
-    out["anees"] = float(nees.mean() / 2.0)
-    close = 1.0 - np.sum(vectors * truth / np.linalg.norm(truth, axis=1, keepdims=True), axis=1) < 0.3
-    out["anees_filtered"] = float(nees[close].mean() / 2.0) if close.any() else float("nan")  # the thesis's code
-    out["filtered_images"] = float(close.sum())
-    return out

@@ -42,97 +42,10 @@ class Evaluated:
     figures: dict[str, float] = field(default_factory=dict)
 
 
-def prediction_rows(predictions: Any) -> Array:
-    """(N, 10): frame, s (3), zenith, azimuth, covariance (4) — the columns of `pvo sun-bcnn predict`."""
-    p = predictions
-    return np.column_stack([p.frames, p.vectors, p.zenith, p.azimuth, p.covariance.reshape(-1, 4)])
-
-
 def evaluate(label: str, rows: Array, truth: Array) -> Evaluated:
-    from pvo_pseudosensors.sun_bcnn.infer import evaluate_predictions
+    from pvo_pseudosensors.sun_bcnn.evaluation import evaluate_predictions
 
     return Evaluated(label, rows, truth, evaluate_predictions(rows, truth))
-
-
-def predicted_sigma(rows: Array) -> Array:
-    """Per image, the predicted angular standard deviation per tangent axis (rad): the mean of the zenith
-    variance and the azimuth variance scaled by sin² zenith, square-rooted."""
-    sin2 = np.sin(rows[:, 4]) ** 2
-    return np.sqrt(0.5 * (rows[:, 6] + sin2 * rows[:, 9]))
-
-
-def actual_error(rows: Array, truth: Array) -> Array:
-    from pvo_core.sun import angular_errors
-
-    return angular_errors(rows[:, 1:4], truth)["vector"]
-
-
-def calibration_curve(rows: Array, truth: Array, bins: int = 8) -> tuple[Array, Array]:
-    """Images binned by predicted sigma (equal counts): mean predicted sigma and the actual per-axis RMS
-    error (the RMS angle over sqrt 2, what sigma would be for an isotropic tangent error), degrees."""
-    sigma, error = predicted_sigma(rows), actual_error(rows, truth)
-    order = np.argsort(sigma)
-    groups = np.array_split(order, bins)
-    predicted = np.array([np.degrees(sigma[g].mean()) for g in groups if len(g)])
-    actual = np.array([np.degrees(np.sqrt(np.mean(error[g] ** 2) / 2.0)) for g in groups if len(g)])
-    return predicted, actual
-
-
-def method_comparison(draws: Any, truth: Array, tau: float) -> dict[str, dict[str, float]]:
-    """Tables 5.7 and 5.8: errors of the Method I / II means, ANEES of each covariance method with each
-    mean (each covariance with the same tau^-1 I and aleatoric terms added)."""
-    from pvo_core.sun import (
-        aleatoric_covariance,
-        angle_mean,
-        angular_errors,
-        sample_mean_and_covariance,
-        unit_zenith_azimuth,
-        vector_covariance_in_angles,
-        wrap_angle,
-    )
-
-    mean_one, covariance_two = sample_mean_and_covariance(draws.vectors)
-    means = {"Method I": mean_one, "Method II": angle_mean(draws.vectors)}
-    extra = np.zeros_like(covariance_two) + (0.0 if np.isinf(tau) else np.eye(2) / tau)
-    if draws.inverse_concentration is not None:
-        extra = extra + aleatoric_covariance(mean_one, draws.inverse_concentration.mean(axis=0))
-    covariances = {"Method I": vector_covariance_in_angles(draws.vectors, mean_one) + extra, "Method II": covariance_two + extra}
-    true_zenith, true_azimuth = unit_zenith_azimuth(truth)
-    out: dict[str, dict[str, float]] = {}
-    for mean_name, mean in means.items():
-        errors = angular_errors(mean, truth)
-        zenith, azimuth = unit_zenith_azimuth(mean)
-        residual = np.column_stack([zenith - true_zenith, wrap_angle(azimuth - true_azimuth)])
-        row = {
-            f"{k}_{s}_deg": float(np.degrees(f(v)))
-            for k, v in errors.items()
-            for s, f in (("mean", np.mean), ("median", np.median), ("std", np.std))
-        }
-        for cov_name, covariance in covariances.items():
-            nees = np.einsum("ni,nij,nj->n", residual, np.linalg.inv(covariance + 1e-12 * np.eye(2)), residual)
-            row[f"anees_cov_{cov_name}"] = float(nees.mean() / 2.0)
-        out[mean_name] = row
-    return out
-
-
-def time_per_image(model: Any, card: Any, count: int, mode: str, samples: int = 25) -> float:
-    """Milliseconds per image through :class:`SunBCNNSensor`'s path (one image at a time, one thread)."""
-    import torch
-    from pvo_pseudosensors.sun_bcnn.infer import _draws, combine
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        size = tuple(int(v) for v in card.input["size"])
-        generator = torch.Generator().manual_seed(0)
-        tensors = [torch.rand(1, 1, *size, generator=generator) for _ in range(count)]
-        _draws(model, tensors[0], samples, 0, mode)  # warm-up
-        start = time.perf_counter()
-        for k, tensor in enumerate(tensors):
-            combine(_draws(model, tensor, samples, k, mode), np.inf)
-        return 1000.0 * (time.perf_counter() - start) / len(tensors)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def stage_kitti(data: Path, sequence: str, frames: range, out: Path) -> Path:
@@ -333,6 +246,7 @@ def run(args: argparse.Namespace) -> int:
     from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
     from pvo_core.results import RunResult
     from pvo_pseudosensors.learning.training import FineTune
+    from pvo_pseudosensors.sun_bcnn.evaluation import calibration_curve, method_comparison, time_per_image
     from pvo_pseudosensors.sun_bcnn.infer import (
         Draws,
         calibrate,
@@ -374,7 +288,7 @@ def run(args: argparse.Namespace) -> int:
             frames, draws = sample_sequence(model, card, sequence.root, args.samples, cache_dir=cache)
             predictions = predictions_from_draws(frames, draws, tau)
             truth = read_kitti_sun_csv(sequence.root / "sun.csv")[frames]
-            rows = prediction_rows(predictions)
+            rows = predictions.rows()
             per_sequence.append(
                 (
                     sequence,
@@ -426,7 +340,7 @@ def run(args: argparse.Namespace) -> int:
     head_rows, head_truth = [], []
     for sequence in test:
         p = predict_sequence(model, card, sequence.root, args.samples, cache_dir=cache, mode="head")
-        head_rows.append(prediction_rows(p))
+        head_rows.append(p.rows())
         head_truth.append(read_kitti_sun_csv(sequence.root / "sun.csv")[p.frames])
     head = evaluate("aleatoric, head-only MC", np.vstack(head_rows), np.vstack(head_truth))
     timing = {mode: time_per_image(model, card, 40, mode, args.samples) for mode in ("full", "head")}
@@ -540,7 +454,7 @@ def run(args: argparse.Namespace) -> int:
         def on_kitti(label: str, directory: Path, sequence: str) -> Evaluated:
             m, c = load_sun_bcnn(directory)
             p = predict_sequence(m, c, data / "kitti" / "sequences" / sequence, args.samples, cache_dir=out / ".cache")
-            result = evaluate(label, prediction_rows(p), kitti_truth(data, sequence, p.frames))
+            result = evaluate(label, p.rows(), kitti_truth(data, sequence, p.frames))
             p.write_csv(out / f"kitti{sequence}_{directory.name}.csv")
             return result
 
