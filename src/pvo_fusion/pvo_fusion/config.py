@@ -123,11 +123,23 @@ class InputsConfig:
 
 
 @dataclass(frozen=True)
+class OutputConfig:
+    """The published online pose (:mod:`pvo_fusion.output`): per frame it follows the smoother's motion and
+    moves at most ``max_correction_sigma`` motion-model sigmas (``inputs.vo.gap_sigma`` over the frame
+    interval, per body axis) towards the newest estimate, so a correction after a VO gap is spread over frames
+    instead of a jump; what is not caught up yet is added to the published covariance. 0: publish the newest
+    estimate as it is. 2.5 is half the 5-sigma jump a continuity check flags; runs without gaps never reach it."""
+
+    max_correction_sigma: float = 2.5
+
+
+@dataclass(frozen=True)
 class FusionConfig:
     window: WindowConfig = field(default_factory=WindowConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     prior: PriorConfig = field(default_factory=PriorConfig)
     inputs: InputsConfig = field(default_factory=InputsConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
     #: Measurements attach to the state whose stamp is within this many seconds.
     stamp_tolerance: float = 0.001
     #: Measurements ahead of the newest VO state wait in a buffer of at most this many.
@@ -174,6 +186,7 @@ def validate(config: FusionConfig) -> None:
             "inputs.vo.motion_change_sigma needs 6 positive values",
         ),
         (config.inputs.sun.huber_k >= 0.0, "inputs.sun.huber_k must be >= 0 (0 = no Huber loss)"),
+        (config.output.max_correction_sigma >= 0.0, "output.max_correction_sigma must be >= 0 (0 = off)"),
         (config.inputs.sun.reference in SUN_REFERENCES, f"inputs.sun.reference must be one of {', '.join(SUN_REFERENCES)}"),
         (len(config.inputs.sun.reference_direction) == 3, "inputs.sun.reference_direction needs 3 values"),
         (config.inputs.rotation.max_covariance_det > 0.0, "inputs.rotation.max_covariance_det must be positive"),

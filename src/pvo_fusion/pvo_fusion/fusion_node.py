@@ -42,6 +42,7 @@ from .checkpoint import FusionCheckpoint
 from .config import FusionConfig
 from .graph import ACCEPTED, BUFFERED, FusionGraph
 from .measurements import RelativeMeasurement, SunMeasurement
+from .output import ContinuousOutput
 from .sun_reference import EphemerisSunReference, FixedSunReference, SunReference, TabulatedSunReference
 
 
@@ -119,6 +120,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         settings = self.settings
         self._last_path_stamp: int | None = None
         self.graph = FusionGraph(self.config, self._static_sun_reference())
+        self.output = ContinuousOutput.from_config(self.config)
         self.latencies_ms: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self._waiting_vo: list[RelativePose] = []
         self._ground_truth: dict[int, np.ndarray] = {}
@@ -235,7 +237,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         if outcome == ACCEPTED:
             pose, covariance = self._publish_estimate(stamp)
             if self.settings.state_file:
-                checkpoint = self.graph.checkpoint(pose, covariance)  # the marginal just published, not a second one
+                checkpoint = self.graph.checkpoint(pose, covariance)  # the marginal just computed, not a second one
                 if checkpoint is not None:
                     checkpoint.write(self.settings.state_file)
             self.latencies_ms.append(1e3 * (time.perf_counter() - received))
@@ -270,8 +272,11 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
 
     # --- outputs --------------------------------------------------------------------------------
     def _publish_estimate(self, stamp: int) -> tuple[np.ndarray, np.ndarray]:
-        """Publish the newest state; returns its pose and marginal covariance."""
-        pose, covariance = self.graph.pose(), self.graph.covariance()
+        """Publish the newest state (continuous: :mod:`pvo_fusion.output`); returns the smoother's estimate
+        and marginal covariance of it (what a restart resumes from)."""
+        estimate, marginal = self.graph.pose(), self.graph.covariance()
+        published = self.output.publish_newest(self.graph)
+        pose, covariance = published.pose, published.covariance(marginal)
         odom = Odometry()
         fill_stamp(odom.header.stamp, stamp)
         odom.header.frame_id = self.settings.map_frame
@@ -283,7 +288,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         stamped.header = odom.header
         stamped.pose = odom.pose
         self.pub_pose.publish(stamped)
-        return pose, covariance
+        return estimate, marginal
 
     def _stamped(self, stamp: int, pose: np.ndarray) -> PoseStamped:
         out = PoseStamped()

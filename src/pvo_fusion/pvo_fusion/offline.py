@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from .graph import FusionGraph
 from .measurements import RelativeMeasurement, SunMeasurement
+from .output import ContinuousOutput
 
 Array = NDArray[np.float64]
 Measurement = RelativeMeasurement | SunMeasurement
@@ -45,8 +46,9 @@ def sun_events(sun: Iterable[SunMeasurement]) -> list[Event]:
 @dataclass
 class OfflineResult:
     """Estimates per frame of ``stamps``: final fixed-lag ``poses`` and ``online_poses`` (the newest state
-    right after its VO), (N, 4, 4), NaN where none; online marginal ``covariances`` (N, 6, 6, ROS order,
-    left) when asked; the time spent in the graph (covariance queries excluded); counts and factors."""
+    right after its VO, as the fusion node publishes it: continuous, :mod:`pvo_fusion.output`), (N, 4, 4), NaN
+    where none; their ``covariances`` (N, 6, 6, ROS order, left) when asked; the time spent in the graph
+    (covariance queries excluded); counts and factors."""
 
     poses: Array
     online_poses: Array
@@ -74,6 +76,7 @@ def run_offline(
         "correction": graph.add_correction,  # type: ignore[dict-item]
         "rotation": graph.add_rotation,  # type: ignore[dict-item]
     }
+    output = ContinuousOutput.from_config(graph.config)
     n = len(stamps)
     index = {int(s): i for i, s in enumerate(stamps)}
     final = np.full((n, 4, 4), np.nan)
@@ -90,10 +93,11 @@ def run_offline(
             frames += 1
             if graph.newest_stamp == m.stamp and m.stamp in index:
                 k = index[m.stamp]
-                online[k] = graph.pose()
+                published = output.publish_newest(graph)
+                online[k] = published.pose
                 if covariances is not None and k % covariance_every == 0:
                     t0 = time.perf_counter()
-                    covariances[k] = graph.covariance()
+                    covariances[k] = published.covariance(graph.covariance())
                     cov_seconds += time.perf_counter() - t0
             if on_vo is not None:
                 on_vo(frames, graph)

@@ -1,6 +1,7 @@
 """Long runs of the real node graph for benchmarks: the soak (``pvo bench soak``) — a bag looped through
-stereo_vo + simulated_sun + fusion as processes, every node's memory sampled, every frame accounted for and
-the end-to-end latency compared between the start and the end of the run."""
+stereo_vo + simulated_sun + sun_bcnn + fusion as processes, every node's memory sampled, every frame accounted
+for and the end-to-end latency compared between the start and the end of the run — and the faults
+(``pvo bench faults``)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,9 @@ import yaml
 from .errors import PvoError
 
 NODES = (("pvo_frontend", "stereo_vo"), ("pvo_pseudosensors", "simulated_sun"), ("pvo_fusion", "fusion"))
+# the soak adds every learned pseudo-sensor node that exists; sun_bcnn's estimates join simulated_sun's on
+# /pvo/sun/direction (the fusion takes both against the same reference)
+SOAK_NODES = (*NODES, ("pvo_pseudosensors", "sun_bcnn"))
 INPUTS = [
     "/stereo/left/image_rect",
     "/stereo/right/image_rect",
@@ -28,8 +32,10 @@ INPUTS = [
 GRAPH_SETTLE_S = 2.0  # after discovery, for every publisher/subscriber pair to match
 
 
-def _start_graph(group: Any, params_file: Path, log_dir: Path, env: dict[str, str]) -> None:
-    for package, executable in NODES:
+def _start_graph(
+    group: Any, params_file: Path, log_dir: Path, env: dict[str, str], nodes: tuple[tuple[str, str], ...] = NODES
+) -> None:
+    for package, executable in nodes:
         group.start(package, executable, params_file, log_dir, env)
 
 
@@ -102,6 +108,7 @@ def run_soak(
             {
                 "stereo_vo": {"ros__parameters": {**(overrides or {}).get("stereo_vo", {})}},
                 "simulated_sun": {"ros__parameters": {**(overrides or {}).get("simulated_sun", {})}},
+                "sun_bcnn": {"ros__parameters": {**(overrides or {}).get("sun_bcnn", {})}},
                 "fusion": {
                     "ros__parameters": {
                         "inputs.sun.reference": "fixed",
@@ -138,10 +145,10 @@ def run_soak(
         if seen is not None:
             latencies.append((counts["fused"], 1e3 * (time.perf_counter() - seen)))
 
-    rss: dict[str, list[tuple[float, float]]] = {name: [] for _, name in NODES}
+    rss: dict[str, list[tuple[float, float]]] = {name: [] for _, name in SOAK_NODES}
     start = time.perf_counter()
     try:
-        _start_graph(group, params, work / "logs", env)
+        _start_graph(group, params, work / "logs", env, SOAK_NODES)
         listener = Node("pvo_soak_listener", context=context)
         player_node = Node("pvo_soak_player", context=context)
         listener.create_subscription(Image, "/stereo/left/image_rect", on_image, every)
