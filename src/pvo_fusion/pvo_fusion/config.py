@@ -124,11 +124,12 @@ class InputsConfig:
 
 @dataclass(frozen=True)
 class OutputConfig:
-    """The published online pose (:mod:`pvo_fusion.output`): per frame it follows the smoother's motion and
-    moves at most ``max_correction_sigma`` motion-model sigmas (``inputs.vo.gap_sigma`` over the frame
-    interval, per body axis) towards the newest estimate, so a correction after a VO gap is spread over frames
-    instead of a jump; what is not caught up yet is added to the published covariance. 0: publish the newest
-    estimate as it is. 2.5 is half the 5-sigma jump a continuity check flags; runs without gaps never reach it."""
+    """The published online pose (:mod:`pvo_fusion.output`): per frame it follows the smoother's motion and moves
+    at most ``max_correction_sigma`` motion-model sigmas (``inputs.vo.gap_sigma`` over the frame interval, as
+    lengths of the translation and the rotation) towards the newest estimate, so a correction after a VO gap
+    is spread over frames instead of a jump; what is not caught up yet is added to the published covariance.
+    0: publish the newest estimate as it is. 2.5 is half the 5-sigma jump a continuity check flags; runs
+    without gaps never reach it."""
 
     max_correction_sigma: float = 2.5
 

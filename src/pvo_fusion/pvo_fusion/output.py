@@ -3,12 +3,13 @@
 After a VO gap (a restarted VO, a restarted fusion, dropped frames) the smoother's newest state can move by
 metres in one frame when the next sun measurement corrects the heading the gap bridge got wrong. That is the
 right estimate, but a controller reading ``/pvo/fusion/odometry`` sees a jump. As REP-105 asks of an odometry
-frame, the published pose is kept continuous instead: each frame it moves by the smoother's own motion
-between the previous and the newest state, plus at most ``output.max_correction_sigma`` times the motion
-model's sigma over the frame interval (``inputs.vo.gap_sigma``, per axis of the body frame) towards the newest
-estimate. What it has not caught up with yet is added to the published covariance, so the stated uncertainty
-covers it. When a correction is within the bound (every frame of a run without gaps), the published pose is
-the smoother's estimate exactly; the smoothed path (``/pvo/fusion/path``) always carries the full correction.
+frame, the published pose is kept continuous instead: each frame it moves by the smoother's own motion between
+the previous and the newest state, plus at most ``output.max_correction_sigma`` times the motion model's sigma
+over the frame interval (``inputs.vo.gap_sigma``: the norm of its translation part, m/s, and of its rotation
+part, rad/s) towards the newest estimate. What it has not caught up with yet is added to the published
+covariance, so the stated uncertainty covers it. When a correction is within the bound (every frame of a run
+without gaps), the published pose is the smoother's estimate exactly; the smoothed path (``/pvo/fusion/path``)
+always carries the full correction.
 """
 
 from __future__ import annotations
@@ -75,16 +76,22 @@ class ContinuousOutput:
         interval = max((stamp - self._stamp) * 1e-9, 0.0)
         predicted = self._pose @ se3_inverse(previous_estimate) @ estimate  # the smoother's motion, from where we are
         offset = se3_log(se3_inverse(predicted) @ estimate)  # body frame: estimate = predicted exp(offset)
-        bound = self.max_correction_sigma * self.sigma_per_second * interval
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratios = np.where(np.abs(offset) > 0.0, bound / np.abs(offset), np.inf)
-        fraction = float(min(1.0, ratios.min()))
+        fraction = min(1.0, self.max_correction_sigma * interval / max(self.sigma_units(offset), 1e-300))
         if fraction >= 1.0:
             self.reset(stamp, estimate)
             return PublishedPose(estimate, zero)
         pose = predicted @ se3_exp(fraction * offset)
         self.reset(stamp, pose)
         return PublishedPose(pose, se3_log(se3_inverse(pose) @ estimate))
+
+    def sigma_units(self, step: Array) -> float:
+        """How many motion-model sigmas per second a body-frame step (6, [rho; phi]) is: the larger of its
+        translation and its rotation, each as a length against the norm of that part's sigma."""
+        sigma = self.sigma_per_second
+        return max(
+            float(np.linalg.norm(step[:3]) / np.linalg.norm(sigma[:3])),
+            float(np.linalg.norm(step[3:]) / np.linalg.norm(sigma[3:])),
+        )
 
     @classmethod
     def from_config(cls, config: FusionConfig) -> ContinuousOutput:
