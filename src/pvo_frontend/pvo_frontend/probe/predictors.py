@@ -1,0 +1,225 @@
+"""PROBE's prediction space (thesis §4.5, app. A): per-feature predictors of how well a feature will track,
+computed for all features of a frame at once.
+
+- ``entropy``: Shannon entropy (bits) of the grey levels of the patch around the feature, in
+  ``entropy_bins`` equal bins (eq. 4.31, the counts normalised to frequencies);
+- ``blur``: the blur metric of Crété-Roffet et al. (2007) on the patch: the share of the patch's vertical
+  (horizontal) grey-level variation that a ``blur_taps``-tap box blur leaves, the larger of the two
+  (0 sharp, 1 fully blurred);
+- ``fft_low`` / ``fft_high``: mean log(1 + magnitude) of the patch's 2-D FFT over the lowest (around DC,
+  DC excluded) and the highest frequencies (around Nyquist), square blocks of about ``frequency_block`` of
+  the spectrum per axis - texture-poor or self-similar patches have little high-frequency energy (the
+  thesis's code took "the first and the last 20 x 20" coefficients of an unshifted FFT, both of which are
+  low frequencies);
+- ``flow_variance``: log(var_small / var_large) of the feature tracks' image motion (current - reference
+  left position, both axes averaged) among the features within a small and a large square window around
+  the feature (eq. 4.32); moving objects stand out; 0 when the small window holds fewer than three tracks
+  or the ratio is below e^-20 (as the thesis's code);
+- ``specific_force`` / ``angular_rate``: |f| (m/s²) and |omega| (rad/s) of the IMU at the frame, when an
+  IMU is given (the same for every feature of the frame).
+
+Patches are ``patch`` x ``patch`` px centred on the feature, taken from the image reflected at its borders
+(the thesis's code zeroed predictors near the border instead). Entropy and the FFT work on a batch of
+gathered patches (one bincount, one FFT); blur on whole-image difference maps summed over each patch by
+integral images; the flow windows by one masked matrix product.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+IMAGE_PREDICTORS = ("entropy", "blur", "fft_low", "fft_high")
+TRACK_PREDICTORS = ("flow_variance",)
+IMU_PREDICTORS = ("specific_force", "angular_rate")
+
+
+@dataclass(frozen=True)
+class PredictorConfig:
+    """patch: side of the square patch (px, even); entropy_bins: grey-level bins; blur_taps: box-blur length;
+    frequency_block: side of the low and high FFT blocks as a fraction of the patch; flow_small /
+    flow_large: half-sides (px) of the flow windows; image / imu: which predictor groups are used."""
+
+    patch: int = 32
+    entropy_bins: int = 16
+    blur_taps: int = 9
+    frequency_block: float = 0.2
+    flow_small: float = 50.0
+    flow_large: float = 200.0
+    image: bool = True
+    imu: bool = False
+
+    def __post_init__(self) -> None:
+        if self.patch < 8 or self.patch % 2:
+            raise ValueError(f"probe patch must be an even number of pixels >= 8, got {self.patch}")
+        if not 2 <= self.entropy_bins <= 256:
+            raise ValueError(f"probe entropy_bins must be in [2, 256], got {self.entropy_bins}")
+        if self.blur_taps < 3 or self.blur_taps % 2 == 0:
+            raise ValueError(f"probe blur_taps must be odd and >= 3, got {self.blur_taps}")
+        if not 0.0 < self.frequency_block <= 0.5:
+            raise ValueError(f"probe frequency_block must be in (0, 0.5], got {self.frequency_block}")
+        if not 0.0 < self.flow_small < self.flow_large:
+            raise ValueError(f"probe flow windows need 0 < flow_small < flow_large, got {self.flow_small}, {self.flow_large}")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The predictors this configuration computes, in column order."""
+        return (IMAGE_PREDICTORS if self.image else ()) + TRACK_PREDICTORS + (IMU_PREDICTORS if self.imu else ())
+
+    @property
+    def block(self) -> int:
+        return max(1, round(self.frequency_block * self.patch))
+
+
+def gather_patches(image: NDArray[np.uint8], centres: Array, patch: int) -> NDArray[np.uint8]:
+    """(N, patch, patch) patches whose centre pixel (row patch/2, column patch/2) is the feature's pixel
+    (rounded), from the image reflected at its borders."""
+    half = patch // 2
+    padded = cv2.copyMakeBorder(image, half, half, half, half, cv2.BORDER_REFLECT_101)
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (patch, patch))
+    cols = np.clip(np.rint(centres[:, 0]).astype(np.int64), 0, image.shape[1] - 1)
+    rows = np.clip(np.rint(centres[:, 1]).astype(np.int64), 0, image.shape[0] - 1)
+    return windows[rows, cols]
+
+
+def patch_entropy(patches: NDArray[np.uint8], bins: int) -> Array:
+    """Entropy (bits) of each patch's grey levels in ``bins`` equal bins, (N,)."""
+    n = len(patches)
+    if bins & (bins - 1) == 0:  # a power of two: the bin is the top bits
+        which = (patches >> (8 - bins.bit_length() + 1)).astype(np.intp)
+    else:
+        which = (patches.astype(np.intp) * bins) >> 8
+    which += (bins * np.arange(n, dtype=np.intp))[:, None, None]
+    counts = np.bincount(which.ravel(), minlength=n * bins).reshape(n, bins)
+    p = counts / float(patches.shape[1] * patches.shape[2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return -np.sum(np.where(p > 0.0, p * np.log2(p), 0.0), axis=1)
+
+
+def frequency_indices(
+    patch: int, block: int
+) -> tuple[tuple[NDArray[np.int64], NDArray[np.int64]], tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """Row and column indices into a real 2-D FFT (P, P // 2 + 1) of the lowest frequencies (rows -h..h, columns
+    0..h, DC left out) and of the highest (rows and columns within h of Nyquist), h = block // 2. The spectrum of
+    a real patch is conjugate-symmetric, so these half-plane blocks hold the magnitudes of the full square
+    blocks around DC and around Nyquist."""
+    h = max(1, block // 2)
+    nyquist = patch // 2
+    rows_low, cols_low = np.r_[0 : h + 1, patch - h : patch], np.arange(0, h + 1)
+    rows_high, cols_high = np.arange(nyquist - h, nyquist + h + 1), np.arange(nyquist - h, nyquist + 1)
+    r, c = np.meshgrid(rows_low, cols_low, indexing="ij")
+    keep = (r != 0) | (c != 0)
+    low = (r[keep], c[keep])
+    r, c = np.meshgrid(rows_high, cols_high, indexing="ij")
+    return low, (r.ravel(), c.ravel())
+
+
+def frequency_composition(patches: NDArray[np.uint8], block: int) -> tuple[Array, Array]:
+    """Mean log(1 + |F|) of each patch's 2-D FFT (N, P, P) over its lowest and its highest frequencies
+    (:func:`frequency_indices`), (N,) each: one real FFT of the whole batch."""
+    import scipy.fft
+
+    spectrum = scipy.fft.rfft2(patches.astype(np.float32), workers=1)
+    (low_rows, low_cols), (high_rows, high_cols) = frequency_indices(patches.shape[1], block)
+    low = np.log1p(np.abs(spectrum[:, low_rows, low_cols])).mean(axis=1)
+    high = np.log1p(np.abs(spectrum[:, high_rows, high_cols])).mean(axis=1)
+    return low.astype(float), high.astype(float)
+
+
+def blur_maps(image: NDArray[np.uint8], taps: int) -> Array:
+    """Per-pixel terms of the Crété-Roffet metric, (H, W, 4) float32: |dF| and max(0, |dF| - |dB|) for
+    vertical and then horizontal neighbours (row/column 0 zero), B the image box-blurred along that axis."""
+    f = image.astype(np.float32)
+    maps = np.zeros((*f.shape, 4), np.float32)
+    for axis, (d_slot, v_slot) in ((0, (0, 1)), (1, (2, 3))):
+        blurred = cv2.blur(f, (1, taps) if axis == 0 else (taps, 1), borderType=cv2.BORDER_REFLECT_101)
+        if axis == 0:
+            d = np.abs(f[1:] - f[:-1])
+            maps[1:, :, d_slot] = d
+            maps[1:, :, v_slot] = np.maximum(0.0, d - np.abs(blurred[1:] - blurred[:-1]))
+        else:
+            d = np.abs(f[:, 1:] - f[:, :-1])
+            maps[:, 1:, d_slot] = d
+            maps[:, 1:, v_slot] = np.maximum(0.0, d - np.abs(blurred[:, 1:] - blurred[:, :-1]))
+    return maps
+
+
+def patch_sums(maps: Array, centres: Array, patch: int) -> Array:
+    """Sum of each channel of ``maps`` (H, W, C) over each feature's patch (the part inside the image), by one
+    integral image, (N, C)."""
+    height, width = maps.shape[:2]
+    half = patch // 2
+    cols = np.clip(np.rint(centres[:, 0]).astype(np.int64), 0, width - 1)
+    rows = np.clip(np.rint(centres[:, 1]).astype(np.int64), 0, height - 1)
+    top, bottom = np.clip(rows - half, 0, height), np.clip(rows + half, 0, height)
+    left, right = np.clip(cols - half, 0, width), np.clip(cols + half, 0, width)
+    integral = cv2.integral(maps, sdepth=cv2.CV_64F).reshape(height + 1, width + 1, -1)
+    return integral[bottom, right] - integral[top, right] - integral[bottom, left] + integral[top, left]
+
+
+def blur_metric(image: NDArray[np.uint8], centres: Array, patch: int, taps: int) -> Array:
+    """Crété-Roffet blur of each feature's patch, (N,): max over the two axes of (s_F - s_V) / s_F."""
+    sums = patch_sums(blur_maps(image, taps), centres, patch)
+    d_ver, v_ver, d_hor, v_hor = sums.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b_ver = np.where(d_ver > 0.0, (d_ver - v_ver) / d_ver, 1.0)
+        b_hor = np.where(d_hor > 0.0, (d_hor - v_hor) / d_hor, 1.0)
+    return np.maximum(b_ver, b_hor)
+
+
+def flow_variance_score(reference: Array, current: Array, small: float, large: float) -> Array:
+    """log(var_small / var_large) of the tracks' image motion around each feature (eq. 4.32), (N,)."""
+    n = len(current)
+    if n == 0:
+        return np.zeros(0)
+    flow = current - reference
+    # sums over square windows as masked matrix products; the flow centred on its mean first, so that the
+    # variance by sums of squares keeps its digits
+    moments = np.column_stack([np.ones(n), flow - flow.mean(axis=0), (flow - flow.mean(axis=0)) ** 2])  # (N, 5)
+    offset = np.maximum(np.abs(current[:, None, 0] - current[None, :, 0]), np.abs(current[:, None, 1] - current[None, :, 1]))
+    scores = []
+    for half in (small, large):
+        sums = (offset <= half).astype(np.float64) @ moments
+        count = sums[:, 0]
+        mean = sums[:, 1:3] / count[:, None]
+        variance = np.maximum(sums[:, 3:5] / count[:, None] - mean * mean, 0.0).mean(axis=1)
+        scores.append((variance, count))
+    (var_small, count_small), (var_large, _) = scores
+    with np.errstate(divide="ignore", invalid="ignore"):
+        score = np.log(var_small / var_large)
+    return np.where((count_small >= 3) & np.isfinite(score) & (score >= -20.0), score, 0.0)
+
+
+def compute_predictors(
+    config: PredictorConfig,
+    reference: Array,
+    current: Array,
+    image: NDArray[np.uint8] | None = None,
+    imu: Array | None = None,
+) -> Array:
+    """Predictors (N, len(config.names)) of features tracked from ``reference`` to ``current`` left-image
+    positions (N, 2) px; ``image``: the current left image (needed when ``config.image``); ``imu``: (|f|, |w|)
+    of the frame (needed when ``config.imu``)."""
+    reference, current = np.asarray(reference, dtype=float).reshape(-1, 2), np.asarray(current, dtype=float).reshape(-1, 2)
+    if len(reference) != len(current):
+        raise ValueError(f"{len(reference)} reference positions but {len(current)} current ones")
+    columns: list[Array] = []
+    if config.image:
+        if image is None:
+            raise ValueError("the PROBE model uses image predictors but no image was given")
+        patches = gather_patches(image, current, config.patch)
+        columns.append(patch_entropy(patches, config.entropy_bins))
+        columns.append(blur_metric(image, current, config.patch, config.blur_taps))
+        columns.extend(frequency_composition(patches, config.block))
+    columns.append(flow_variance_score(reference, current, config.flow_small, config.flow_large))
+    if config.imu:
+        if imu is None:
+            raise ValueError("the PROBE model uses IMU predictors but no IMU reading was given")
+        magnitudes = np.asarray(imu, dtype=float).reshape(2)
+        columns.extend([np.full(len(current), magnitudes[0]), np.full(len(current), magnitudes[1])])
+    return np.column_stack(columns) if columns else np.zeros((len(current), 0))

@@ -1,0 +1,96 @@
+"""PROBE-GK's noise model: the kernel, the inverse-Wishart posterior against a hand computation, recovery of
+heteroscedastic variances, the Student-t it implies, and bad models."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pvo_frontend.probe.gk import GKConfig, GKModel, NoiseModel, sparse_kernel, student_t_log_density
+from pvo_frontend.vo.solver import RobustLoss
+from scipy.stats import multivariate_t
+
+
+def test_sparse_kernel_is_one_at_zero_zero_beyond_the_support_and_decreasing() -> None:
+    r = np.linspace(0.0, 1.5, 151)
+    k = sparse_kernel(r)
+    assert k[0] == pytest.approx(1.0)
+    assert np.all(k[r >= 1.0] == pytest.approx(0.0, abs=1e-12))
+    assert np.all(np.diff(k[r <= 1.0]) <= 1e-12)
+    assert np.all((k >= 0.0) & (k <= 1.0))
+
+
+def test_posterior_equals_the_hand_computed_update() -> None:
+    config = GKConfig(radius=0.5, max_neighbours=8, prior_samples=4.0, prior_sigma=(1.0, 2.0, 3.0))
+    predictors = np.array([[0.0], [0.1], [0.3], [2.0]])
+    errors = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [1.0, 1.0, 1.0], [9.0, 9.0, 9.0]])
+    model = GKModel(("x",), predictors, errors, config, mean=np.zeros(1), std=np.ones(1))
+    psi, nu = model.posterior(np.array([[0.0]]))
+    weights = [sparse_kernel(np.array(d / 0.5)) for d in (0.0, 0.1, 0.3)]  # the sample at 2.0 is out of reach
+    expected = 4.0 * np.diag([1.0, 4.0, 9.0]) + sum(w * np.outer(e, e) for w, e in zip(weights, errors[:3], strict=True))
+    np.testing.assert_allclose(psi[0], expected)
+    assert nu[0] == pytest.approx(4.0 + sum(weights))
+    # leaving out the query's own sample (EM's D without (i, t))
+    psi_out, nu_out = model.posterior(np.array([[0.0]]), exclude=np.array([0]))
+    np.testing.assert_allclose(psi_out[0], expected - np.outer(errors[0], errors[0]))
+    assert nu_out[0] == pytest.approx(nu[0] - 1.0)
+    # far from every sample: the prior alone
+    psi_far, nu_far = model.posterior(np.array([[10.0]]))
+    np.testing.assert_allclose(psi_far[0], config.prior_scale)
+    assert nu_far[0] == 4.0
+
+
+def test_heteroscedastic_variances_are_recovered_within_20_percent() -> None:
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0.0, 1.0, 40_000)
+    sigma = np.stack([0.5 + 2.0 * x, 1.0 + 0.5 * x, 3.0 - 2.0 * x], axis=1)
+    errors = sigma * rng.standard_normal((len(x), 3))
+    model = GKModel(("x",), x[:, None], errors, GKConfig(radius=0.3, max_neighbours=512))
+    queries = np.linspace(0.1, 0.9, 9)
+    psi, nu = model.posterior(queries[:, None])
+    posterior_mean = psi / (nu - 3.0 - 1.0)[:, None, None]  # the inverse-Wishart mean
+    true = np.stack([0.5 + 2.0 * queries, 1.0 + 0.5 * queries, 3.0 - 2.0 * queries], axis=1) ** 2
+    np.testing.assert_allclose(np.diagonal(posterior_mean, axis1=1, axis2=2), true, rtol=0.2)
+    off_diagonal = posterior_mean[:, 0, 1] / np.sqrt(posterior_mean[:, 0, 0] * posterior_mean[:, 1, 1])
+    assert np.all(np.abs(off_diagonal) < 0.1)
+
+
+def test_noise_model_is_the_student_t_the_solver_loss_minimises() -> None:
+    rng = np.random.default_rng(1)
+    model = GKModel(("x",), rng.uniform(0, 1, (500, 1)), rng.standard_normal((500, 3)), GKConfig(radius=1.0, max_neighbours=50))
+    noise = model.noise(np.array([[0.2], [0.7]]))
+    psi, nu = model.posterior(np.array([[0.2], [0.7]]))
+    np.testing.assert_allclose(noise.dof, nu - 2.0)  # nu* - d + 1
+    np.testing.assert_allclose(noise.scale, psi / noise.dof[:, None, None])
+    errors = rng.standard_normal((2, 3))
+    expected = [multivariate_t(loc=np.zeros(3), shape=noise.scale[i], df=noise.dof[i]).logpdf(errors[i]) for i in range(2)]
+    np.testing.assert_allclose(student_t_log_density(errors, noise), expected)
+    # eq. 4.25: the solver's Student-t loss on the whitened norm is (nu* + 1)/2 log(1 + e^T Psi*^-1 e)
+    loss = RobustLoss("student_t", noise.dof)
+    eps = np.sqrt(np.einsum("ni,nij,nj->n", errors, noise.information, errors))
+    np.testing.assert_allclose(
+        loss.rho(eps), 0.5 * (nu + 1.0) * np.log1p(np.einsum("ni,nij,nj->n", errors, np.linalg.inv(psi), errors))
+    )
+    assert isinstance(noise, NoiseModel) and np.all(np.isfinite(noise.covariance))
+
+
+@pytest.mark.parametrize(
+    ("values", "message"),
+    [
+        ({"radius": 0.0}, "radius must be positive"),
+        ({"max_neighbours": 0}, "max_neighbours must be >= 1"),
+        ({"prior_samples": 2.0}, "prior_samples must be > 2"),
+        ({"prior_sigma": (1.0, 1.0)}, "prior_sigma needs 3 positive values"),
+    ],
+)
+def test_bad_configuration_is_one_clear_error(values: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        GKConfig(**values)
+
+
+def test_bad_training_samples_are_refused() -> None:
+    with pytest.raises(ValueError, match=r"predictors must be \(M, 2\)"):
+        GKModel(("a", "b"), np.zeros((4, 1)), np.zeros((4, 3)))
+    with pytest.raises(ValueError, match=r"errors must be \(4, 3\)"):
+        GKModel(("a",), np.zeros((4, 1)), np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="must be finite"):
+        GKModel(("a",), np.array([[0.0], [np.nan]]), np.zeros((2, 3)))
