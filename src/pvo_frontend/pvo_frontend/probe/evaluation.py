@@ -15,6 +15,7 @@ from pvo_core import metrics
 
 from ..vo.solver import RobustLoss
 from .gk import GKConfig, GKModel
+from .knn import KNNConfig, KNNModel, train_knn
 from .synthetic import PREDICTORS, PointWorldConfig, simulate
 from .training import FramePair, solve_pair, solve_with_noise, train_expectation_maximisation, train_with_ground_truth
 
@@ -23,6 +24,8 @@ Solver = Callable[[FramePair, Array], Array]
 
 #: Table 4.1's rows.
 ESTIMATORS = ("Fixed covariance", "Static M-estimator", "PROBE-GK-GT", "PROBE-GK-EM")
+#: and the isotropic k-NN PROBE of app. A (trained with ground truth) beside them
+KNN_ROW = "PROBE k-NN"
 
 
 def compose(first_pose: Array, motions: Sequence[Array]) -> Array:
@@ -52,6 +55,21 @@ def fixed_solver(camera: StereoCamera, sigma: Sequence[float], loss: RobustLoss)
     return solve
 
 
+def knn_solver(camera: StereoCamera, model: KNNModel, sigma: Sequence[float]) -> Solver:
+    """Isotropic PROBE: the nominal covariance scaled by beta(phi), features above the weight limit dropped,
+    least squares (app. A)."""
+    nominal = np.diag(np.asarray(sigma, dtype=float) ** 2)
+
+    def solve(pair: FramePair, initial: Array) -> Array:
+        covariances, keep = model.covariances(pair.predictors, nominal)
+        if keep.sum() < 6:
+            keep = np.ones(len(pair), dtype=bool)
+        kept = FramePair(pair.reference[keep], pair.current[keep], pair.predictors[keep])
+        return solve_pair(camera, kept, np.linalg.inv(covariances[keep]), RobustLoss("l2"), initial)
+
+    return solve
+
+
 def gk_solver(camera: StereoCamera, model: GKModel) -> Solver:
     """PROBE-GK: each feature's Student-t noise from the model (Algorithm 2)."""
 
@@ -63,7 +81,7 @@ def gk_solver(camera: StereoCamera, model: GKModel) -> Solver:
 
 @dataclass
 class ProbeTable:
-    """ARMSE per estimator (``ESTIMATORS``): {'trans': m, 'rot': rad}; the EM log-likelihood history; the
+    """ARMSE per estimator (``ESTIMATORS`` and ``KNN_ROW``): {'trans': m, 'rot': rad}; the EM log-likelihood history; the
     estimated trajectories (N, 4, 4) and the truth."""
 
     armse: dict[str, dict[str, float]]
@@ -85,6 +103,7 @@ def synthetic_experiment(
     em_iterations: int = 5,
     fixed_sigma: Sequence[float] = (2.0, 2.0, 2.8),
     student_dof: float = 5.0,
+    knn: KNNConfig | None = None,
     say: Callable[[str], None] | None = None,
 ) -> ProbeTable:
     """Table 4.1's first row: training and test traverses in two worlds drawn from ``seed``; a fixed
@@ -101,11 +120,13 @@ def synthetic_experiment(
     em = train_expectation_maximisation(
         camera, train.pairs, run_estimator(train.pairs, static), PREDICTORS, gk, em_iterations, say=say
     )
+    knn_model = train_knn(camera, train.pairs, train.motions, PREDICTORS, fixed_sigma, knn or KNNConfig(), seed=seed)
     solvers = {
         "Fixed covariance": fixed,
         "Static M-estimator": static,
         "PROBE-GK-GT": gk_solver(camera, gt_model),
         "PROBE-GK-EM": gk_solver(camera, em.model),
+        KNN_ROW: knn_solver(camera, knn_model, fixed_sigma),
     }
     table = ProbeTable({}, em.log_likelihood, truth=test.poses)
     for name, solve in solvers.items():

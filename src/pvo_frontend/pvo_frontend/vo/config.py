@@ -119,12 +119,26 @@ class TrackingConfig:
 
 
 @dataclass(frozen=True)
+class ProbeSettings:
+    """PROBE (thesis ch. 4): a learned per-feature noise model replaces ``solver.pixel_sigma``.
+
+    model: a model directory (``model.npz`` + ``model.yaml``, from ``pvo probe train``) or a shipped model's
+    name (``probe_kitti``); "" = off. A PROBE-GK model whitens each feature with its predicted Student-t scale
+    and uses its degrees of freedom in a Student-t loss (eq. 4.25) instead of ``solver.loss``; a k-NN model
+    scales ``solver.pixel_sigma`` by its beta and drops the features it weighs down most (app. A).
+    """
+
+    model: str = ""
+
+
+@dataclass(frozen=True)
 class VOConfig:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     ransac: RansacConfig = field(default_factory=RansacConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    probe: ProbeSettings = field(default_factory=ProbeSettings)
 
     def __post_init__(self) -> None:
         validate(self)

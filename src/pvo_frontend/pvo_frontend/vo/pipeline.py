@@ -26,7 +26,23 @@ from .ransac import ransac_motion
 from .solver import RobustLoss, SolveResult, feature_information, quadratic_form, solve_motion
 
 Array = NDArray[np.float64]
-FeatureNoise = Callable[[StereoFeatures, StereoFeatures], tuple[Array, Array | None]]
+
+
+@dataclass
+class FeatureNoiseEstimate:
+    """Per-feature noise for one frame's matched features: (u, v, d) covariances (N, 3, 3) px²; optional
+    robust-loss constants (N,), a loss replacing ``solver.loss``, whether to propagate the reference
+    observation's noise (replacing ``solver.propagate_reference_noise``) and which features to use."""
+
+    covariances: Array
+    loss_scale: Array | None = None
+    loss: str | None = None
+    propagate_reference: bool | None = None
+    keep: NDArray[np.bool_] | None = None
+
+
+#: (features in the reference frame, the same features in the current frame, the current left image)
+FeatureNoise = Callable[[StereoFeatures, StereoFeatures, NDArray[np.uint8]], FeatureNoiseEstimate]
 
 
 class FrameStatus(enum.Enum):
@@ -98,11 +114,14 @@ def estimate_motion(
     rng: np.random.Generator,
     prediction: Array | None = None,
     loss_scale: Array | None = None,
+    loss_name: str | None = None,
+    propagate_reference: bool | None = None,
 ) -> MotionEstimate:
     """T_cur,ref from matched stereo observations [u, v, d] (N, 3) in both frames.
 
     ``covariances`` (N, 3, 3) are per-feature pixel covariances (the same for both frames; PROBE
-    predicts them), ``loss_scale`` optional per-feature robust-loss constants. Steps: 3-point RANSAC
+    predicts them), ``loss_scale`` optional per-feature robust-loss constants, ``loss_name`` and
+    ``propagate_reference`` override ``solver.loss`` and ``solver.propagate_reference_noise``. Steps: 3-point RANSAC
     on the whitened reprojection error, robust GN on its inliers, inliers re-decided at that solution
     and GN again until they settle (``solver.inlier_rounds`` at most); fails (``failure`` set) with
     too few inliers or degenerate geometry.
@@ -116,7 +135,8 @@ def estimate_motion(
         return out
     points_ref = camera.triangulate(obs_ref)
     points_cur = camera.triangulate(obs_cur)
-    cov_ref = covariances if cfg.solver.propagate_reference_noise else None
+    propagate = cfg.solver.propagate_reference_noise if propagate_reference is None else propagate_reference
+    cov_ref = covariances if propagate else None
 
     tic = time.perf_counter()
     information = feature_information(camera, prediction, obs_ref, covariances, cov_ref)
@@ -143,7 +163,7 @@ def estimate_motion(
         return out
 
     tic = time.perf_counter()
-    loss = RobustLoss(cfg.solver.loss, cfg.solver.loss_scale if loss_scale is None else loss_scale)
+    loss = RobustLoss(loss_name or cfg.solver.loss, cfg.solver.loss_scale if loss_scale is None else loss_scale)
     transform = ransac.transform
     solve: SolveResult | None = None
     # solve on the RANSAC inliers, re-decide the inliers at the solution, and repeat until they settle
@@ -202,14 +222,19 @@ def as_grey(image: NDArray, what: str) -> NDArray[np.uint8]:
 class StereoVO:
     """Frame-to-frame stereo VO on rectified images (thesis ch. 3, app. B).
 
-    ``feature_noise`` (optional) maps the matched features (reference, current) to per-feature pixel
-    covariances (N, 3, 3) and optional robust-loss constants (N,) or None - the hook PROBE uses;
-    without it every feature gets R = diag(solver.pixel_sigma^2).
+    ``feature_noise`` (optional) maps the matched features (reference, current) and the current left image
+    to a :class:`FeatureNoiseEstimate` - the hook PROBE uses; without it, and without ``probe.model`` in the
+    configuration (which loads that model as the hook), every feature gets R = diag(solver.pixel_sigma^2).
     """
 
     def __init__(self, camera: StereoCamera, config: VOConfig | None = None, feature_noise: FeatureNoise | None = None) -> None:
         self.camera = camera
         self.config = config or VOConfig()
+        if feature_noise is None and self.config.probe.model:
+            from ..probe.model import ProbeModel, resolve_model
+
+            probe = ProbeModel.load(resolve_model(self.config.probe.model))
+            feature_noise = lambda before, after, image: probe.noise(before.left, after.left, image)  # noqa: E731
         self.feature_noise = feature_noise
         self.matcher = StereoMatcher(self.config.detector, self.config.tracker)
         self._rng = np.random.default_rng(self.config.ransac.seed)
@@ -297,12 +322,27 @@ class StereoVO:
         if n < cfg.tracking.min_inliers:
             return self._lost(base, f"only {n} features tracked (need {cfg.tracking.min_inliers})", prediction), after
 
-        cov = np.broadcast_to(self._default_cov, (n, 3, 3))
+        noise = FeatureNoiseEstimate(np.broadcast_to(self._default_cov, (n, 3, 3)))
         if self.feature_noise is not None:
-            cov, loss_scale = self.feature_noise(before, after)
-        else:
-            loss_scale = None
-        motion = estimate_motion(cam, before.observations(), after.observations(), cov, cfg, self._rng, prediction, loss_scale)
+            tic = time.perf_counter()
+            noise = self.feature_noise(before, after, left_img)
+            timings["feature_noise"] = time.perf_counter() - tic
+            if noise.keep is not None and int(noise.keep.sum()) >= cfg.tracking.min_inliers:
+                before, after = before.subset(noise.keep), after.subset(noise.keep)
+                scale = None if noise.loss_scale is None else noise.loss_scale[noise.keep]
+                noise = FeatureNoiseEstimate(noise.covariances[noise.keep], scale, noise.loss, noise.propagate_reference)
+        motion = estimate_motion(
+            cam,
+            before.observations(),
+            after.observations(),
+            noise.covariances,
+            cfg,
+            self._rng,
+            prediction,
+            noise.loss_scale,
+            noise.loss,
+            noise.propagate_reference,
+        )
         timings.update(motion.timings)
         base.ransac_iterations = motion.ransac_iterations
         base.gn_iterations = motion.gn_iterations

@@ -1,0 +1,138 @@
+"""A PROBE model on disk and in the VO: ``model.npz`` (the stored samples and their normalisation) and
+``model.yaml`` (the model card: kind, predictors and their settings, the estimator's settings, how it was
+trained), and the per-frame noise it gives the VO (:class:`pvo_frontend.vo.pipeline.FeatureNoiseEstimate`)."""
+
+from __future__ import annotations
+
+import zipfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from .gk import GKConfig, GKModel
+from .knn import KNNConfig, KNNModel
+from .predictors import PredictorConfig, compute_predictors
+
+Array = NDArray[np.float64]
+
+FORMAT = 1
+KINDS = ("gk", "knn")
+#: Shipped models, by name (``probe.model: probe_kitti``).
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+
+
+def resolve_model(name: str) -> Path:
+    """A model directory: a shipped model's name, or a path."""
+    shipped = MODELS_DIR / name
+    return shipped if name and "/" not in name and shipped.is_dir() else Path(name).expanduser()
+
+
+@dataclass
+class ProbeModel:
+    """A trained PROBE model: its kind (``gk`` or ``knn``), the predictor settings, the estimator and the
+    card's training record."""
+
+    kind: str
+    predictors: PredictorConfig
+    estimator: GKModel | KNNModel
+    training: dict[str, Any] = field(default_factory=dict)
+    nominal_sigma: tuple[float, float, float] = (1.0, 1.0, 2.0)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"PROBE model kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
+        if tuple(self.estimator.names) != self.predictors.names:
+            raise ValueError(
+                f"the model's predictors {list(self.estimator.names)} differ from its settings' {list(self.predictors.names)}"
+            )
+
+    # ------------------------------------------------------------------ files
+    def save(self, directory: Path) -> Path:
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        est = self.estimator
+        np.savez_compressed(directory / "model.npz", predictors=est.predictors, errors=est.errors, mean=est.mean, std=est.std)
+        card = {
+            "format": FORMAT,
+            "kind": self.kind,
+            "predictors": list(self.predictors.names),
+            "predictor_config": asdict(self.predictors),
+            "estimator_config": asdict(est.config),
+            "nominal_sigma": list(self.nominal_sigma),
+            "samples": len(est.errors),
+            "training": self.training,
+        }
+        (directory / "model.yaml").write_text(yaml.safe_dump(card, sort_keys=False))
+        return directory
+
+    @classmethod
+    def load(cls, directory: Path) -> ProbeModel:
+        """The model of ``directory``; every bad or missing file is one ValueError naming it."""
+        directory = Path(directory)
+        card_path, data_path = directory / "model.yaml", directory / "model.npz"
+        if not directory.is_dir():
+            raise ValueError(f"PROBE model {directory}: no such directory")
+        for path in (card_path, data_path):
+            if not path.is_file():
+                raise ValueError(f"PROBE model {directory}: {path.name} is missing")
+        try:
+            card = yaml.safe_load(card_path.read_text())
+            if not isinstance(card, dict):
+                raise ValueError("not a mapping")
+        except (yaml.YAMLError, ValueError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{card_path}: not a readable model card ({exc})") from None
+        if card.get("format") != FORMAT:
+            raise ValueError(f"{card_path}: format {card.get('format')!r}, this pvo reads {FORMAT}")
+        try:
+            with np.load(data_path) as data:
+                arrays = {name: np.asarray(data[name]) for name in ("predictors", "errors", "mean", "std")}
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as exc:
+            raise ValueError(f"{data_path}: not a readable PROBE model ({exc})") from None
+        try:
+            return cls._from_card(card, arrays)
+        except (KeyError, TypeError, ValueError) as exc:
+            what = f"missing {exc}" if isinstance(exc, KeyError) else str(exc)
+            raise ValueError(f"PROBE model {directory}: {what}") from None
+
+    @classmethod
+    def _from_card(cls, card: dict[str, Any], arrays: dict[str, Array]) -> ProbeModel:
+        predictors = PredictorConfig(**card["predictor_config"])
+        names = tuple(card["predictors"])
+        if names != predictors.names:
+            raise ValueError(f"predictors {list(names)} do not match the predictor settings' {list(predictors.names)}")
+        columns = arrays["predictors"].shape[-1] if arrays["predictors"].ndim == 2 else -1
+        if columns != len(names):
+            raise ValueError(f"model.npz holds {columns} predictor columns, the card names {len(names)}")
+        settings = {k: tuple(v) if isinstance(v, list) else v for k, v in card["estimator_config"].items()}
+        samples = (names, arrays["predictors"], arrays["errors"])
+        estimator: GKModel | KNNModel
+        if card["kind"] == "gk":
+            estimator = GKModel(*samples, GKConfig(**settings), arrays["mean"], arrays["std"])
+        elif card["kind"] == "knn":
+            estimator = KNNModel(*samples, KNNConfig(**settings), arrays["mean"], arrays["std"])
+        else:
+            raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {card['kind']!r}")
+        nominal = tuple(float(v) for v in card.get("nominal_sigma", (1.0, 1.0, 2.0)))
+        return cls(card["kind"], predictors, estimator, card.get("training") or {}, nominal)  # type: ignore[arg-type]
+
+    # ------------------------------------------------------------------ in the VO
+    def predictors_of(self, reference: Array, current: Array, image: NDArray[np.uint8] | None, imu: Array | None = None) -> Array:
+        return compute_predictors(self.predictors, reference, current, image, imu)
+
+    def noise(self, reference: Array, current: Array, image: NDArray[np.uint8] | None, imu: Array | None = None) -> Any:
+        """The noise of features tracked from ``reference`` to ``current`` left positions (N, 2) px in
+        ``image`` (the current left image): per-feature (u, v, d) covariances and robust-loss settings."""
+        from ..vo.pipeline import FeatureNoiseEstimate
+
+        phi = self.predictors_of(reference, current, image, imu)
+        if isinstance(self.estimator, GKModel):
+            noise = self.estimator.noise(phi)
+            # eq. 4.25: the Student-t with the posterior's dof and scale; the stored errors already hold the
+            # reference observation's noise, so it is not propagated a second time
+            return FeatureNoiseEstimate(noise.scale, noise.dof, loss="student_t", propagate_reference=False)
+        covariances, keep = self.estimator.covariances(phi, np.diag(np.asarray(self.nominal_sigma) ** 2))
+        return FeatureNoiseEstimate(covariances, None, keep=keep)

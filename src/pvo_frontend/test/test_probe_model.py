@@ -1,0 +1,108 @@
+"""PROBE models on disk and in the VO: round trips, one clear line per bad model file, training from a real
+KITTI sequence and the VO running with ``probe.model``."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pvo_core.readers import KittiSequence
+from pvo_frontend.offline import run_sequence
+from pvo_frontend.probe.gk import GKConfig, GKModel
+from pvo_frontend.probe.knn import KNNModel
+from pvo_frontend.probe.model import ProbeModel
+from pvo_frontend.probe.predictors import PredictorConfig
+from pvo_frontend.probe.sequences import collect, train_on_sequences
+from pvo_frontend.vo import VOConfig, from_flat
+
+from pvo_core import metrics
+
+PREDICTORS = PredictorConfig()
+
+
+def small_model(kind: str) -> ProbeModel:
+    rng = np.random.default_rng(0)
+    phi = rng.normal(size=(300, len(PREDICTORS.names)))
+    if kind == "gk":
+        return ProbeModel(
+            "gk", PREDICTORS, GKModel(PREDICTORS.names, phi, rng.normal(size=(300, 3)), GKConfig()), {"note": "test"}
+        )
+    return ProbeModel("knn", PREDICTORS, KNNModel(PREDICTORS.names, phi, rng.uniform(0.01, 0.2, 300)), {"note": "test"})
+
+
+@pytest.mark.parametrize("kind", ["gk", "knn"])
+def test_a_saved_model_loads_to_the_same_noise(tmp_path: Path, kind: str) -> None:
+    model = small_model(kind)
+    model.save(tmp_path / "m")
+    loaded = ProbeModel.load(tmp_path / "m")
+    assert loaded.kind == kind and loaded.training == {"note": "test"}
+    image = np.random.default_rng(1).integers(0, 255, (120, 200), dtype=np.uint8)
+    current = np.array([[50.0, 60.0], [120.0, 40.0], [180.0, 100.0]])
+    a, b = model.noise(current - 1.0, current, image), loaded.noise(current - 1.0, current, image)
+    np.testing.assert_allclose(a.covariances, b.covariances)
+    if kind == "gk":
+        assert a.loss == "student_t" and a.propagate_reference is False
+        np.testing.assert_allclose(a.loss_scale, b.loss_scale)
+    else:
+        np.testing.assert_array_equal(a.keep, b.keep)
+
+
+def test_bad_model_files_are_one_clear_line(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="no such directory"):
+        ProbeModel.load(tmp_path / "nothing")
+    good = small_model("gk").save(tmp_path / "good")
+    (tmp_path / "no_npz").mkdir()
+    (tmp_path / "no_npz" / "model.yaml").write_text((good / "model.yaml").read_text())
+    with pytest.raises(ValueError, match="model.npz is missing"):
+        ProbeModel.load(tmp_path / "no_npz")
+    corrupt = small_model("gk").save(tmp_path / "corrupt")
+    (corrupt / "model.npz").write_bytes(b"PK\x03\x04 not really a zip")
+    with pytest.raises(ValueError, match=r"model.npz: not a readable PROBE model"):
+        ProbeModel.load(corrupt)
+    other = small_model("gk").save(tmp_path / "other")
+    card = (other / "model.yaml").read_text().replace("- flow_variance\n", "- flow_variance\n- angular_rate\n", 1)
+    (other / "model.yaml").write_text(card)
+    with pytest.raises(ValueError, match=r"PROBE model .*other: predictors .* do not match"):
+        ProbeModel.load(other)
+    garbage = small_model("gk").save(tmp_path / "garbage")
+    (garbage / "model.yaml").write_text("- just\n- a list\n")
+    with pytest.raises(ValueError, match=r"model.yaml: not a readable model card"):
+        ProbeModel.load(garbage)
+    with pytest.raises(ValueError, match="no such directory"):
+        run_sequence_with_model(tmp_path / "missing")
+
+
+def run_sequence_with_model(model: Path) -> None:
+    from pvo_core.camera import StereoCamera
+    from pvo_frontend.vo import StereoVO
+
+    StereoVO(StereoCamera(f=700.0, cu=300.0, cv=100.0, baseline=0.5), from_flat({"probe.model": str(model)}))
+
+
+@pytest.fixture(scope="module")
+def kitti06(pvo_data: Path) -> KittiSequence:
+    seq = pvo_data / "kitti" / "sequences" / "06"
+    return KittiSequence(seq, rate_hz=10.0, poses_file=seq / "poses_frames000-050.txt")
+
+
+def test_trained_on_kitti_frames_and_run_by_the_vo_through_probe_model(tmp_path: Path, kitti06: KittiSequence) -> None:
+    data = collect(kitti06, VOConfig(), PREDICTORS, name="06")
+    assert len(data.pairs) == 50 and data.true_motions is not None
+    assert all(p.predictors.shape == (len(p), len(PREDICTORS.names)) for p in data.pairs)
+    # the recorder leaves the VO as it is
+    plain = run_sequence(kitti06, VOConfig())
+    np.testing.assert_allclose(np.array(data.vo_motions), np.array([r.transform for r in plain.results[1:]]), atol=1e-12)
+    model = train_on_sequences([data], lambda d: kitti06.camera(), PREDICTORS, training={"sequences": ["06"]})
+    assert model.training["pairs"] == 50 and len(model.estimator.errors) == model.training["features"]
+    path = model.save(tmp_path / "probe06")
+    config = replace(VOConfig(), probe=replace(VOConfig().probe, model=str(path)))
+    run = run_sequence(kitti06, config)
+    assert all(r.transform is not None for r in run.results[1:])
+    assert all("feature_noise" in r.timings for r in run.results[1:])
+    errors = np.linalg.norm(run.poses[:, :3, 3] - kitti06.poses[:, :3, 3], axis=1)
+    assert errors[-1] < 0.05 * metrics.path_distances(kitti06.poses)[-1]  # end drift within 5 % (trained on these frames)
+    em = train_on_sequences([data], lambda d: kitti06.camera(), PREDICTORS, em=True, em_iterations=2)
+    history = em.training["em_log_likelihood"]["06"]
+    assert len(history) == 3 and history[-1] >= history[0]
