@@ -1,9 +1,10 @@
-"""Dataset readers: KITTI odometry (+ sun CSVs), the simulator's IMU/GPS sidecars, the viso2-s
-results and the Devon Island rover navigation dataset."""
+"""Dataset readers: KITTI odometry (+ sun CSVs), the KITTI raw-derived KLT tracks, the simulator's IMU/GPS
+sidecars, the viso2-s results and the Devon Island rover navigation dataset."""
 
 from .corpus import CorpusManifest, CorpusSequence, read_corpus_manifest
 from .devon import DevonDataset, SunSensorReading, read_devon_sun_sensor, read_devon_sun_sensor_sampled
 from .kitti import KittiSequence, read_kitti_calibration, read_kitti_sun_csv, read_kitti_times
+from .klt_tracks import KLTTracks, read_klt_tracks
 from .sidecars import SUN_PREDICTIONS_HEADER, read_gps_csv, read_imu_csv, read_sun_predictions_csv
 from .viso2s import (
     SEQUENCE_DRIVES,
@@ -21,6 +22,7 @@ __all__ = [
     "CorpusManifest",
     "CorpusSequence",
     "DevonDataset",
+    "KLTTracks",
     "KittiSequence",
     "KittiSunSequence",
     "SunSensorReading",
@@ -34,6 +36,7 @@ __all__ = [
     "read_kitti_sun_csv",
     "read_kitti_sun_sequence",
     "read_kitti_times",
+    "read_klt_tracks",
     "read_sun_predictions_csv",
     "read_viso2s",
     "read_viso2s_sequence",

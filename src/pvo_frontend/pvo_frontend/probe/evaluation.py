@@ -10,12 +10,14 @@ import numpy as np
 from numpy.typing import NDArray
 from pvo_core.camera import StereoCamera
 from pvo_core.lie import se3_inverse
+from pvo_core.readers import KLTTracks
 
 from pvo_core import metrics
 
 from ..vo.solver import RobustLoss
 from .gk import GKConfig, GKModel
 from .knn import KNNConfig, KNNModel, train_knn
+from .predictors import PredictorConfig, compute_predictors
 from .synthetic import PREDICTORS, PointWorldConfig, simulate
 from .training import FramePair, solve_pair, solve_with_noise, train_expectation_maximisation, train_with_ground_truth
 
@@ -94,6 +96,51 @@ class ProbeTable:
         return self.armse[row][key] / self.armse[against][key] - 1.0
 
 
+def compare_estimators(
+    train_camera: StereoCamera,
+    train_pairs: Sequence[FramePair],
+    train_motions: Sequence[Array],
+    test_camera: StereoCamera,
+    test_pairs: Sequence[FramePair],
+    test_poses: Array,
+    names: tuple[str, ...],
+    gk: GKConfig | None = None,
+    knn: KNNConfig | None = None,
+    em_iterations: int = 5,
+    fixed_sigma: Sequence[float] = (2.0, 2.0, 2.8),
+    student_dof: float = 5.0,
+    seed: int = 0,
+    say: Callable[[str], None] | None = None,
+) -> ProbeTable:
+    """Table 4.1's rows on a test traverse (pairs k-1 -> k with the true poses T_world,cam (N + 1, 4, 4)) with
+    models trained on a training traverse: a fixed covariance (least squares), the static Student-t
+    M-estimator (Kerl et al.), PROBE-GK with ground truth and by EM (initialised with the M-estimator's
+    motions), and the k-NN PROBE."""
+    gk = gk or GKConfig()
+    static_train = fixed_solver(train_camera, fixed_sigma, RobustLoss("student_t", student_dof))
+    gt_model = train_with_ground_truth(train_camera, train_pairs, train_motions, names, gk)
+    em = train_expectation_maximisation(
+        train_camera, train_pairs, run_estimator(train_pairs, static_train), names, gk, em_iterations, say=say
+    )
+    knn_model = train_knn(train_camera, train_pairs, train_motions, names, fixed_sigma, knn or KNNConfig(), seed=seed)
+    solvers = {
+        "Fixed covariance": fixed_solver(test_camera, fixed_sigma, RobustLoss("l2")),
+        "Static M-estimator": fixed_solver(test_camera, fixed_sigma, RobustLoss("student_t", student_dof)),
+        "PROBE-GK-GT": gk_solver(test_camera, gt_model),
+        "PROBE-GK-EM": gk_solver(test_camera, em.model),
+        KNN_ROW: knn_solver(test_camera, knn_model, fixed_sigma),
+    }
+    table = ProbeTable({}, em.log_likelihood, truth=test_poses)
+    for name, solve in solvers.items():
+        poses = compose(test_poses[0], run_estimator(test_pairs, solve))
+        figures = metrics.armse(test_poses, poses)
+        table.armse[name] = {"trans": figures["trans"], "rot": figures["rot"]}
+        table.trajectories[name] = poses
+        if say:
+            say(f"{name:<20} trans ARMSE {figures['trans']:7.3f} m, rot {figures['rot']:.4f} rad")
+    return table
+
+
 def synthetic_experiment(
     config: PointWorldConfig | None = None,
     gk: GKConfig | None = None,
@@ -106,34 +153,54 @@ def synthetic_experiment(
     knn: KNNConfig | None = None,
     say: Callable[[str], None] | None = None,
 ) -> ProbeTable:
-    """Table 4.1's first row: training and test traverses in two worlds drawn from ``seed``; a fixed
-    covariance (least squares), the static Student-t M-estimator (nu = 5, Kerl et al.), PROBE-GK trained with
-    ground truth and by EM (initialised with the M-estimator's motions)."""
+    """Table 4.1's first row: training and test traverses in two worlds drawn from ``seed``
+    (:func:`compare_estimators`); the predictor is the feature's image row."""
     config = config or PointWorldConfig()
-    gk = gk or GKConfig()
-    camera = config.camera
     train = simulate(config, train_seconds, seed=2 * seed + 1)
     test = simulate(config, test_seconds, seed=2 * seed + 2)
-    fixed = fixed_solver(camera, fixed_sigma, RobustLoss("l2"))
-    static = fixed_solver(camera, fixed_sigma, RobustLoss("student_t", student_dof))
-    gt_model = train_with_ground_truth(camera, train.pairs, train.motions, PREDICTORS, gk)
-    em = train_expectation_maximisation(
-        camera, train.pairs, run_estimator(train.pairs, static), PREDICTORS, gk, em_iterations, say=say
-    )
-    knn_model = train_knn(camera, train.pairs, train.motions, PREDICTORS, fixed_sigma, knn or KNNConfig(), seed=seed)
-    solvers = {
-        "Fixed covariance": fixed,
-        "Static M-estimator": static,
-        "PROBE-GK-GT": gk_solver(camera, gt_model),
-        "PROBE-GK-EM": gk_solver(camera, em.model),
-        KNN_ROW: knn_solver(camera, knn_model, fixed_sigma),
-    }
-    table = ProbeTable({}, em.log_likelihood, truth=test.poses)
-    for name, solve in solvers.items():
-        poses = compose(test.poses[0], run_estimator(test.pairs, solve))
-        figures = metrics.armse(test.poses, poses)
-        table.armse[name] = {"trans": figures["trans"], "rot": figures["rot"]}
-        table.trajectories[name] = poses
-        if say:
-            say(f"{name:<20} trans ARMSE {figures['trans']:7.3f} m, rot {figures['rot']:.4f} rad")
-    return table
+    return compare_estimators(
+        config.camera, train.pairs, train.motions, config.camera, test.pairs, test.poses, PREDICTORS,
+        gk, knn, em_iterations, fixed_sigma, student_dof, seed, say,
+    )  # fmt: skip
+
+
+def track_pairs(
+    tracks: KLTTracks,
+    predictors: PredictorConfig,
+    frames: Sequence[int],
+    image_of: Callable[[int], NDArray[np.uint8] | None] | None = None,
+) -> tuple[list[FramePair], list[Array], Array]:
+    """Frame pairs (k - 1 -> k for k in ``frames``, k >= 1) of raw-derived KLT tracks with their predictors (the
+    image ones from ``image_of(k)``, the current left image; IMU ones from the drive's specific force and
+    angular rate), the true motions, and the true poses of frames[0] - 1 .. frames[-1] (len(frames) + 1)."""
+    pairs, motions = [], []
+    for k in frames:
+        ref, cur, _ = tracks.pair(k)
+        imu = np.array([np.linalg.norm(tracks.specific_force[k]), np.linalg.norm(tracks.angular_rate[k])])
+        image = image_of(k) if (image_of is not None and predictors.image) else None
+        phi = compute_predictors(predictors, ref[:, :2], cur[:, :2], image, imu if predictors.imu else None)
+        pairs.append(FramePair(ref, cur, phi))
+        motions.append(tracks.motion(k))
+    poses = tracks.poses[frames[0] - 1 : frames[-1] + 1]
+    return pairs, motions, poses
+
+
+def tracks_experiment(
+    train: KLTTracks,
+    test: KLTTracks,
+    predictors: PredictorConfig,
+    train_frames: Sequence[int],
+    test_frames: Sequence[int],
+    train_images: Callable[[int], NDArray[np.uint8] | None] | None = None,
+    test_images: Callable[[int], NDArray[np.uint8] | None] | None = None,
+    gk: GKConfig | None = None,
+    em_iterations: int = 5,
+    say: Callable[[str], None] | None = None,
+) -> ProbeTable:
+    """Table 4.1 on real KITTI tracks: models trained on ``train``'s frames, tested on ``test``'s."""
+    train_pairs, train_motions, _ = track_pairs(train, predictors, train_frames, train_images)
+    test_pairs, _, test_poses = track_pairs(test, predictors, test_frames, test_images)
+    return compare_estimators(
+        train.camera, train_pairs, train_motions, test.camera, test_pairs, test_poses, predictors.names,
+        gk, None, em_iterations, say=say,
+    )  # fmt: skip

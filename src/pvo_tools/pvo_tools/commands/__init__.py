@@ -11,6 +11,7 @@ COMMANDS = (
     "node",
     "interface",
     "vo",
+    "probe",
     "eval",
     "sim",
     "corpus",

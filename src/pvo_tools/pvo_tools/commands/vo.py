@@ -35,6 +35,11 @@ def register(sub: Any) -> None:
         "--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter, e.g. -p solver.loss=huber (repeatable)"
     )
     vo.add_argument("--params-file", type=Path, help="ROS-style YAML with stereo_vo parameters (e.g. config/stereo_vo.yaml)")
+    vo.add_argument(
+        "--probe",
+        metavar="MODEL",
+        help="PROBE noise model: a directory from `pvo probe train` or probe_kitti (= -p probe.model=MODEL)",
+    )
     vo.add_argument("--relative", type=Path, help="also write per-frame motions and covariances (.npz) for `pvo eval --relative`")
     vo.add_argument("--quiet", "-q", action="store_true", help="no progress output")
 
@@ -60,7 +65,7 @@ def vo_config(items: list[str] | None, params_file: Path | None = None) -> VOCon
 
 
 def run(args: argparse.Namespace) -> int:
-    config = vo_config(args.param, args.params_file)
+    config = vo_config([*(args.param or []), *([f"probe.model={args.probe}"] if args.probe else [])], args.params_file)
     sequence = open_sequence(args.sequence_dir, args.rate, args.times, args.colour, args.start, args.count, args.poses)
     bar = None if args.quiet else Progress(len(sequence), "vo")
     vo_run = run_sequence(sequence, config, progress=bar.update if bar else None)

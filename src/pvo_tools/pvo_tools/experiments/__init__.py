@@ -11,6 +11,7 @@ from types import ModuleType
 EXPERIMENTS: dict[str, str] = {
     "sun-sim": "pvo_tools.experiments.sun_sim",
     "sun-bcnn": "pvo_tools.experiments.sun_bcnn",
+    "probe": "pvo_tools.experiments.probe",
 }
 
 
