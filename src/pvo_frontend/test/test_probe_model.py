@@ -40,7 +40,11 @@ def test_a_saved_model_loads_to_the_same_noise(tmp_path: Path, kind: str) -> Non
     assert loaded.kind == kind and loaded.training == {"note": "test"}
     image = np.random.default_rng(1).integers(0, 255, (120, 200), dtype=np.uint8)
     current = np.array([[50.0, 60.0], [120.0, 40.0], [180.0, 100.0]])
-    a, b = model.noise(current - 1.0, current, image), loaded.noise(current - 1.0, current, image)
+    disparity = np.array([20.0, 8.0, 3.0])
+    a, b = (
+        model.noise(current - 1.0, current, image, disparity=disparity),
+        loaded.noise(current - 1.0, current, image, disparity=disparity),
+    )
     np.testing.assert_allclose(a.covariances, b.covariances)
     if kind == "gk":
         assert a.loss == "student_t" and a.propagate_reference is False

@@ -130,11 +130,17 @@ def test_flow_variance_score_equals_a_direct_loop_and_marks_a_moving_object() ->
 
 def test_compute_predictors_columns_and_bad_input(image: np.ndarray) -> None:
     config = PredictorConfig(imu=True)
-    assert config.names == ("entropy", "blur", "fft_low", "fft_high", "flow_variance", "specific_force", "angular_rate")
-    values = compute_predictors(config, CENTRES - 1.0, CENTRES, image, np.array([9.9, 0.2]))
-    assert values.shape == (5, 7)
+    names = ("entropy", "blur", "fft_low", "fft_high", "flow_variance", "specific_force", "angular_rate", "disparity", "row")
+    assert config.names == names
+    disparity = np.array([10.0, 20.0, 30.0, 40.0, 50.0])
+    values = compute_predictors(config, CENTRES - 1.0, CENTRES, image, np.array([9.9, 0.2]), disparity)
+    assert values.shape == (5, 9)
     np.testing.assert_array_equal(values[:, 5], 9.9)
-    assert PredictorConfig(image=False).names == ("flow_variance",)
+    np.testing.assert_array_equal(values[:, 7], disparity)
+    np.testing.assert_array_equal(values[:, 8], CENTRES[:, 1])
+    assert PredictorConfig(image=False, geometry=False).names == ("flow_variance",)
+    with pytest.raises(ValueError, match="no disparities were given"):
+        compute_predictors(PredictorConfig(image=False), CENTRES, CENTRES)
     with pytest.raises(ValueError, match="no image was given"):
         compute_predictors(PredictorConfig(), CENTRES, CENTRES)
     with pytest.raises(ValueError, match="no IMU reading was given"):

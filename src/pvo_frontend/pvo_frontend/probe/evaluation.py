@@ -178,7 +178,7 @@ def track_pairs(
         ref, cur, _ = tracks.pair(k)
         imu = np.array([np.linalg.norm(tracks.specific_force[k]), np.linalg.norm(tracks.angular_rate[k])])
         image = image_of(k) if (image_of is not None and predictors.image) else None
-        phi = compute_predictors(predictors, ref[:, :2], cur[:, :2], image, imu if predictors.imu else None)
+        phi = compute_predictors(predictors, ref[:, :2], cur[:, :2], image, imu if predictors.imu else None, ref[:, 2])
         pairs.append(FramePair(ref, cur, phi))
         motions.append(tracks.motion(k))
     poses = tracks.poses[frames[0] - 1 : frames[-1] + 1]

@@ -19,6 +19,13 @@ Choices the thesis leaves open (thesis-code-facts §3.2), made here and measured
 - neighbours: the ``max_neighbours`` nearest within the radius (a k-d tree query with a distance bound,
   vectorised over all features of a frame);
 - prior: Psi0 = n diag(prior_sigma^2), nu0 = n, "n virtual samples of the nominal noise".
+
+The defaults (radius 0.25, 8 neighbours, n = 3) were chosen on held-out data, never a test split: on KITTI 07's
+raw-derived tracks, trained on frames 1-349 and validated on 350-499, translational ARMSE 0.529 m against the
+static M-estimator's 0.595 m (32 neighbours within 0.5 with n = 5: 0.597 m; 4 within 0.25: 0.541 m), and on
+the synthetic world (seed 0) 0.95 m against 1.35 m. Few neighbours keep nu* small, so the posterior predictive
+keeps the heavy tails that down-weight a bad track; many neighbours make it nearly Gaussian (nu* -> the
+number of neighbours), the least-squares limit the thesis notes after eq. 4.25.
 """
 
 from __future__ import annotations
@@ -49,9 +56,9 @@ class GKConfig:
     prior_samples: n, the prior's weight in virtual samples (> d - 1 = 2 so that every dof is positive);
     prior_sigma: the nominal (u, v, d) standard deviations (px) of the prior."""
 
-    radius: float = 0.5
-    max_neighbours: int = 32
-    prior_samples: float = 5.0
+    radius: float = 0.25
+    max_neighbours: int = 8
+    prior_samples: float = 3.0
     prior_sigma: tuple[float, float, float] = (1.0, 1.0, 2.0)
 
     def __post_init__(self) -> None:

@@ -120,15 +120,20 @@ class ProbeModel:
         return cls(card["kind"], predictors, estimator, card.get("training") or {}, nominal)  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ in the VO
-    def predictors_of(self, reference: Array, current: Array, image: NDArray[np.uint8] | None, imu: Array | None = None) -> Array:
-        return compute_predictors(self.predictors, reference, current, image, imu)
-
-    def noise(self, reference: Array, current: Array, image: NDArray[np.uint8] | None, imu: Array | None = None) -> Any:
+    def noise(
+        self,
+        reference: Array,
+        current: Array,
+        image: NDArray[np.uint8] | None,
+        imu: Array | None = None,
+        disparity: Array | None = None,
+    ) -> Any:
         """The noise of features tracked from ``reference`` to ``current`` left positions (N, 2) px in
-        ``image`` (the current left image): per-feature (u, v, d) covariances and robust-loss settings."""
+        ``image`` (the current left image), with their reference disparities (N,): per-feature (u, v, d)
+        covariances and robust-loss settings."""
         from ..vo.pipeline import FeatureNoiseEstimate
 
-        phi = self.predictors_of(reference, current, image, imu)
+        phi = compute_predictors(self.predictors, reference, current, image, imu, disparity)
         if isinstance(self.estimator, GKModel):
             noise = self.estimator.noise(phi)
             # eq. 4.25: the Student-t with the posterior's dof and scale; the stored errors already hold the

@@ -36,8 +36,9 @@ class FeatureRecorder:
         self.pairs: list[FramePair] = []
 
     def __call__(self, before: StereoFeatures, after: StereoFeatures, image: NDArray[np.uint8]) -> FeatureNoiseEstimate:
-        phi = compute_predictors(self.predictors, before.left, after.left, image)
-        self.pairs.append(FramePair(before.observations(), after.observations(), phi))
+        reference = before.observations()
+        phi = compute_predictors(self.predictors, before.left, after.left, image, disparity=reference[:, 2])
+        self.pairs.append(FramePair(reference, after.observations(), phi))
         return FeatureNoiseEstimate(np.broadcast_to(self.default_covariance, (len(after), 3, 3)))
 
 

@@ -234,7 +234,10 @@ class StereoVO:
             from ..probe.model import ProbeModel, resolve_model
 
             probe = ProbeModel.load(resolve_model(self.config.probe.model))
-            feature_noise = lambda before, after, image: probe.noise(before.left, after.left, image)  # noqa: E731
+
+            def feature_noise(before: StereoFeatures, after: StereoFeatures, image: Image) -> FeatureNoiseEstimate:
+                return probe.noise(before.left, after.left, image, disparity=before.observations()[:, 2])
+
         self.feature_noise = feature_noise
         self.matcher = StereoMatcher(self.config.detector, self.config.tracker)
         self._rng = np.random.default_rng(self.config.ransac.seed)

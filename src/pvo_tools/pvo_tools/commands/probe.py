@@ -41,9 +41,11 @@ def register(sub: Any) -> None:
     train.add_argument("--count", type=int, help="frames per sequence (default: all)")
     train.add_argument("--no-image", action="store_true", help="track predictors only (no image predictors)")
     train.add_argument("--patch", type=int, default=32, help="patch side for the image predictors (px, default 32)")
-    train.add_argument("--radius", type=float, default=0.5, help="GK kernel support in normalised predictor units (default 0.5)")
-    train.add_argument("--neighbours", type=int, default=32, help="GK: stored errors per query (default 32)")
-    train.add_argument("--prior-samples", type=float, default=5.0, help="GK: the prior's weight in virtual samples (default 5)")
+    train.add_argument(
+        "--radius", type=float, default=0.25, help="GK kernel support in normalised predictor units (default 0.25)"
+    )
+    train.add_argument("--neighbours", type=int, default=8, help="GK: stored errors per query (default 8)")
+    train.add_argument("--prior-samples", type=float, default=3.0, help="GK: the prior's weight in virtual samples (default 3)")
     train.add_argument(
         "--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter for the runs that collect the tracks"
     )

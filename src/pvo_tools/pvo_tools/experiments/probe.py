@@ -7,9 +7,9 @@ PROBE of app. A.
    (:mod:`pvo_frontend.probe.synthetic`); the one predictor is the feature's image row.
 2. Real KITTI tracks: ``kitti/raw-derived/*.mat`` (500 frames of stereo KLT tracks, IMU and ground truth per
    drive); models trained on one drive, tested on another (07 -> 06 by default), with the predictors every
-   frame has (flow variance of the tracks, |specific force|, |angular rate|), and again with the image
-   predictors on the frames whose left images ``../shared/data`` holds (07: 0-159, 06: 0-50). Sequence 01's
-   frames are never trained on.
+   frame has (flow variance of the tracks, disparity and row, |specific force|, |angular rate|), without the
+   IMU, and with the image predictors on the frames whose left images ``../shared/data`` holds (07: 0-159,
+   06: 0-50). Sequence 01's frames are never trained on.
 """
 
 from __future__ import annotations
@@ -154,6 +154,7 @@ def kitti_section(args: argparse.Namespace, figures: dict[str, float], tables: d
         return image_of
 
     variants = [("tracks + IMU", PredictorConfig(image=False, imu=True), range(1, len(train)), range(1, len(test)))]
+    variants.append(("tracks (no IMU)", PredictorConfig(image=False), range(1, len(train)), range(1, len(test))))
     if train_images > 1 and test_images > 1:
         variants.append(("images + tracks + IMU", PredictorConfig(imu=True), range(1, train_images), range(1, test_images)))
     lines = [
