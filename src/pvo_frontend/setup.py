@@ -12,6 +12,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/models/probe_kitti", glob("models/probe_kitti/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -18,6 +18,7 @@ from pvo_core.readers import KittiSequence
 from pvo_core import metrics
 
 from .vo import FrameResult, FrameStatus, StereoVO, VOConfig
+from .vo.pipeline import FeatureNoise
 
 Array = NDArray[np.float64]
 STAGES = ("tracking", "ransac", "gauss_newton", "detection", "stereo_matching", "total")
@@ -54,12 +55,14 @@ def run_sequence(
     config: VOConfig,
     images: Sequence[tuple[NDArray[np.uint8], NDArray[np.uint8]]] | None = None,
     progress: Callable[[], None] | None = None,
+    feature_noise: FeatureNoise | None = None,
 ) -> VORun:
     """Every frame of ``sequence`` through one :class:`StereoVO`; ``ValueError`` naming the image of a rejected frame.
 
-    images: the pairs already decoded (benchmarks), else each is read from disk.
+    images: the pairs already decoded (benchmarks), else each is read from disk. feature_noise: the VO's
+    per-feature noise hook (PROBE), instead of the one ``config.probe.model`` names.
     """
-    vo = StereoVO(sequence.camera(), config)
+    vo = StereoVO(sequence.camera(), config, feature_noise)
     results, poses, seconds = [], [], []
     for i in range(len(sequence)):
         left, right = images[i] if images is not None else sequence.load_pair(i)

@@ -18,9 +18,11 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
     the node is destroyed. Returns 0 after a clean shutdown.
     """
     import rclpy
+    from pvo_core.allocator import keep_large_blocks
     from rclpy.executors import ExternalShutdownException
     from rclpy.signals import SignalHandlerOptions
 
+    keep_large_blocks()  # per-frame numpy temporaries reuse the heap instead of faulting in fresh pages
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.ALL)
     try:
         node = factory()

@@ -10,6 +10,7 @@ import signal
 import sys
 import threading
 
+from pvo_core.allocator import keep_large_blocks
 from pvo_core.errors import DataFormatError
 
 from .commands import COMMANDS
@@ -42,6 +43,7 @@ def main(argv: list[str] | None = None) -> int:
         argv = ["sim-corpus", *argv[2:]]
     args = build_parser().parse_args(argv)
     args.argv = argv  # the command line as given (model cards record how their weights were made)
+    keep_large_blocks()  # per-frame numpy temporaries reuse the heap instead of faulting in fresh pages
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _terminate)
     try:

@@ -10,13 +10,15 @@ import numpy as np
 from numpy.typing import NDArray
 from pvo_core.camera import StereoCamera
 from pvo_core.lie import se3_inverse
-from pvo_core.readers import KLTTracks
+from pvo_core.readers import KittiSequence, KLTTracks
 
 from pvo_core import metrics
 
+from ..vo import VOConfig
 from ..vo.solver import RobustLoss
 from .gk import GKConfig, GKModel
 from .knn import KNNConfig, KNNModel, train_knn
+from .model import ProbeModel
 from .predictors import PredictorConfig, compute_predictors
 from .synthetic import PREDICTORS, PointWorldConfig, simulate
 from .training import FramePair, solve_pair, solve_with_noise, train_expectation_maximisation, train_with_ground_truth
@@ -204,3 +206,38 @@ def tracks_experiment(
         train.camera, train_pairs, train_motions, test.camera, test_pairs, test_poses, predictors.names,
         gk, None, em_iterations, say=say,
     )  # fmt: skip
+
+
+@dataclass
+class SequenceComparison:
+    """One test sequence through the default VO and the VO with PROBE: ARMSE {'trans': m, 'rot': rad} each."""
+
+    name: str
+    default: dict[str, float]
+    probe: dict[str, float]
+
+    @property
+    def change(self) -> float:
+        """Relative change of the translational ARMSE with PROBE (negative = better)."""
+        return self.probe["trans"] / self.default["trans"] - 1.0
+
+
+def compare_on_sequences(
+    sequences: Sequence[tuple[str, KittiSequence]],
+    vo_config: VOConfig,
+    model: ProbeModel,
+    say: Callable[[str], None] | None = None,
+) -> list[SequenceComparison]:
+    """Each (name, sequence with poses) through the default VO and the VO with ``model``'s noise."""
+    from ..offline import run_sequence
+
+    out = []
+    for name, sequence in sequences:
+        assert sequence.poses is not None
+        default = metrics.armse(sequence.poses, run_sequence(sequence, vo_config).poses)
+        probe = metrics.armse(sequence.poses, run_sequence(sequence, vo_config, feature_noise=model.feature_noise()).poses)
+        result = SequenceComparison(name, {k: default[k] for k in ("trans", "rot")}, {k: probe[k] for k in ("trans", "rot")})
+        out.append(result)
+        if say:
+            say(f"{name}: ARMSE default {default['trans']:.3f} m, PROBE {probe['trans']:.3f} m ({100 * result.change:+.1f} %)")
+    return out

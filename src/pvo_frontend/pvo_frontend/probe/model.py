@@ -21,14 +21,24 @@ Array = NDArray[np.float64]
 
 FORMAT = 1
 KINDS = ("gk", "knn")
-#: Shipped models, by name (``probe.model: probe_kitti``).
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+#: Models installed with the package (share/pvo_frontend/models/NAME), by name: ``probe.model: probe_kitti``.
+SHIPPED = ("probe_kitti",)
+
+
+def shipped_model(name: str) -> Path:
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+    try:
+        return Path(get_package_share_directory("pvo_frontend")) / "models" / name
+    except (PackageNotFoundError, ValueError):
+        return Path(__file__).resolve().parents[2] / "models" / name
 
 
 def resolve_model(name: str) -> Path:
-    """A model directory: a shipped model's name, or a path."""
-    shipped = MODELS_DIR / name
-    return shipped if name and "/" not in name and shipped.is_dir() else Path(name).expanduser()
+    """A model directory: a shipped model's name (unless a local path of that name exists), or a path."""
+    if name in SHIPPED and not Path(name).exists():
+        return shipped_model(name)
+    return Path(name).expanduser()
 
 
 @dataclass
@@ -120,6 +130,14 @@ class ProbeModel:
         return cls(card["kind"], predictors, estimator, card.get("training") or {}, nominal)  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ in the VO
+    def feature_noise(self) -> Any:
+        """The VO's noise hook (:data:`pvo_frontend.vo.pipeline.FeatureNoise`) for this model."""
+
+        def hook(before: Any, after: Any, image: NDArray[np.uint8]) -> Any:
+            return self.noise(before.left, after.left, image, disparity=before.observations()[:, 2])
+
+        return hook
+
     def noise(
         self,
         reference: Array,

@@ -141,41 +141,57 @@ def frequency_composition(patches: NDArray[np.uint8], block: int) -> tuple[Array
     return low.astype(float), high.astype(float)
 
 
-def blur_maps(image: NDArray[np.uint8], taps: int) -> Array:
-    """Per-pixel terms of the Crété-Roffet metric, (H, W, 4) float32: |dF| and max(0, |dF| - |dB|) for
-    vertical and then horizontal neighbours (row/column 0 zero), B the image box-blurred along that axis."""
-    f = image.astype(np.float32)
-    maps = np.zeros((*f.shape, 4), np.float32)
-    for axis, (d_slot, v_slot) in ((0, (0, 1)), (1, (2, 3))):
-        blurred = cv2.blur(f, (1, taps) if axis == 0 else (taps, 1), borderType=cv2.BORDER_REFLECT_101)
+def blur_maps(image: NDArray[np.uint8], taps: int) -> list[NDArray[np.integer]]:
+    """Per-pixel terms of the Crété-Roffet metric as exact integers, (H, W) each, for vertical and then
+    horizontal neighbours (row / column 0 zero): |dF| (uint8) and taps * max(0, |dF| - |dB|) (float32), B the
+    image box-blurred along that axis (its border reflected). A box blur's neighbour difference telescopes,
+    B[y] - B[y-1] = (F[y+h] - F[y-h-1]) / taps with h = taps // 2, so no blurred image is formed."""
+    h = taps // 2
+    padded = cv2.copyMakeBorder(image, h + 1, h + 1, h + 1, h + 1, cv2.BORDER_REFLECT_101)
+    height, width = image.shape
+    top, left = h + 1, h + 1
+    planes: list[NDArray[np.integer]] = []
+    for axis in (0, 1):
+        dy, dx = (1, 0) if axis == 0 else (0, 1)
+
+        def at(offset: int, dy: int = dy, dx: int = dx) -> NDArray[np.uint8]:
+            return padded[top + dy * offset : top + dy * offset + height, left + dx * offset : left + dx * offset + width]
+
+        d = cv2.absdiff(at(0), at(-1))
+        step = cv2.absdiff(at(h), at(-h - 1))
+        # taps |dF| - |F[y+h] - F[y-h-1]|, integers held exactly in float32, negatives to zero
+        v = cv2.threshold(cv2.addWeighted(d, float(taps), step, -1.0, 0.0, dtype=cv2.CV_32F), 0.0, 0.0, cv2.THRESH_TOZERO)[1]
         if axis == 0:
-            d = np.abs(f[1:] - f[:-1])
-            maps[1:, :, d_slot] = d
-            maps[1:, :, v_slot] = np.maximum(0.0, d - np.abs(blurred[1:] - blurred[:-1]))
+            d[0], v[0] = 0, 0
         else:
-            d = np.abs(f[:, 1:] - f[:, :-1])
-            maps[:, 1:, d_slot] = d
-            maps[:, 1:, v_slot] = np.maximum(0.0, d - np.abs(blurred[:, 1:] - blurred[:, :-1]))
-    return maps
+            d[:, 0], v[:, 0] = 0, 0
+        planes += [d, v]
+    return planes
 
 
-def patch_sums(maps: Array, centres: Array, patch: int) -> Array:
-    """Sum of each channel of ``maps`` (H, W, C) over each feature's patch (the part inside the image), by one
-    integral image, (N, C)."""
-    height, width = maps.shape[:2]
+def patch_sums(planes: list[NDArray[np.integer]], centres: Array, patch: int) -> Array:
+    """Sum of each plane (H, W) over each feature's patch (the part inside the image), by integral images,
+    (N, len(planes))."""
+    height, width = planes[0].shape
     half = patch // 2
     cols = np.clip(np.rint(centres[:, 0]).astype(np.int64), 0, width - 1)
     rows = np.clip(np.rint(centres[:, 1]).astype(np.int64), 0, height - 1)
     top, bottom = np.clip(rows - half, 0, height), np.clip(rows + half, 0, height)
     left, right = np.clip(cols - half, 0, width), np.clip(cols + half, 0, width)
-    integral = cv2.integral(maps, sdepth=cv2.CV_64F).reshape(height + 1, width + 1, -1)
-    return integral[bottom, right] - integral[top, right] - integral[bottom, left] + integral[top, left]
+    sums = []
+    for plane in planes:
+        # OpenCV integrates 8-bit planes to int32 and float32 ones to float64 (exact for these integer sums)
+        integral = cv2.integral(plane, sdepth=cv2.CV_32S if plane.dtype == np.uint8 else cv2.CV_64F)
+        corners = [integral[r, c].astype(np.int64) for r, c in ((bottom, right), (top, right), (bottom, left), (top, left))]
+        sums.append(corners[0] - corners[1] - corners[2] + corners[3])
+    return np.stack(sums, axis=1).astype(float)
 
 
 def blur_metric(image: NDArray[np.uint8], centres: Array, patch: int, taps: int) -> Array:
     """Crété-Roffet blur of each feature's patch, (N,): max over the two axes of (s_F - s_V) / s_F."""
     sums = patch_sums(blur_maps(image, taps), centres, patch)
     d_ver, v_ver, d_hor, v_hor = sums.T
+    v_ver, v_hor = v_ver / taps, v_hor / taps
     with np.errstate(divide="ignore", invalid="ignore"):
         b_ver = np.where(d_ver > 0.0, (d_ver - v_ver) / d_ver, 1.0)
         b_hor = np.where(d_hor > 0.0, (d_hor - v_hor) / d_hor, 1.0)

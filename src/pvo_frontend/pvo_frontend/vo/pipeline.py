@@ -233,10 +233,7 @@ class StereoVO:
         if feature_noise is None and self.config.probe.model:
             from ..probe.model import ProbeModel, resolve_model
 
-            probe = ProbeModel.load(resolve_model(self.config.probe.model))
-
-            def feature_noise(before: StereoFeatures, after: StereoFeatures, image: Image) -> FeatureNoiseEstimate:
-                return probe.noise(before.left, after.left, image, disparity=before.observations()[:, 2])
+            feature_noise = ProbeModel.load(resolve_model(self.config.probe.model)).feature_noise()
 
         self.feature_noise = feature_noise
         self.matcher = StereoMatcher(self.config.detector, self.config.tracker)

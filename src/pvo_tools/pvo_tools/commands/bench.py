@@ -1,4 +1,4 @@
-"""`pvo bench vo|sim|realism|fusion|soak|faults`: benchmarks that print figures (speed, memory, accuracy)."""
+"""`pvo bench vo|probe|sim|realism|fusion|soak|faults`: benchmarks that print figures (speed, memory, accuracy)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from .vo import add_sequence_arguments, open_sequence
 
 
 def register(sub: Any) -> None:
-    bench = sub.add_parser("bench", help="benchmarks: vo | sim | realism | fusion | soak | faults")
+    bench = sub.add_parser("bench", help="benchmarks: vo | probe | sim | realism | fusion | soak | faults")
     kinds = bench.add_subparsers(dest="bench", required=True, metavar="WHAT")
     bvo = kinds.add_parser("vo", help="stereo VO per-stage timings and accuracy on a KITTI clip")
     bvo.set_defaults(handler=bench_vo)
@@ -32,6 +32,14 @@ def register(sub: Any) -> None:
     bvo.add_argument("--compare", action="store_true", help="also run the alternative detector/tracker/solver variants")
     bvo.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter for every variant")
     bvo.add_argument("--json", type=Path, help="write the figures as YAML/JSON to this file")
+
+    bp = kinds.add_parser("probe", help="PROBE: predictors and noise inference per frame for N features on one core")
+    bp.set_defaults(handler=bench_probe)
+    bp.add_argument("--model", default="probe_kitti", help="PROBE model (default probe_kitti, the shipped one)")
+    bp.add_argument("--features", type=int, default=500, help="features per frame (default 500)")
+    bp.add_argument("--image", type=Path, help="left image (default KITTI 06 frame 10 of the data directory)")
+    bp.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
+    bp.add_argument("--repeat", type=int, default=50, help="frames timed (default 50)")
 
     bs = kinds.add_parser("sim", help="synthetic world: stereo frames/s at 620x188 and 1241x376, world generation vs length")
     bs.set_defaults(handler=bench_sim)
@@ -92,6 +100,58 @@ BENCH_VARIANTS: dict[str, dict[str, Any]] = {
     "no reference-noise propagation": {"solver.propagate_reference_noise": False},
     "pixel sigma 2, 2, 4 (calibrated)": {"solver.pixel_sigma": [2.0, 2.0, 4.0]},
 }
+
+
+def bench_probe(args: argparse.Namespace) -> int:
+    """Issue 17's budget: PROBE's predictors and its noise inference for N features of one frame, one core."""
+    import time
+
+    import cv2
+    import numpy as np
+    from pvo_core.imageio import read_image
+    from pvo_frontend.probe.model import ProbeModel, resolve_model
+    from pvo_frontend.probe.predictors import (
+        blur_metric,
+        flow_variance_score,
+        frequency_composition,
+        gather_patches,
+        patch_entropy,
+    )
+
+    from ..paths import data_directory
+
+    cv2.setNumThreads(1)
+    model = ProbeModel.load(resolve_model(args.model))
+    image = read_image(args.image or data_directory(args.data) / "kitti" / "sequences" / "06" / "image_0" / "000010.png")
+    image = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    rng = np.random.default_rng(0)
+    height, width = image.shape
+    current = rng.uniform([0, 0], [width, height], (args.features, 2))
+    reference = current + rng.normal(0, 2.0, current.shape)
+    disparity = rng.uniform(2.0, 80.0, args.features)
+    cfg = model.predictors
+    stages = {
+        "patches + entropy": lambda: patch_entropy(gather_patches(image, current, cfg.patch), cfg.entropy_bins),
+        "blur": lambda: blur_metric(image, current, cfg.patch, cfg.blur_taps),
+        "fft low/high": lambda: frequency_composition(gather_patches(image, current, cfg.patch), cfg.block),
+        "flow variance": lambda: flow_variance_score(reference, current, cfg.flow_small, cfg.flow_large),
+        "predictors + noise (total)": lambda: model.noise(reference, current, image, disparity=disparity),
+    }
+    print(
+        f"pvo bench probe: model {args.model} ({model.kind}, {len(model.estimator.errors)} stored samples, "
+        f"predictors {', '.join(cfg.names)}), {args.features} features on a {width}x{height} image, one core"
+    )
+    for name, stage in stages.items():
+        if not cfg.image and name in ("patches + entropy", "blur", "fft low/high"):
+            continue
+        stage()
+        times = []
+        for _ in range(args.repeat):
+            tic = time.perf_counter()
+            stage()
+            times.append(1e3 * (time.perf_counter() - tic))
+        print(f"  {name:<28} median {np.median(times):6.2f} ms, p95 {np.percentile(times, 95):6.2f} ms")
+    return 0
 
 
 def bench_vo(args: argparse.Namespace) -> int:
