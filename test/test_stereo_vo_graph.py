@@ -162,3 +162,34 @@ def test_the_path_is_bounded_and_published_once_per_path_period(ros_context) -> 
     # estimates at frames 1..11, one path per 0.3 s of message time: at frames 1, 4, 7 and 10
     assert [stamp_to_nanoseconds(p.header.stamp) for p in paths] == [k * 100_000_000 for k in (1, 4, 7, 10)]
     assert [len(p.poses) for p in paths] == [1, 4, 4, 4]
+
+
+def test_stereo_vo_with_probe_model_over_dds(ros_context, sample_bag: Path, pvo_data: Path) -> None:
+    """probe.model set on the node (the shipped probe_kitti): the relative poses over DDS are what the
+    ROS-free VO with that model computes, and differ from the plain VO's."""
+    from pvo_frontend.vo import from_flat
+
+    vo_node = StereoVONode(context=ros_context, parameter_overrides=[Parameter("probe.model", value="probe_kitti")])
+    listener = Node("listener", context=ros_context)
+    player_node = Node("player", context=ros_context)
+    relative: list[RelativePose] = []
+    listener.create_subscription(RelativePose, "/pvo/vo/relative", relative.append, RELIABLE)
+    try:
+        with Spinner(ros_context, vo_node), Spinner(ros_context, listener):
+            BagPlayer(player_node, sample_bag, PlayOptions(rate=2.0, wait_for_subscribers=1, clock=False)).play()
+            wait_for(lambda: len(relative) >= 50)
+    finally:
+        for node in (vo_node, listener, player_node):
+            node.destroy_node()
+    assert len(relative) == 50
+    stamps = [stamp_to_nanoseconds(m.reference_stamp) for m in relative[:1]] + [
+        stamp_to_nanoseconds(m.header.stamp) for m in relative
+    ]
+    sequence = KittiSequence(pvo_data / "kitti/sequences/06", rate_hz=10.0)
+    with_probe = StereoVO(sequence.camera(1226, 370), from_flat({"probe.model": "probe_kitti"}))
+    plain = StereoVO(sequence.camera(1226, 370))
+    expected = [with_probe.process(*sequence.load_pair(i), stamps[i] * 1e-9) for i in range(len(sequence))]
+    baseline = [plain.process(*sequence.load_pair(i), stamps[i] * 1e-9) for i in range(len(sequence))]
+    for msg, result in zip(relative, expected[1:], strict=True):
+        assert np.allclose(pose_to_matrix(msg.pose.pose), result.transform, atol=1e-9)
+    assert not np.allclose(expected[-1].pose, baseline[-1].pose, atol=1e-6)  # the model changed the estimate
