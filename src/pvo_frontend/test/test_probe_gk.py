@@ -94,3 +94,5 @@ def test_bad_training_samples_are_refused() -> None:
         GKModel(("a",), np.zeros((4, 1)), np.zeros((4, 2)))
     with pytest.raises(ValueError, match="must be finite"):
         GKModel(("a",), np.array([[0.0], [np.nan]]), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="must be finite"):
+        GKModel(("a",), np.zeros((2, 1)), np.array([[0.0, 0.0, np.inf], [0.0, 0.0, 0.0]]))

@@ -98,6 +98,37 @@ class NoiseModel:
 
 
 @dataclass
+class PredictorSpace:
+    """Where stored samples live: predictor names, the normalisation by the training mean and std (stored with
+    the model) and a k-d tree over the normalised training predictors (M, p)."""
+
+    names: tuple[str, ...]
+    mean: Array
+    std: Array
+    tree: cKDTree | None
+
+    @classmethod
+    def fit(
+        cls, names: tuple[str, ...], predictors: Array, mean: Array | None = None, std: Array | None = None
+    ) -> PredictorSpace:
+        """Check the predictors ((M, len(names)), finite) and index them; mean/std from them unless given."""
+        if predictors.ndim != 2 or predictors.shape[1] != len(names):
+            raise ValueError(f"predictors must be (M, {len(names)}) for {names}, got {predictors.shape}")
+        if not np.all(np.isfinite(predictors)):
+            raise ValueError("PROBE training samples must be finite")
+        if mean is None or std is None:
+            mean = predictors.mean(axis=0) if len(predictors) else np.zeros(len(names))
+            spread = predictors.std(axis=0) if len(predictors) else np.ones(len(names))
+            std = np.where(spread > 1e-12, spread, 1.0)
+        space = cls(names, np.asarray(mean, dtype=float), np.asarray(std, dtype=float), None)
+        space.tree = cKDTree(space.normalise(predictors)) if len(predictors) else None
+        return space
+
+    def normalise(self, predictors: Array) -> Array:
+        return (np.asarray(predictors, dtype=float) - self.mean) / self.std
+
+
+@dataclass
 class GKModel:
     """Stored training samples: predictors (M, p) in their own units with their names, errors (M, 3) px.
 
@@ -113,23 +144,17 @@ class GKModel:
     def __post_init__(self) -> None:
         self.predictors = np.asarray(self.predictors, dtype=float)
         self.errors = np.asarray(self.errors, dtype=float)
-        if self.predictors.ndim != 2 or self.predictors.shape[1] != len(self.names):
-            raise ValueError(f"predictors must be (M, {len(self.names)}) for {self.names}, got {self.predictors.shape}")
+        space = PredictorSpace.fit(self.names, self.predictors, self.mean, self.std)
         if self.errors.shape != (len(self.predictors), ERROR_DIM):
             raise ValueError(f"errors must be ({len(self.predictors)}, {ERROR_DIM}), got {self.errors.shape}")
-        if not (np.all(np.isfinite(self.predictors)) and np.all(np.isfinite(self.errors))):
-            raise ValueError("PROBE-GK training samples must be finite")
-        if self.mean is None or self.std is None:
-            self.mean = self.predictors.mean(axis=0) if len(self.predictors) else np.zeros(len(self.names))
-            std = self.predictors.std(axis=0) if len(self.predictors) else np.ones(len(self.names))
-            self.std = np.where(std > 1e-12, std, 1.0)
-        self.mean, self.std = np.asarray(self.mean, dtype=float), np.asarray(self.std, dtype=float)
-        self._tree = cKDTree(self.normalise(self.predictors)) if len(self.predictors) else None
+        if not np.all(np.isfinite(self.errors)):
+            raise ValueError("PROBE training samples must be finite")
+        self.mean, self.std, self._space = space.mean, space.std, space
+        self._tree = space.tree
         self._padded = np.vstack([self.errors, np.zeros((1, ERROR_DIM))])  # index M = "no neighbour"
 
     def normalise(self, predictors: Array) -> Array:
-        assert self.mean is not None and self.std is not None
-        return (np.asarray(predictors, dtype=float) - self.mean) / self.std
+        return self._space.normalise(predictors)
 
     def replace_errors(self, errors: Array) -> None:
         """New errors for the same samples (an EM step): the index over the predictors is kept."""

@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 from pvo_core.camera import StereoCamera
-from scipy.spatial import cKDTree
 
 from ..vo.solver import RobustLoss
+from .gk import PredictorSpace
 from .training import FramePair, solve_pair
 
 Array = NDArray[np.float64]
@@ -64,26 +64,20 @@ class KNNModel:
     def __post_init__(self) -> None:
         self.predictors = np.asarray(self.predictors, dtype=float)
         self.errors = np.asarray(self.errors, dtype=float).reshape(-1)
-        if self.predictors.ndim != 2 or self.predictors.shape[1] != len(self.names):
-            raise ValueError(f"predictors must be (M, {len(self.names)}) for {self.names}, got {self.predictors.shape}")
+        space = PredictorSpace.fit(self.names, self.predictors, self.mean, self.std)
         if len(self.errors) != len(self.predictors) or len(self.errors) == 0:
-            raise ValueError(
-                f"need one error per stored predictor (at least one), got {len(self.errors)} for {len(self.predictors)}"
-            )
-        if not (np.all(np.isfinite(self.predictors)) and np.all(np.isfinite(self.errors)) and np.all(self.errors >= 0.0)):
-            raise ValueError("PROBE k-NN training samples must be finite, errors non-negative")
-        if self.mean is None or self.std is None:
-            self.mean = self.predictors.mean(axis=0)
-            std = self.predictors.std(axis=0)
-            self.std = np.where(std > 1e-12, std, 1.0)
-        self.mean, self.std = np.asarray(self.mean, dtype=float), np.asarray(self.std, dtype=float)
-        self._tree = cKDTree((self.predictors - self.mean) / self.std)
+            raise ValueError(f"need one error per stored predictor (at least one): {len(self.errors)} for {len(self.predictors)}")
+        if not (np.all(np.isfinite(self.errors)) and np.all(self.errors >= 0.0)):
+            raise ValueError("PROBE k-NN training errors must be finite and non-negative")
+        self.mean, self.std, self._space = space.mean, space.std, space
+        assert space.tree is not None
+        self._tree = space.tree
         self.average_error = float(self.errors.mean())
 
     def weights(self, predictors: Array) -> Array:
         """beta (N,) of eq. A.6 at the query predictors (N, p)."""
         k = min(self.config.neighbours, len(self.errors))
-        _, index = self._tree.query((np.atleast_2d(predictors) - self.mean) / self.std, k=k)
+        _, index = self._tree.query(self._space.normalise(np.atleast_2d(predictors)), k=k)
         index = np.asarray(index).reshape(len(np.atleast_2d(predictors)), k)
         ratio = self.errors[index].mean(axis=1) / max(self.average_error, 1e-300)
         return ratio**self.config.gamma

@@ -18,11 +18,10 @@ PROBE of app. A.
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
-import time
 from pathlib import Path
 from typing import Any
+
+from .common import ExperimentRun
 
 TITLE = "PROBE (ch. 4, Table 4.1): fixed / M-estimator / PROBE-GK-GT / PROBE-GK-EM / k-NN, synthetic world and KITTI tracks"
 #: odometry sequence -> raw-derived file and the frames with left images in ../shared/data
@@ -56,14 +55,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..plots import pyplot
 
-    def say(line: str) -> None:
-        if not args.quiet:
-            print(line, file=sys.stderr, flush=True)
-
-    started = time.perf_counter()
-    command = "pvo " + shlex.join(getattr(args, "argv", sys.argv[1:]))
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    session = ExperimentRun.start(args)
+    say, command, out = session.say, session.command, session.out
     rows = (*ESTIMATORS, KNN_ROW)
     tables: dict[str, Any] = {"synthetic": {}}
     figures: dict[str, float] = {}
@@ -132,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         report += kitti_section(args, figures, tables, say)
     if args.corpus is not None:
         report += corpus_section(args, figures, tables, say)
-    report.append(f"Wall time {time.perf_counter() - started:.0f} s.")
+    report.append(f"Wall time {session.seconds:.0f} s.")
     (out / "report.md").write_text("\n".join(report) + "\n")
     RunResult("experiment", "probe", figures=figures, tables=tables, inputs={"seeds": " ".join(map(str, args.seeds))}).write(out)
     print("\n".join(report))

@@ -15,8 +15,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
-import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -25,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..paths import data_directory
+from .common import ExperimentRun
 
 TITLE = "Sun-BCNN (ch. 5): accuracy, cloud cover, Method I/II, fusion on the corpus's test sequences; KITTI transfer"
 Array = NDArray[np.float64]
@@ -241,7 +240,6 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import shlex
 
     from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
     from pvo_core.results import RunResult
@@ -259,14 +257,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..plots import pyplot
 
-    def say(line: str) -> None:
-        if not args.quiet:
-            print(line, file=sys.stderr, flush=True)
-
-    started = time.perf_counter()
-    command = "pvo " + shlex.join(getattr(args, "argv", sys.argv[1:]))
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    session = ExperimentRun.start(args)
+    say, command, out = session.say, session.command, session.out
     manifest = read_corpus_manifest(args.corpus)
     test = manifest.split("test")
     if not test:
@@ -504,7 +496,7 @@ def run(args: argparse.Namespace) -> int:
             figures[f"kitti.{r.label}.vector_median_deg"] = r.figures["vector_median_deg"]
             figures[f"kitti.{r.label}.anees"] = r.figures["anees"]
 
-    report.append(f"Wall time {time.perf_counter() - started:.0f} s.")
+    report.append(f"Wall time {session.seconds:.0f} s.")
     (out / "report.md").write_text("\n".join(report) + "\n")
     inputs = {
         "corpus": str(args.corpus),
