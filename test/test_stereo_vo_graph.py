@@ -193,3 +193,8 @@ def test_stereo_vo_with_probe_model_over_dds(ros_context, sample_bag: Path, pvo_
     for msg, result in zip(relative, expected[1:], strict=True):
         assert np.allclose(pose_to_matrix(msg.pose.pose), result.transform, atol=1e-9)
     assert not np.allclose(expected[-1].pose, baseline[-1].pose, atol=1e-6)  # the model changed the estimate
+
+
+def test_a_missing_probe_model_stops_the_node_at_start_with_one_line(ros_context, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match=r"PROBE model .*missing: no such directory"):
+        StereoVONode(context=ros_context, parameter_overrides=[Parameter("probe.model", value=str(tmp_path / "missing"))])

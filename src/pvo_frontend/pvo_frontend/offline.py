@@ -56,18 +56,20 @@ def run_sequence(
     images: Sequence[tuple[NDArray[np.uint8], NDArray[np.uint8]]] | None = None,
     progress: Callable[[], None] | None = None,
     feature_noise: FeatureNoise | None = None,
+    imu: Array | None = None,
 ) -> VORun:
     """Every frame of ``sequence`` through one :class:`StereoVO`; ``ValueError`` naming the image of a rejected frame.
 
     images: the pairs already decoded (benchmarks), else each is read from disk. feature_noise: the VO's
-    per-feature noise hook (PROBE), instead of the one ``config.probe.model`` names.
+    per-feature noise hook (PROBE), instead of the one ``config.probe.model`` names. imu: the IMU reading per
+    frame (N, 6) [wx, wy, wz, fx, fy, fz] (:func:`pvo_core.readers.imu_at_stamps`), for PROBE's IMU predictors.
     """
     vo = StereoVO(sequence.camera(), config, feature_noise)
     results, poses, seconds = [], [], []
     for i in range(len(sequence)):
         left, right = images[i] if images is not None else sequence.load_pair(i)
         tic = time.perf_counter()
-        result = vo.process(left, right, float(sequence.stamps[i]))
+        result = vo.process(left, right, float(sequence.stamps[i]), None if imu is None else imu[i])
         seconds.append(time.perf_counter() - tic)
         if result.status is FrameStatus.REJECTED:
             raise ValueError(f"{sequence.left_paths[i]}: frame rejected: {result.message}")

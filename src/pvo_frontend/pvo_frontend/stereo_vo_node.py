@@ -1,6 +1,8 @@
 """``stereo_vo``: the stereo VO node, a thin adapter around :class:`pvo_frontend.vo.StereoVO`.
 
-Subscribes: /stereo/{left,right}/image_rect (mono8/rgb8/bgr8), /stereo/{left,right}/camera_info.
+Subscribes: /stereo/{left,right}/image_rect (mono8/rgb8/bgr8), /stereo/{left,right}/camera_info, and
+/imu/data (sensor_msgs/Imu) when the PROBE model (``probe.model``) has IMU predictors: the reading nearest
+each frame (within 50 ms) feeds them; a frame without one gets the default noise.
 Publishes: /pvo/vo/relative (pvo_msgs/RelativePose, T_cur,prev with ROS-order covariance of a left
 perturbation), /pvo/vo/odometry and /pvo/vo/path (pose of camera_left_optical in odom),
 /pvo/vo/status (diagnostic_msgs/DiagnosticArray: features, inliers, iterations, stage times, lost).
@@ -19,18 +21,24 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry, Path
 from pvo_core.camera import StereoCamera
 from pvo_core.msgconv import fill_pose, fill_stamp, image_to_array, stamp_to_nanoseconds
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, Imu
 
 from pvo_msgs.msg import RelativePose
 from pvo_ros import ERROR, OK, SENSOR_QUEUE_DEPTH, WARN, PvoNode, reliable, run_node
 
+from .probe.model import ProbeModel, resolve_model
 from .vo import FrameResult, FrameStatus, StereoVO, VOConfig
 
 LEVELS = {FrameStatus.FIRST: OK, FrameStatus.TRACKING: OK, FrameStatus.LOST: WARN, FrameStatus.REJECTED: ERROR}
+
+
+IMU_HISTORY = 400  # IMU messages kept (2 s at 200 Hz) to find the one nearest a frame
+IMU_TOLERANCE_NS = 50_000_000
 
 
 @dataclass(frozen=True)
@@ -155,6 +163,9 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
         self.counts["skipped_overload"] = 0
         self.ledger = FrameLedger()
         self._previous_stamp_ns: int | None = None  # exact stamp of the last frame the VO accepted
+        # PROBE: the model is loaded here so that a bad probe.model stops the node at start-up with one line
+        self.probe = ProbeModel.load(resolve_model(self.config.probe.model)) if self.config.probe.model else None
+        self._imu: deque[tuple[int, np.ndarray]] = deque(maxlen=IMU_HISTORY)
 
         # The DDS queue must not be shallower than a short burst: a frame it overwrites is lost unreported,
         # while one the node drops (beyond max_pending_frames) is reported on /pvo/vo/status.
@@ -163,6 +174,9 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
         self.create_subscription(Image, "/stereo/right/image_rect", lambda m: self._on_image("right", m), qos)
         self.create_subscription(CameraInfo, "/stereo/left/camera_info", lambda m: self._on_info("left", m), qos)
         self.create_subscription(CameraInfo, "/stereo/right/camera_info", lambda m: self._on_info("right", m), qos)
+        if self.probe is not None and self.probe.predictors.imu:
+            self.counts["imu_rejected"] = 0
+            self.create_subscription(Imu, "/imu/data", self._on_imu, reliable(IMU_HISTORY))
         self.pub_relative = self.create_publisher(RelativePose, "/pvo/vo/relative", reliable(50))
         self.pub_odometry = self.create_publisher(Odometry, "/pvo/vo/odometry", reliable(50))
         self.pub_path = self.create_publisher(Path, "/pvo/vo/path", reliable(10))
@@ -188,7 +202,7 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
             except ValueError as exc:
                 self.problem(f"camera_info rejected: {exc}")
                 return
-            self.vo = StereoVO(camera, self.config)
+            self.vo = StereoVO(camera, self.config, self.probe.feature_noise() if self.probe is not None else None)
             waiting, self._waiting = self._waiting, []
             for pair in waiting:
                 self._process(*pair)
@@ -196,6 +210,24 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
                 f"stereo camera: f={camera.f:.2f} px, c=({camera.cu:.1f}, {camera.cv:.1f}) px, "
                 f"baseline={camera.baseline:.4f} m, {camera.width}x{camera.height}"
             )
+
+    def _on_imu(self, msg: Imu) -> None:
+        w, a = msg.angular_velocity, msg.linear_acceleration
+        reading = np.array([w.x, w.y, w.z, a.x, a.y, a.z], dtype=float)
+        stamp_ns = stamp_to_nanoseconds(msg.header.stamp)
+        if not np.all(np.isfinite(reading)):
+            self.counts["imu_rejected"] += 1
+            self.problem(f"/imu/data at {stamp_ns * 1e-9:.3f} s rejected: not finite")
+            return
+        self._imu.append((stamp_ns, reading))
+
+    def _imu_at(self, stamp_ns: int) -> np.ndarray | None:
+        """The IMU reading nearest the frame, within IMU_TOLERANCE_NS; None without one (PROBE then gives the
+        frame the default noise)."""
+        if not self._imu:
+            return None
+        stamp, reading = min(self._imu, key=lambda item: abs(item[0] - stamp_ns))
+        return reading if abs(stamp - stamp_ns) <= IMU_TOLERANCE_NS else None
 
     def _on_image(self, side: str, msg: Image) -> None:
         pair = self.sync.add(side, stamp_to_nanoseconds(msg.header.stamp), msg)
@@ -247,7 +279,7 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
                     f"image size {left.shape[1]}x{left.shape[0]} differs from camera_info {expected[1]}x{expected[0]}",
                 )
             else:
-                result = self.vo.process(left, right, stamp)
+                result = self.vo.process(left, right, stamp, self._imu_at(stamp_ns) if self._imu else None)
         self.counts["processed"] += 1
         if result.status is FrameStatus.REJECTED:
             self.counts["rejected"] += 1

@@ -110,3 +110,45 @@ def test_trained_on_kitti_frames_and_run_by_the_vo_through_probe_model(tmp_path:
     em = train_on_sequences([data], lambda d: kitti06.camera(), PREDICTORS, em=True, em_iterations=2)
     history = em.training["em_log_likelihood"]["06"]
     assert len(history) == 3 and history[-1] >= history[0]
+
+
+def imu_model(tmp_path: Path) -> Path:
+    """A GK model over image, track, IMU and geometry predictors (random samples: the test is the plumbing)."""
+    predictors = PredictorConfig(imu=True)
+    rng = np.random.default_rng(3)
+    phi = rng.normal(size=(400, len(predictors.names)))
+    gk = GKModel(predictors.names, phi, rng.normal(scale=2.0, size=(400, 3)), GKConfig())
+    return ProbeModel("gk", predictors, gk, {"note": "imu"}).save(tmp_path / "imu_model")
+
+
+def test_a_model_with_imu_predictors_reads_the_imu_and_falls_back_without(tmp_path: Path, kitti06: KittiSequence) -> None:
+    model = ProbeModel.load(imu_model(tmp_path))
+    assert model.predictors.imu
+    frames = KittiSequence(kitti06.root, rate_hz=10.0, poses_file=kitti06.poses_file, count=8)
+    plain = run_sequence(frames, VOConfig())
+    without = run_sequence(frames, VOConfig(), feature_noise=model.feature_noise())
+    imu = np.tile([0.01, -0.02, 0.0, 0.1, -9.8, 0.3], (len(frames), 1))
+    with_imu = run_sequence(frames, VOConfig(), feature_noise=model.feature_noise(), imu=imu)
+    np.testing.assert_array_equal(without.poses, plain.poses)  # no reading: the default noise, frame by frame
+    assert not np.allclose(with_imu.poses[-1], plain.poses[-1], atol=1e-9)
+    seen: list[np.ndarray] = []
+    hook = model.feature_noise()
+    from pvo_frontend.vo.features import StereoFeatures
+
+    left = np.array([[100.0, 100.0], [300.0, 200.0], [600.0, 150.0]])
+    features = StereoFeatures(left, left - [10.0, 0.0], np.arange(3), np.ones(3, dtype=np.int64))
+    image = np.zeros((370, 1226), np.uint8)
+    original = model.noise
+    model.noise = lambda *a, **k: seen.append(a[3]) or original(*a, **k)  # type: ignore[method-assign]
+    hook(features, features, image, np.array([3.0, 4.0, 0.0, 0.0, 6.0, 8.0]))
+    np.testing.assert_allclose(seen[0], [10.0, 5.0])  # (|specific force|, |angular rate|)
+
+
+def test_imu_readings_nearest_the_frames() -> None:
+    from pvo_core.readers import imu_at_stamps
+
+    rows = np.column_stack([np.arange(0.0, 1.0, 0.1), np.arange(10.0).repeat(6).reshape(10, 6)])
+    picked = imu_at_stamps(rows, np.array([0.0, 0.14, 0.16, 0.9]))
+    np.testing.assert_array_equal(picked[:, 0], [0.0, 1.0, 2.0, 9.0])
+    with pytest.raises(ValueError, match="no IMU reading within 0.05 s of the frame at 1.200 s"):
+        imu_at_stamps(rows, np.array([0.0, 1.2]))

@@ -81,3 +81,21 @@ def test_experiment_refuses_to_train_on_sequence_01(tmp_path: Path, capsys, driv
     args = ["experiment", "probe", "--train-seconds", "2", "--test-seconds", "2", "--seeds", "0", "--em-iterations", "1"]
     assert main([*args, "--train-drive", drive, "-o", str(tmp_path), "-q"]) == 2
     assert "kept for testing" in capsys.readouterr().err
+
+
+def test_train_with_the_imu_of_a_rendered_sequence_and_run_with_it(tmp_path: Path, capsys) -> None:
+    """`pvo sim` writes imu.csv: `pvo probe train --imu` reads it into the model's IMU predictors and `pvo vo
+    --probe` feeds the same readings to the VO; without imu.csv --imu is one clear line."""
+    seq = tmp_path / "seq"
+    assert main(["sim", str(seq), "--frames", "14", "--seed", "3"]) == 0
+    model = tmp_path / "model"
+    assert main(["probe", "train", str(seq), "--imu", "-o", str(model), "-q"]) == 0
+    card = yaml.safe_load((model / "model.yaml").read_text())
+    assert card["predictors"][-4:] == ["specific_force", "angular_rate", "disparity", "row"]
+    assert main(["vo", str(seq), "--probe", str(model), "-o", str(tmp_path / "t.txt"), "-q"]) == 0
+    assert len((tmp_path / "t.txt").read_text().splitlines()) == 14
+    (seq / "imu.csv").unlink()
+    capsys.readouterr()
+    assert main(["probe", "train", str(seq), "--imu", "-o", str(tmp_path / "m2"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--imu needs an imu.csv" in err

@@ -5,7 +5,7 @@ from .corpus import CorpusManifest, CorpusSequence, read_corpus_manifest
 from .devon import DevonDataset, SunSensorReading, read_devon_sun_sensor, read_devon_sun_sensor_sampled
 from .kitti import KittiSequence, read_kitti_calibration, read_kitti_sun_csv, read_kitti_times
 from .klt_tracks import KLTTracks, read_klt_tracks
-from .sidecars import SUN_PREDICTIONS_HEADER, read_gps_csv, read_imu_csv, read_sun_predictions_csv
+from .sidecars import SUN_PREDICTIONS_HEADER, imu_at_stamps, read_gps_csv, read_imu_csv, read_sun_predictions_csv
 from .viso2s import (
     SEQUENCE_DRIVES,
     KittiSunSequence,
@@ -27,6 +27,7 @@ __all__ = [
     "KittiSunSequence",
     "SunSensorReading",
     "Viso2sRun",
+    "imu_at_stamps",
     "read_corpus_manifest",
     "read_devon_sun_sensor",
     "read_devon_sun_sensor_sampled",

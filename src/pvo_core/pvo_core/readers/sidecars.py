@@ -45,6 +45,20 @@ def read_imu_csv(path: Path) -> Array:
     return _read_csv(path, "t,wx,wy,wz,fx,fy,fz", 7)
 
 
+def imu_at_stamps(rows: Array, stamps: Array, tolerance: float = 0.05) -> Array:
+    """The IMU reading nearest each stamp, (N, 6) [wx, wy, wz, fx, fy, fz], from ``read_imu_csv`` rows (M, 7)
+    whose times share the stamps' origin (s); a stamp farther than ``tolerance`` s from every reading is an error."""
+    times = rows[:, 0]
+    index = np.clip(np.searchsorted(times, stamps), 1, len(times) - 1) if len(times) > 1 else np.zeros(len(stamps), int)
+    if len(times) > 1:
+        index = np.where(np.abs(times[index - 1] - stamps) <= np.abs(times[index] - stamps), index - 1, index)
+    far = np.abs(times[index] - stamps) > tolerance
+    if np.any(far):
+        k = int(np.flatnonzero(far)[0])
+        raise ValueError(f"no IMU reading within {tolerance} s of the frame at {stamps[k]:.3f} s")
+    return rows[index, 1:7]
+
+
 def read_gps_csv(path: Path) -> Array:
     """(N, 4): t [s from the first frame], latitude, longitude (deg), altitude (m)."""
     return _read_csv(path, "t,latitude,longitude,altitude", 4)

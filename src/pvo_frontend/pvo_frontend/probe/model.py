@@ -41,6 +41,14 @@ def resolve_model(name: str) -> Path:
     return Path(name).expanduser()
 
 
+def imu_magnitudes(imu: Array | None) -> Array | None:
+    """(|specific force|, |angular rate|) of an IMU reading [wx, wy, wz, fx, fy, fz]; None for none."""
+    if imu is None:
+        return None
+    reading = np.asarray(imu, dtype=float).reshape(6)
+    return np.array([np.linalg.norm(reading[3:]), np.linalg.norm(reading[:3])])
+
+
 @dataclass
 class ProbeModel:
     """A trained PROBE model: its kind (``gk`` or ``knn``), the predictor settings, the estimator and the
@@ -131,10 +139,14 @@ class ProbeModel:
 
     # ------------------------------------------------------------------ in the VO
     def feature_noise(self) -> Any:
-        """The VO's noise hook (:data:`pvo_frontend.vo.pipeline.FeatureNoise`) for this model."""
+        """The VO's noise hook (:data:`pvo_frontend.vo.pipeline.FeatureNoise`) for this model; a model with IMU
+        predictors gives no estimate (the VO's default noise) for a frame without an IMU reading."""
 
-        def hook(before: Any, after: Any, image: NDArray[np.uint8]) -> Any:
-            return self.noise(before.left, after.left, image, disparity=before.observations()[:, 2])
+        def hook(before: Any, after: Any, image: NDArray[np.uint8], imu: Array | None = None) -> Any:
+            magnitudes = imu_magnitudes(imu)
+            if self.predictors.imu and magnitudes is None:
+                return None
+            return self.noise(before.left, after.left, image, magnitudes, before.observations()[:, 2])
 
         return hook
 

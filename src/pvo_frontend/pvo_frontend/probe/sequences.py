@@ -19,7 +19,7 @@ from ..vo.features import StereoFeatures
 from ..vo.pipeline import FeatureNoiseEstimate
 from .gk import GKConfig, GKModel
 from .knn import KNNConfig, KNNModel, train_knn
-from .model import ProbeModel
+from .model import ProbeModel, imu_magnitudes
 from .predictors import PredictorConfig, compute_predictors
 from .training import FramePair, train_expectation_maximisation, train_with_ground_truth
 
@@ -35,9 +35,12 @@ class FeatureRecorder:
         self.default_covariance = default_covariance
         self.pairs: list[FramePair] = []
 
-    def __call__(self, before: StereoFeatures, after: StereoFeatures, image: NDArray[np.uint8]) -> FeatureNoiseEstimate:
+    def __call__(
+        self, before: StereoFeatures, after: StereoFeatures, image: NDArray[np.uint8], imu: Array | None = None
+    ) -> FeatureNoiseEstimate:
         reference = before.observations()
-        phi = compute_predictors(self.predictors, before.left, after.left, image, disparity=reference[:, 2])
+        magnitudes = imu_magnitudes(imu)
+        phi = compute_predictors(self.predictors, before.left, after.left, image, magnitudes, reference[:, 2])
         self.pairs.append(FramePair(reference, after.observations(), phi))
         return FeatureNoiseEstimate(np.broadcast_to(self.default_covariance, (len(after), 3, 3)))
 
@@ -52,8 +55,13 @@ class SequenceData:
     true_motions: list[Array] | None = None
 
 
-def collect(sequence: KittiSequence, vo_config: VOConfig, predictors: PredictorConfig, name: str = "") -> SequenceData:
-    """Run the VO (without PROBE) over ``sequence``, keeping every frame pair it tracked and solved."""
+def collect(
+    sequence: KittiSequence, vo_config: VOConfig, predictors: PredictorConfig, name: str = "", imu: Array | None = None
+) -> SequenceData:
+    """Run the VO (without PROBE) over ``sequence``, keeping every frame pair it tracked and solved; ``imu``:
+    the IMU reading per frame (N, 6) [wx, wy, wz, fx, fy, fz], needed when the predictors use the IMU."""
+    if predictors.imu and imu is None:
+        raise ValueError(f"{name or sequence.root}: the IMU predictors need an IMU reading per frame (imu.csv)")
     config = replace(vo_config, probe=replace(vo_config.probe, model=""))
     sigma = np.asarray(config.solver.pixel_sigma, dtype=float)
     recorder = FeatureRecorder(predictors, np.diag(sigma**2))
@@ -64,7 +72,7 @@ def collect(sequence: KittiSequence, vo_config: VOConfig, predictors: PredictorC
     for i in range(len(sequence)):
         left, right = sequence.load_pair(i)
         before = len(recorder.pairs)
-        result = vo.process(left, right, float(sequence.stamps[i]))
+        result = vo.process(left, right, float(sequence.stamps[i]), None if imu is None else imu[i])
         if len(recorder.pairs) > before:
             pair = recorder.pairs.pop()
             if result.transform is not None and previous_frame is not None:

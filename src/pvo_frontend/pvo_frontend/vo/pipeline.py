@@ -41,8 +41,9 @@ class FeatureNoiseEstimate:
     keep: NDArray[np.bool_] | None = None
 
 
-#: (features in the reference frame, the same features in the current frame, the current left image)
-FeatureNoise = Callable[[StereoFeatures, StereoFeatures, NDArray[np.uint8]], FeatureNoiseEstimate]
+#: (features in the reference frame, the same features in the current frame, the current left image, the IMU
+#: reading at the frame [wx, wy, wz, fx, fy, fz] or None) -> the noise, or None for the default noise
+FeatureNoise = Callable[[StereoFeatures, StereoFeatures, NDArray[np.uint8], Array | None], FeatureNoiseEstimate | None]
 
 
 class FrameStatus(enum.Enum):
@@ -246,6 +247,7 @@ class StereoVO:
         self.pose = np.eye(4)
         self.pose_covariance = np.zeros((6, 6))
         self.frames = 0
+        self._imu: Array | None = None
 
     def reject(self, stamp: float, message: str) -> FrameResult:
         """A REJECTED result for an input refused before or by :meth:`process`: the state is unchanged."""
@@ -253,8 +255,10 @@ class StereoVO:
             stamp, FrameStatus.REJECTED, message, pose=self.pose.copy(), pose_covariance=self.pose_covariance.copy()
         )
 
-    def process(self, left: NDArray, right: NDArray, stamp: float) -> FrameResult:
-        """Process one rectified stereo pair taken at ``stamp`` (s)."""
+    def process(self, left: NDArray, right: NDArray, stamp: float, imu: Array | None = None) -> FrameResult:
+        """Process one rectified stereo pair taken at ``stamp`` (s); ``imu``: the IMU reading at that time,
+        [wx, wy, wz] rad/s and [fx, fy, fz] m/s² (only a PROBE model with IMU predictors reads it)."""
+        self._imu = None if imu is None else np.asarray(imu, dtype=float).reshape(6)
         t_start = time.perf_counter()
         timings: dict[str, float] = {}
         try:
@@ -325,7 +329,7 @@ class StereoVO:
         noise = FeatureNoiseEstimate(np.broadcast_to(self._default_cov, (n, 3, 3)))
         if self.feature_noise is not None:
             tic = time.perf_counter()
-            noise = self.feature_noise(before, after, left_img)
+            noise = self.feature_noise(before, after, left_img, self._imu) or noise
             timings["feature_noise"] = time.perf_counter() - tic
             if noise.keep is not None and int(noise.keep.sum()) >= cfg.tracking.min_inliers:
                 before, after = before.subset(noise.keep), after.subset(noise.keep)

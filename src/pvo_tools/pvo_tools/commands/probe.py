@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from .vo import open_sequence, vo_config
+from .vo import frame_imu, open_sequence, vo_config
 
 
 def register(sub: Any) -> None:
@@ -40,6 +40,7 @@ def register(sub: Any) -> None:
     train.add_argument("--start", type=int, default=0, help="first frame of every sequence")
     train.add_argument("--count", type=int, help="frames per sequence (default: all)")
     train.add_argument("--no-image", action="store_true", help="track predictors only (no image predictors)")
+    train.add_argument("--imu", action="store_true", help="IMU predictors too (SEQUENCE_DIR/imu.csv, or the .mat's IMU)")
     train.add_argument("--patch", type=int, default=32, help="patch side for the image predictors (px, default 32)")
     train.add_argument(
         "--radius", type=float, default=0.25, help="GK kernel support in normalised predictor units (default 0.25)"
@@ -75,7 +76,7 @@ def run_train(args: argparse.Namespace) -> int:
     if poses and len(poses) != len(args.sequences):
         raise ValueError(f"{len(poses)} --poses files for {len(args.sequences)} sequences (give one per sequence, in order)")
     config = vo_config(args.param)
-    predictors = PredictorConfig(patch=args.patch, image=not args.no_image)
+    predictors = PredictorConfig(patch=args.patch, image=not args.no_image, imu=args.imu)
     gk = GKConfig(radius=args.radius, max_neighbours=args.neighbours, prior_samples=args.prior_samples)
     data, cameras = [], {}
     for index, directory in enumerate(args.sequences):
@@ -88,7 +89,10 @@ def run_train(args: argparse.Namespace) -> int:
         if sequence.poses is None and not args.em:
             raise ValueError(f"{directory}: no poses.txt (give --poses, or --em to train without ground truth)")
         say(f"collecting tracks from {directory} ({len(sequence)} frames) ...")
-        collected = collect(sequence, config, predictors, name=str(directory))
+        imu = frame_imu(directory, sequence)
+        if args.imu and imu is None:
+            raise ValueError(f"{directory}: --imu needs an imu.csv (t,wx,wy,wz,fx,fy,fz)")
+        collected = collect(sequence, config, predictors, name=str(directory), imu=imu)
         cameras[collected.name] = sequence.camera()
         data.append(collected)
     command = "pvo " + shlex.join(getattr(args, "argv", sys.argv[1:]))
@@ -122,8 +126,9 @@ def run_eval(args: argparse.Namespace) -> int:
     if sequence.poses is None:
         raise ValueError(f"{args.sequence}: no poses to evaluate against (give --poses)")
     rows: dict[str, dict[str, float]] = {}
+    imu = frame_imu(args.sequence, sequence)
     for label, config in (("VO", base), ("VO + PROBE", with_probe)):
-        run = run_sequence(sequence, config)
+        run = run_sequence(sequence, config, imu=imu)
         summary = summarise(run, sequence.poses)
         figures = metrics.armse(sequence.poses, run.poses)
         rows[label] = {

@@ -60,6 +60,19 @@ def open_sequence(
     )
 
 
+def frame_imu(sequence_dir: Path, sequence: KittiSequence) -> np.ndarray | None:
+    """The IMU reading at each frame from ``SEQUENCE_DIR/imu.csv`` when there is one (`pvo sim` writes it)."""
+    from pvo_core.readers import imu_at_stamps, read_imu_csv
+
+    path = Path(sequence_dir) / "imu.csv"
+    if not path.is_file():
+        return None
+    try:
+        return imu_at_stamps(read_imu_csv(path), np.asarray(sequence.stamps, dtype=float))
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
 def vo_config(items: list[str] | None, params_file: Path | None = None) -> VOConfig:
     return from_flat(parse_overrides(items, params_file, node="stereo_vo"))
 
@@ -68,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     config = vo_config([*(args.param or []), *([f"probe.model={args.probe}"] if args.probe else [])], args.params_file)
     sequence = open_sequence(args.sequence_dir, args.rate, args.times, args.colour, args.start, args.count, args.poses)
     bar = None if args.quiet else Progress(len(sequence), "vo")
-    vo_run = run_sequence(sequence, config, progress=bar.update if bar else None)
+    vo_run = run_sequence(sequence, config, progress=bar.update if bar else None, imu=frame_imu(args.sequence_dir, sequence))
     if bar:
         bar.close()
     args.out.parent.mkdir(parents=True, exist_ok=True)
