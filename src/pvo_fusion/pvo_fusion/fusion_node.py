@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -122,6 +122,9 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         self.graph = FusionGraph(self.config, self._static_sun_reference())
         self.output = ContinuousOutput.from_config(self.config)
         self.latencies_ms: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        # measurements other than VO handed to the graph, by kind: the status carries them so that an offline
+        # replay can reproduce the order in which the node saw its inputs
+        self.handled: Counter[str] = Counter()
         self._waiting_vo: list[RelativePose] = []
         self._ground_truth: dict[int, np.ndarray] = {}
         self._initial_known = self.config.prior.source == "identity"
@@ -267,6 +270,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
 
     def _other(self, name: str, add: Any, measurement: Any) -> None:
         outcome = add(measurement)
+        self.handled[name] += 1
         if outcome not in (ACCEPTED, BUFFERED):
             self._publish_status(measurement.stamp, f"{name}: {outcome}")
 
@@ -323,6 +327,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         }
         values.update({f"factors.{k}": v for k, v in sorted(self.graph.factor_counts.items())})
         values.update({f"count.{k}": v for k, v in sorted(self.graph.counts.items()) if v})
+        values.update({f"handled.{k}": v for k, v in sorted(self.handled.items())})
         self.publish_status(stamp, self.settings.map_frame, level, message, values)
 
 

@@ -20,6 +20,7 @@ from pvo_fusion import (
     OfflineResult,
     RelativeMeasurement,
     SunMeasurement,
+    events_in_node_order,
     ordered_events,
     run_offline,
     sun_events,
@@ -49,11 +50,13 @@ def run_pipeline(
     fusion_config: FusionConfig,
     sun_reference: SunReference | None,
     initial_pose: Array,
+    sun_handled: dict[int, int] | None = None,
 ) -> PipelineResult:
     """Every stereo pair through :class:`StereoVO`; the sun from every ground-truth sun vector through the
     simulated sun sensor (``sun_config``: a :class:`SimulatedSunConfig`) or from every left image through
     Sun-BCNN (a :class:`~pvo_pseudosensors.sun_bcnn.estimator.SunBCNNSensorConfig`); both through a
-    :class:`FusionGraph` in arrival order (:func:`pvo_fusion.run_offline`)."""
+    :class:`FusionGraph` in arrival order (:func:`pvo_fusion.run_offline`), or in the order a fusion node saw
+    them (``sun_handled``: VO stamp -> suns handled by then, from its status)."""
     camera = StereoCamera.from_camera_infos(sample.left_info, sample.right_info)
     vo = StereoVO(camera, vo_config)
     stamps = sample.frame_stamps
@@ -71,7 +74,12 @@ def run_pipeline(
     sun = simulated_sun(sample, sun_config) if isinstance(sun_config, SimulatedSunConfig) else learned_sun(sample, sun_config)
     graph = FusionGraph(fusion_config, sun_reference)
     graph.set_initial_pose(initial_pose)
-    fused = run_offline(graph, stamps, ordered_events(measurements, sun_events(sun)), covariance_every=1)
+    events = (
+        ordered_events(measurements, sun_events(sun))
+        if sun_handled is None
+        else events_in_node_order(measurements, "sun", sun, sun_handled)
+    )
+    fused = run_offline(graph, stamps, events, covariance_every=1)
     return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused)
 
 

@@ -223,19 +223,21 @@ class SequenceComparison:
 
 
 def compare_on_sequences(
-    sequences: Sequence[tuple[str, KittiSequence]],
+    sequences: Sequence[tuple[str, KittiSequence, Array | None]],
     vo_config: VOConfig,
     model: ProbeModel,
     say: Callable[[str], None] | None = None,
 ) -> list[SequenceComparison]:
-    """Each (name, sequence with poses) through the default VO and the VO with ``model``'s noise."""
+    """Each (name, sequence with poses, its IMU per frame or None) through the default VO and the VO with
+    ``model``'s noise."""
     from ..offline import run_sequence
 
     out = []
-    for name, sequence in sequences:
+    for name, sequence, imu in sequences:
         assert sequence.poses is not None
         default = metrics.armse(sequence.poses, run_sequence(sequence, vo_config).poses)
-        probe = metrics.armse(sequence.poses, run_sequence(sequence, vo_config, feature_noise=model.feature_noise()).poses)
+        with_probe = run_sequence(sequence, vo_config, feature_noise=model.feature_noise(), imu=imu)
+        probe = metrics.armse(sequence.poses, with_probe.poses)
         result = SequenceComparison(name, {k: default[k] for k in ("trans", "rot")}, {k: probe[k] for k in ("trans", "rot")})
         out.append(result)
         if say:

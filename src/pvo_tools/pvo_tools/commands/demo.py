@@ -194,8 +194,11 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     from pvo_frontend.vo import VOConfig
 
     from ..pipeline import run_pipeline
+    from ..recorded import read_handled_counts
 
     fusion_config: FusionConfig = fusion_from_flat(fusion_overrides)
+    # the objects see the measurements in the order the fusion node saw them (a sun message late under load
+    # is fused later there, and here too)
     ros_free = run_pipeline(
         sample,
         VOConfig(),
@@ -203,6 +206,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         fusion_config,
         TabulatedSunReference.read(reference_table),
         xyz_xyzw_to_pose(initial_pose),
+        read_handled_counts(recorded_bag) or None,
     )
     result = evaluate_sample(bag.name, recorded_bag, stamps, ground_truth, ros_free, out, sun_node)
     result.seconds = time.perf_counter() - start
