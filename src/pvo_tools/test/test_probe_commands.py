@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from pvo_tools.cli import main
@@ -99,3 +100,15 @@ def test_train_with_the_imu_of_a_rendered_sequence_and_run_with_it(tmp_path: Pat
     assert main(["probe", "train", str(seq), "--imu", "-o", str(tmp_path / "m2"), "-q"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--imu needs an imu.csv" in err
+
+
+def test_experiment_hydranet_1d_writes_its_report(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "h1d"
+    args = ["experiment", "hydranet-1d", "--repetitions", "1", "--steps", "30", "--heads", "3", "--bags", "2", "--threads", "1"]
+    assert main([*args, "-o", str(out), "-q"]) == 0
+    report = (out / "report.md").read_text()
+    assert "hydranet_no_aleatoric" in report and (out / "nll_boxplot.png").is_file() and (out / "bands.png").is_file()
+    figures = json.loads((out / "metrics.json").read_text())["figures"]
+    assert np.isfinite(figures["bagging.nll_out_median"])
+    assert main([*args[:2], "--repetitions", "0", "-o", str(out), "-q"]) == 2
+    capsys.readouterr()

@@ -12,6 +12,7 @@ EXPERIMENTS: dict[str, str] = {
     "sun-sim": "pvo_tools.experiments.sun_sim",
     "sun-bcnn": "pvo_tools.experiments.sun_bcnn",
     "probe": "pvo_tools.experiments.probe",
+    "hydranet-1d": "pvo_tools.experiments.hydranet_1d",
 }
 
 
