@@ -40,13 +40,18 @@ def ordered_events(vo: Sequence[RelativeMeasurement], others: Iterable[tuple[str
 
 
 def events_in_node_order(
-    vo: Sequence[RelativeMeasurement], kind: str, others: Sequence[Measurement], handled: dict[int, int]
+    vo: Sequence[RelativeMeasurement],
+    kind: str,
+    others: Sequence[Measurement],
+    handled: dict[int, int],
+    keep_unreported: bool = True,
 ) -> list[Event]:
     """The order a fusion node saw its inputs in. The node handles one message at a time and reports each VO
     frame right after handling it, so the ``others`` (of ``kind``, in the order they were published) counted
     between the report of one frame and the next (``handled``: VO stamp -> count, ``handled.<kind>`` of
-    /pvo/fusion/status) came before that next frame. A frame without a report keeps the previous count; what
-    was never reported comes at the end."""
+    /pvo/fusion/status) came before that next frame. A frame without a report keeps the previous count. What
+    no report counts came after the last frame: at the end, or left out (``keep_unreported`` False) to compare
+    with outputs the node published at its last frame."""
     events: list[Event] = []
     done = 0
     for m in vo:
@@ -55,7 +60,8 @@ def events_in_node_order(
             events.append((kind, others[done]))
             done += 1
         events.append(("vo", m))
-    events.extend((kind, m) for m in others[done:])
+    if keep_unreported:
+        events.extend((kind, m) for m in others[done:])
     return events
 
 

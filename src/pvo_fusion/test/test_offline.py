@@ -157,3 +157,5 @@ def test_events_in_node_order_reproduce_a_late_measurement() -> None:
     # without a report for a frame the count carries over; suns never reported come at the end
     tail = events_in_node_order(vo[:2], "sun", suns, {1: 1})
     assert [(kind, int(m.stamp)) for kind, m in tail] == [("sun", 0), ("vo", 1), ("vo", 2), ("sun", 2), ("sun", 4)]
+    dropped = events_in_node_order(vo[:2], "sun", suns, {1: 1}, keep_unreported=False)
+    assert [(kind, int(m.stamp)) for kind, m in dropped] == [("sun", 0), ("vo", 1), ("vo", 2)]

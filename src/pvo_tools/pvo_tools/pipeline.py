@@ -51,12 +51,15 @@ def run_pipeline(
     sun_reference: SunReference | None,
     initial_pose: Array,
     sun_handled: dict[int, int] | None = None,
+    sun_stamps: list[int] | None = None,
 ) -> PipelineResult:
     """Every stereo pair through :class:`StereoVO`; the sun from every ground-truth sun vector through the
     simulated sun sensor (``sun_config``: a :class:`SimulatedSunConfig`) or from every left image through
     Sun-BCNN (a :class:`~pvo_pseudosensors.sun_bcnn.estimator.SunBCNNSensorConfig`); both through a
     :class:`FusionGraph` in arrival order (:func:`pvo_fusion.run_offline`), or in the order a fusion node saw
-    them (``sun_handled``: VO stamp -> suns handled by then, from its status)."""
+    them (``sun_handled``: VO stamp -> suns handled by then, from its status; suns it handled only after its
+    last frame are left out, as its last outputs did not see them); ``sun_stamps``: the frames a
+    ``sun_bcnn`` node estimated at (it counts the images it receives: one it never got shifts its choice)."""
     camera = StereoCamera.from_camera_infos(sample.left_info, sample.right_info)
     vo = StereoVO(camera, vo_config)
     stamps = sample.frame_stamps
@@ -71,13 +74,16 @@ def run_pipeline(
             previous = int(stamp)
         poses.append(result.pose)
         covariances.append(result.pose_covariance)
-    sun = simulated_sun(sample, sun_config) if isinstance(sun_config, SimulatedSunConfig) else learned_sun(sample, sun_config)
+    if isinstance(sun_config, SimulatedSunConfig):
+        sun = simulated_sun(sample, sun_config)
+    else:
+        sun = learned_sun(sample, sun_config, sun_stamps)
     graph = FusionGraph(fusion_config, sun_reference)
     graph.set_initial_pose(initial_pose)
     events = (
         ordered_events(measurements, sun_events(sun))
         if sun_handled is None
-        else events_in_node_order(measurements, "sun", sun, sun_handled)
+        else events_in_node_order(measurements, "sun", sun, sun_handled, keep_unreported=False)
     )
     fused = run_offline(graph, stamps, events, covariance_every=1)
     return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused)
@@ -94,15 +100,15 @@ def simulated_sun(sample: StereoSample, config: SimulatedSunConfig) -> list[SunM
     return sun
 
 
-def learned_sun(sample: StereoSample, config: Any) -> list[SunMeasurement]:
-    """What ``sun_bcnn`` publishes for the sample's left images (every N-th, the first included)."""
+def learned_sun(sample: StereoSample, config: Any, stamps: list[int] | None = None) -> list[SunMeasurement]:
+    """What ``sun_bcnn`` publishes for the sample's left images: every N-th (the first included), or the
+    frames at ``stamps`` (in order: the sensor's dropout seed counts its estimates)."""
     from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensor
 
     sensor = SunBCNNSensor(config)
+    frames = [int(s) for k, s in enumerate(sample.frame_stamps) if not k % config.every_n] if stamps is None else stamps
     sun = []
-    for k, stamp in enumerate(sample.frame_stamps):
-        if k % config.every_n:
-            continue
+    for stamp in frames:
         estimate = sensor.estimate(image_to_array(sample.pairs[int(stamp)][0]))
         sun.append(SunMeasurement(int(stamp), estimate.direction, estimate.covariance))
     return sun

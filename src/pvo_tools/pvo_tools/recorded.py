@@ -92,3 +92,14 @@ def read_handled_counts(bag: Path, kind: str = "sun", topic: str = "/pvo/fusion/
                     values = {v.key: v.value for v in status.values}
                     counts[stamp] = int(values.get(f"handled.{kind}", 0))
     return counts
+
+
+def read_header_stamps(bag: Path, topic: str) -> list[int]:
+    """Header stamps (ns) of every message on ``topic``, in recording order."""
+    store = project_typestore()
+    stamps = []
+    with open_bag(bag) as reader:
+        for connection, _, raw in iter_messages(reader):
+            if connection.topic == topic:
+                stamps.append(stamp_to_nanoseconds(store.deserialize_cdr(raw, connection.msgtype).header.stamp))
+    return stamps

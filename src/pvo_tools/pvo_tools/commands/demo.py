@@ -194,11 +194,11 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     from pvo_frontend.vo import VOConfig
 
     from ..pipeline import run_pipeline
-    from ..recorded import read_handled_counts
+    from ..recorded import read_handled_counts, read_header_stamps
 
     fusion_config: FusionConfig = fusion_from_flat(fusion_overrides)
-    # the objects see the measurements in the order the fusion node saw them (a sun message late under load
-    # is fused later there, and here too)
+    sun_stamps = read_header_stamps(recorded_bag, "/pvo/sun/direction")
+    # the objects estimate the sun at the frames the sun node chose (it counts the images it received)
     ros_free = run_pipeline(
         sample,
         VOConfig(),
@@ -206,12 +206,24 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         fusion_config,
         TabulatedSunReference.read(reference_table),
         xyz_xyzw_to_pose(initial_pose),
-        read_handled_counts(recorded_bag) or None,
+        sun_stamps=sun_stamps if sun_node == "sun_bcnn" else None,
     )
-    result = evaluate_sample(bag.name, recorded_bag, stamps, ground_truth, ros_free, out, sun_node)
+    late = late_frames(read_handled_counts(recorded_bag), stamps, sun_stamps)
+    result = evaluate_sample(bag.name, recorded_bag, stamps, ground_truth, ros_free, out, sun_node, late)
     result.seconds = time.perf_counter() - start
     result.figures["timing"] = {"graph_s": graph_seconds, "total_s": result.seconds}
     return result
+
+
+def late_frames(handled: dict[int, int], stamps: Any, sun_stamps: list[int]) -> list[int]:
+    """Frames the fusion node processed before a sun message of an earlier frame had reached it (its status
+    reports ``handled.sun`` per frame): there it fused in another order than the objects do."""
+    late = []
+    for k in range(1, len(stamps)):
+        due = sum(1 for s in sun_stamps if s < int(stamps[k]))
+        if int(stamps[k]) in handled and handled[int(stamps[k])] < due:
+            late.append(k)
+    return late
 
 
 def run_graph(
@@ -311,7 +323,14 @@ def run_graph(
 
 
 def evaluate_sample(
-    name: str, recorded_bag: Path, stamps: Any, ground_truth: Any, ros_free: Any, out: Path, sun_node: str = "simulated_sun"
+    name: str,
+    recorded_bag: Path,
+    stamps: Any,
+    ground_truth: Any,
+    ros_free: Any,
+    out: Path,
+    sun_node: str = "simulated_sun",
+    late: list[int] | None = None,
 ) -> SampleResult:
     """Metrics of VO alone and fused against the ground truth, agreement with the ROS-free run, report files."""
     from pvo_core.evaluation import evaluate, pose_consistency
@@ -357,7 +376,16 @@ def evaluate_sample(
             online[plain], ros_free.fused.online_poses[plain]
         ),
     }
-    worst = max(agreement.values())
+    if late:
+        # the fusion node fused some sun message after a later frame: the order, not the code, differs, so
+        # the fused estimates are not compared (the VO still is, exactly)
+        agreement = {"vo_max_position_difference_m": agreement["vo_max_position_difference_m"], "late_sun_frames": len(late)}
+        print(
+            f"{name}: the fusion node saw a sun message after a later frame at {len(late)} frame(s) (first {late[0]}): "
+            "fused estimates not compared with the objects, the VO is",
+            flush=True,
+        )
+    worst = max(v for k, v in agreement.items() if k.endswith("_m"))
     figures["agreement_with_ros_free"] = agreement
     table = format_demo_table(name, figures)
     record = RunResult(
@@ -398,11 +426,13 @@ def format_demo_table(name: str, figures: dict[str, dict[str, Any]]) -> str:
             f"{f['rpe_translation_mean_m']:>11.4f}{f['rpe_rotation_mean_deg']:>10.4f}{anees}"
         )
     a = figures["agreement_with_ros_free"]
-    lines.append(
-        f"nodes vs ROS-free objects, max position difference: VO {a['vo_max_position_difference_m']:.1e} m, "
+    fused = (
         f"fused smoothed {a['fused_smoothed_max_position_difference_m']:.1e} m, "
         f"fused online {a['fused_online_max_position_difference_m']:.1e} m"
+        if "late_sun_frames" not in a
+        else f"fused not compared (a sun message reached the fusion after a later frame at {a['late_sun_frames']} frames)"
     )
+    lines.append(f"nodes vs ROS-free objects, max position difference: VO {a['vo_max_position_difference_m']:.1e} m, {fused}")
     return "\n".join(lines)
 
 
