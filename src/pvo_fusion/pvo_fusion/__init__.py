@@ -5,7 +5,7 @@ from .calibration import CalibrationSequence, VOCalibration, calibrate_vo, vo_me
 from .config import FusionConfig
 from .graph import FusedPose, FusionGraph
 from .measurements import RelativeMeasurement, SunMeasurement
-from .offline import OfflineResult, events_in_node_order, ordered_events, run_offline, sun_events
+from .offline import OfflineResult, ordered_events, run_offline, sun_events
 
 __all__ = [
     "CalibrationSequence",
@@ -17,7 +17,6 @@ __all__ = [
     "SunMeasurement",
     "VOCalibration",
     "calibrate_vo",
-    "events_in_node_order",
     "ordered_events",
     "run_offline",
     "sun_events",

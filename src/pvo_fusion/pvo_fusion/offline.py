@@ -39,32 +39,6 @@ def ordered_events(vo: Sequence[RelativeMeasurement], others: Iterable[tuple[str
     return events
 
 
-def events_in_node_order(
-    vo: Sequence[RelativeMeasurement],
-    kind: str,
-    others: Sequence[Measurement],
-    handled: dict[int, int],
-    keep_unreported: bool = True,
-) -> list[Event]:
-    """The order a fusion node saw its inputs in. The node handles one message at a time and reports each VO
-    frame right after handling it, so the ``others`` (of ``kind``, in the order they were published) counted
-    between the report of one frame and the next (``handled``: VO stamp -> count, ``handled.<kind>`` of
-    /pvo/fusion/status) came before that next frame. A frame without a report keeps the previous count. What
-    no report counts came after the last frame: at the end, or left out (``keep_unreported`` False) to compare
-    with outputs the node published at its last frame."""
-    events: list[Event] = []
-    done = 0
-    for m in vo:
-        target = min(handled.get(int(m.stamp), done), len(others))
-        while done < target:
-            events.append((kind, others[done]))
-            done += 1
-        events.append(("vo", m))
-    if keep_unreported:
-        events.extend((kind, m) for m in others[done:])
-    return events
-
-
 def sun_events(sun: Iterable[SunMeasurement]) -> list[Event]:
     return [("sun", m) for m in sun]
 

@@ -141,21 +141,3 @@ def test_ephemeris_in_a_map_frame_found_from_the_gps_track() -> None:
     with pytest.raises(ValueError, match="straight line"):
         line = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
         TabulatedSunReference.from_ephemeris_in_map(stamps, enu_to_geodetic(origin, line), line)
-
-
-def test_events_in_node_order_reproduce_a_late_measurement() -> None:
-    """Reports: 1 sun handled by frame 1 (sun 0 came before VO 1), still 1 at frame 2 and 3, 2 at frame 4 (sun 2
-    came after VO 3: late, under load), 3 at frame 5 (sun 4 after VO 4)."""
-    from pvo_fusion import RelativeMeasurement, SunMeasurement, events_in_node_order
-
-    vo = [RelativeMeasurement(k, k - 1, np.eye(4), np.eye(6)) for k in range(1, 6)]
-    suns = [SunMeasurement(k, np.array([0.0, 0.0, 1.0]), np.eye(2)) for k in (0, 2, 4)]
-    order = events_in_node_order(vo, "sun", suns, {1: 1, 2: 1, 3: 1, 4: 2, 5: 3})
-    assert [(kind, int(m.stamp)) for kind, m in order] == [
-        ("sun", 0), ("vo", 1), ("vo", 2), ("vo", 3), ("sun", 2), ("vo", 4), ("sun", 4), ("vo", 5),
-    ]  # fmt: skip
-    # without a report for a frame the count carries over; suns never reported come at the end
-    tail = events_in_node_order(vo[:2], "sun", suns, {1: 1})
-    assert [(kind, int(m.stamp)) for kind, m in tail] == [("sun", 0), ("vo", 1), ("vo", 2), ("sun", 2), ("sun", 4)]
-    dropped = events_in_node_order(vo[:2], "sun", suns, {1: 1}, keep_unreported=False)
-    assert [(kind, int(m.stamp)) for kind, m in dropped] == [("sun", 0), ("vo", 1), ("vo", 2)]

@@ -20,7 +20,6 @@ from pvo_fusion import (
     OfflineResult,
     RelativeMeasurement,
     SunMeasurement,
-    events_in_node_order,
     ordered_events,
     run_offline,
     sun_events,
@@ -50,16 +49,14 @@ def run_pipeline(
     fusion_config: FusionConfig,
     sun_reference: SunReference | None,
     initial_pose: Array,
-    sun_handled: dict[int, int] | None = None,
     sun_stamps: list[int] | None = None,
 ) -> PipelineResult:
     """Every stereo pair through :class:`StereoVO`; the sun from every ground-truth sun vector through the
     simulated sun sensor (``sun_config``: a :class:`SimulatedSunConfig`) or from every left image through
     Sun-BCNN (a :class:`~pvo_pseudosensors.sun_bcnn.estimator.SunBCNNSensorConfig`); both through a
-    :class:`FusionGraph` in arrival order (:func:`pvo_fusion.run_offline`), or in the order a fusion node saw
-    them (``sun_handled``: VO stamp -> suns handled by then, from its status; suns it handled only after its
-    last frame are left out, as its last outputs did not see them); ``sun_stamps``: the frames a
-    ``sun_bcnn`` node estimated at (it counts the images it receives: one it never got shifts its choice)."""
+    :class:`FusionGraph` in the usual arrival order (:func:`pvo_fusion.run_offline`; each sun before the next
+    frame); ``sun_stamps``: the frames a ``sun_bcnn`` node estimated at (it counts the images it receives: one it
+    never got shifts its choice)."""
     camera = StereoCamera.from_camera_infos(sample.left_info, sample.right_info)
     vo = StereoVO(camera, vo_config)
     stamps = sample.frame_stamps
@@ -80,12 +77,7 @@ def run_pipeline(
         sun = learned_sun(sample, sun_config, sun_stamps)
     graph = FusionGraph(fusion_config, sun_reference)
     graph.set_initial_pose(initial_pose)
-    events = (
-        ordered_events(measurements, sun_events(sun))
-        if sun_handled is None
-        else events_in_node_order(measurements, "sun", sun, sun_handled, keep_unreported=False)
-    )
-    fused = run_offline(graph, stamps, events, covariance_every=1)
+    fused = run_offline(graph, stamps, ordered_events(measurements, sun_events(sun)), covariance_every=1)
     return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused)
 
 
