@@ -14,17 +14,20 @@ setup(
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/models/sun_bcnn", glob("models/sun_bcnn/*")),
         ("share/" + package_name + "/models/sun_bcnn_kitti", glob("models/sun_bcnn_kitti/*")),
+        ("share/" + package_name + "/models/hydranet", glob("models/hydranet/*")),
+        ("share/" + package_name + "/models/hydranet_kitti", glob("models/hydranet_kitti/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="pvo maintainers",
     maintainer_email="maintainers@pvo-project.org",
-    description="Pseudo-sensors of pvo: the learning harness, Sun-BCNN, the simulated sun (and later DPC-Net, HydraNet)",
+    description="Pseudo-sensors of pvo: the learning harness, Sun-BCNN, the simulated sun HydraNet (and later DPC-Net)",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "simulated_sun = pvo_pseudosensors.simulated_sun_node:main",
             "sun_bcnn = pvo_pseudosensors.sun_bcnn_node:main",
+            "hydranet = pvo_pseudosensors.hydranet_node:main",
         ]
     },
 )

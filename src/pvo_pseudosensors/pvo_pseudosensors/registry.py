@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from .learning.spec import DataSpec
@@ -16,7 +17,11 @@ from .learning.spec import DataSpec
 class ModelEntry:
     """name: the command (`pvo NAME ...`); config: the model's settings dataclass (its fields become
     `train` options); task: settings -> Task; spec: settings -> what the dataset must carry;
-    predict / evaluate: the library calls behind `predict` and `eval`."""
+    dataset: (settings, sources, cache directory, progress) -> a torch Dataset, when the model reads
+    something else than :class:`~.learning.data.FrameDataset`'s samples; predict: the library call behind
+    `predict` (an object with ``frames`` and ``write_csv``); evaluate: (prediction file, truth file) ->
+    figures, behind `eval`, and summary: figures -> the lines it prints; truth: what `eval --gt` takes;
+    mc_sampling: `predict` takes MC-dropout options (--samples, --seed, --mode)."""
 
     name: str
     description: str
@@ -24,8 +29,12 @@ class ModelEntry:
     task: Callable[[Any], Any]
     spec: Callable[[Any], DataSpec]
     predict: Callable[..., Any]
-    evaluate: Callable[..., dict[str, float]]
+    evaluate: Callable[[Path, Path], dict[str, float]]
+    summary: Callable[[dict[str, float]], list[str]]
+    truth: str
     calibrate: Callable[..., dict[str, float]] | None = None  # model dir, validation sequences -> card figures
+    dataset: Callable[..., Any] | None = None
+    mc_sampling: bool = True
     prediction_header: str = ""
     options: dict[str, str] = field(default_factory=dict)  # option help per config field
 
@@ -56,10 +65,26 @@ def _sun_bcnn() -> ModelEntry:
         write_card(model_dir, card)
         return figures
 
-    def evaluate(predictions, truth):
+    def evaluate(prediction_file: Path, truth_file: Path) -> dict[str, float]:
+        from pvo_core.readers import read_kitti_sun_csv, read_sun_predictions_csv
+
         from .sun_bcnn.evaluation import evaluate_predictions
 
-        return evaluate_predictions(predictions, truth)
+        predictions = read_sun_predictions_csv(prediction_file)
+        truth = read_kitti_sun_csv(truth_file)
+        frames = predictions[:, 0].astype(int)
+        if frames.max() >= len(truth):
+            raise ValueError(f"{prediction_file}: frame {frames.max()} is beyond the {len(truth)} rows of {truth_file}")
+        return evaluate_predictions(predictions, truth[frames])
+
+    def summary(figures: dict[str, float]) -> list[str]:
+        lines = [f"{'images':<22} {int(figures['images'])}"]
+        for name in ("vector", "zenith", "azimuth"):
+            lines.append(
+                f"{name + ' error (deg)':<22} mean {figures[f'{name}_mean_deg']:7.2f}   "
+                f"median {figures[f'{name}_median_deg']:7.2f}"
+            )
+        return [*lines, f"{'ANEES (zenith, azimuth)':<22} {figures['anees']:.3f}"]
 
     return ModelEntry(
         name="sun-bcnn",
@@ -69,6 +94,8 @@ def _sun_bcnn() -> ModelEntry:
         spec=lambda config: config.spec,
         predict=predict,
         evaluate=evaluate,
+        summary=summary,
+        truth="true sun vectors (sun.csv of the sequence)",
         calibrate=calibrate,
         prediction_header=SUN_PREDICTIONS_HEADER,
         options={
@@ -86,7 +113,78 @@ def _sun_bcnn() -> ModelEntry:
     )
 
 
+def _hydranet() -> ModelEntry:
+    from pvo_core.readers import ROTATION_PREDICTIONS_HEADER
+
+    from .hydranet.config import HydraNetConfig
+
+    def task(config: HydraNetConfig):
+        from .hydranet.model import HydraTask
+
+        return HydraTask(config)
+
+    def dataset(config: HydraNetConfig, sources, cache_dir, progress=None, training: bool = True):
+        from .hydranet.flow import FlowPairs
+
+        return FlowPairs(sources, config.size, reverse=config.reverse and training, cache_dir=cache_dir, progress=progress)
+
+    def predict(model_dir, sequence, cache_dir=None, **_mc):
+        from .hydranet.infer import load_hydranet, predict_sequence
+
+        model, card = load_hydranet(model_dir)
+        return predict_sequence(model, card, sequence, cache_dir=cache_dir)
+
+    def evaluate(prediction_file: Path, truth_file: Path) -> dict[str, float]:
+        from pvo_core.readers import read_rotation_predictions_csv
+        from pvo_core.trajectory import read_kitti_poses
+
+        from .hydranet.evaluation import evaluate_rotations, true_relative_rotations
+
+        rows = read_rotation_predictions_csv(prediction_file)
+        poses = read_kitti_poses(truth_file)
+        frames = rows[:, :2].astype(int)
+        if frames.max() >= len(poses):
+            raise ValueError(f"{prediction_file}: frame {frames.max()} is beyond the {len(poses)} poses of {truth_file}")
+        truth = true_relative_rotations(poses, frames[:, 0], frames[:, 1])
+        return evaluate_rotations(rows[:, 2:6], rows[:, 6:].reshape(-1, 3, 3), truth)
+
+    def summary(figures: dict[str, float]) -> list[str]:
+        return [
+            f"{'frame pairs':<24} {int(figures['pairs'])}",
+            f"{'angular error (deg)':<24} mean {figures['angle_mean_deg']:.4f}   median {figures['angle_median_deg']:.4f}"
+            f"   rms {figures['angle_rms_deg']:.4f}",
+            f"{'NLL (eq. 7.17)':<24} {figures['nll']:.3f}",
+            f"{'ANEES':<24} {figures['anees']:.3f}",
+        ]
+
+    return ModelEntry(
+        name="hydranet",
+        description="HydraNet: relative rotations with epistemic and aleatoric covariance (thesis ch. 7)",
+        config=HydraNetConfig,
+        task=task,
+        spec=lambda config: config.spec,
+        predict=predict,
+        evaluate=evaluate,
+        summary=summary,
+        truth="true camera poses (poses.txt, KITTI format)",
+        dataset=dataset,
+        mc_sampling=False,
+        prediction_header=ROTATION_PREDICTIONS_HEADER,
+        options={
+            "height": "height (px) of the images the flow is computed at",
+            "width": "width (px) of the images the flow is computed at",
+            "widths": "channels of the body's stride-2 convolutions, comma-separated",
+            "feature": "units of the body's output",
+            "heads": "number of quaternion heads H (epistemic covariance from their spread)",
+            "head_hidden": "units of each head's hidden layer",
+            "head_dropout": "dropout in each head (training only)",
+            "covariance": "aleatoric covariance: cholesky (full, the thesis) | diagonal (the authors' code)",
+            "reverse": "add every training pair reversed (images swapped, target C_k-1,k)",
+        },
+    )
+
+
 def models() -> dict[str, ModelEntry]:
     """Every learned pseudo-sensor, by command name."""
-    entries = [_sun_bcnn()]
+    entries = [_sun_bcnn(), _hydranet()]
     return {entry.name: entry for entry in entries}

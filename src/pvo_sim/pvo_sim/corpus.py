@@ -14,7 +14,7 @@ import hashlib
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -59,6 +59,13 @@ class CorpusConfig:
     # 1, not pvo sim's 2: the learned models read the corpus at half its size or less, where the downsampling
     # integrates each pixel's area as supersampling would; rendering at 2x costs a third of the frame rate
     supersample: int = 1
+    # real vehicle motion: with ``kitti_poses`` (a directory of KITTI odometry pose files NN.txt) each sequence
+    # drives a window of one of its split's drives (turns, pitch and roll as a car's), not a procedural path;
+    # the drives are split as the sequences are, so no stretch of road is in two splits
+    kitti_poses: str = ""
+    kitti_train: tuple[str, ...] = ("00", "02", "08", "09")
+    kitti_validation: tuple[str, ...] = ("04", "10")
+    kitti_test: tuple[str, ...] = ("05", "06", "07")
 
     def __post_init__(self) -> None:
         if self.supersample not in (1, 2, 3, 4):
@@ -75,6 +82,21 @@ class CorpusConfig:
         for name in fractions:
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be a fraction in [0, 1], got {getattr(self, name)}")
+        if self.kitti_poses:
+            if set(self.kitti_train) & set(self.kitti_test) or set(self.kitti_validation) & set(self.kitti_test):
+                raise ValueError("a KITTI drive is in the test split and another split: keep the test drives apart")
+            for split, drives in zip(SPLITS, (self.kitti_train, self.kitti_validation, self.kitti_test), strict=True):
+                if not drives:
+                    raise ValueError(f"--kitti-{split}: no drive for the {split} split")
+                for drive in drives:
+                    file = Path(self.kitti_poses) / f"{drive}.txt"
+                    if not file.is_file():
+                        raise ValueError(f"--kitti-poses: {file} not found (drive {drive} of the {split} split)")
+                    if sum(1 for _ in file.open()) < self.frames:
+                        raise ValueError(f"--kitti-poses: {file} holds fewer than {self.frames} poses")
+
+    def kitti_drives(self, split: str) -> tuple[str, ...]:
+        return {"train": self.kitti_train, "validation": self.kitti_validation, "test": self.kitti_test}[split]
 
 
 @dataclass(frozen=True)
@@ -182,6 +204,14 @@ def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
         supersample=corpus.supersample,
     )
     del elevation  # drawn through the time of day; the render records the actual range
+    if corpus.kitti_poses:  # drawn last: a corpus without KITTI drives draws exactly as before
+        drives = corpus.kitti_drives(split)
+        drive = drives[int(rng.integers(len(drives)))]
+        file = Path(corpus.kitti_poses) / f"{drive}.txt"
+        poses = sum(1 for _ in file.open())
+        start = int(rng.integers(0, poses - corpus.frames + 1))
+        config = replace(config, path="kitti", poses_file=str(file.resolve()), start_frame=start)
+        conditions.append(f"KITTI {drive} from frame {start}")
     return SequencePlan(index, f"{index:04d}", split, config, tuple(conditions))
 
 

@@ -39,6 +39,39 @@ def test_plans_vary_and_depend_only_on_seed_and_index() -> None:
     assert plan_sequence(CorpusConfig(frames=10, seed=3, supersample=2), 4).config.scale == 2
 
 
+def write_drives(root: Path, names: tuple[str, ...], poses: int) -> Path:
+    for name in names:
+        (root / f"{name}.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * poses)
+    return root
+
+
+def test_kitti_drives_give_each_split_its_own_windows(tmp_path: Path) -> None:
+    drives = write_drives(tmp_path, ("00", "02", "04", "05"), 60)
+    config = CorpusConfig(
+        sequences=60,
+        frames=20,
+        seed=2,
+        kitti_poses=str(drives),
+        kitti_train=("00", "02"),
+        kitti_validation=("04",),
+        kitti_test=("05",),
+    )
+    plain = CorpusConfig(sequences=60, frames=20, seed=2)
+    for i in range(60):
+        plan, before = plan_sequence(config, i), plan_sequence(plain, i)
+        drive = Path(plan.config.poses_file).stem
+        assert drive in config.kitti_drives(plan.split), (plan.split, drive)
+        assert 0 <= plan.config.start_frame <= 40 and plan.config.path == "kitti"
+        assert plan.config.latitude == before.config.latitude and plan.split == before.split  # the rest drawn as before
+        assert f"KITTI {drive} from frame {plan.config.start_frame}" in plan.conditions
+    with pytest.raises(ValueError, match="a KITTI drive is in the test split and another split"):
+        CorpusConfig(kitti_poses=str(drives), kitti_train=("00", "05"), kitti_test=("05",), frames=20)
+    with pytest.raises(ValueError, match=r"07.txt not found \(drive 07 of the test split\)"):
+        CorpusConfig(kitti_poses=str(drives), kitti_train=("00",), kitti_validation=("04",), kitti_test=("07",), frames=20)
+    with pytest.raises(ValueError, match="holds fewer than 100 poses"):
+        CorpusConfig(kitti_poses=str(drives), kitti_train=("00",), kitti_validation=("04",), kitti_test=("05",), frames=100)
+
+
 def test_sun_elevations_span_low_to_high() -> None:
     from pvo_core.ephemeris import GeodeticOrigin, sun_elevation_azimuth
 

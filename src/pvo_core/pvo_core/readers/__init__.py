@@ -5,7 +5,15 @@ from .corpus import CorpusManifest, CorpusSequence, read_corpus_manifest
 from .devon import DevonDataset, SunSensorReading, read_devon_sun_sensor, read_devon_sun_sensor_sampled
 from .kitti import KittiSequence, read_kitti_calibration, read_kitti_sun_csv, read_kitti_times
 from .klt_tracks import KLTTracks, read_klt_tracks
-from .sidecars import SUN_PREDICTIONS_HEADER, imu_at_stamps, read_gps_csv, read_imu_csv, read_sun_predictions_csv
+from .sidecars import (
+    ROTATION_PREDICTIONS_HEADER,
+    SUN_PREDICTIONS_HEADER,
+    imu_at_stamps,
+    read_gps_csv,
+    read_imu_csv,
+    read_rotation_predictions_csv,
+    read_sun_predictions_csv,
+)
 from .viso2s import (
     SEQUENCE_DRIVES,
     KittiSunSequence,
@@ -17,6 +25,7 @@ from .viso2s import (
 )
 
 __all__ = [
+    "ROTATION_PREDICTIONS_HEADER",
     "SEQUENCE_DRIVES",
     "SUN_PREDICTIONS_HEADER",
     "CorpusManifest",
@@ -38,6 +47,7 @@ __all__ = [
     "read_kitti_sun_sequence",
     "read_kitti_times",
     "read_klt_tracks",
+    "read_rotation_predictions_csv",
     "read_sun_predictions_csv",
     "read_viso2s",
     "read_viso2s_sequence",

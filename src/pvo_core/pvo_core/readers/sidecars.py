@@ -76,3 +76,27 @@ def read_sun_predictions_csv(path: Path) -> Array:
     if bad.size:
         raise DataFormatError(path, f"sun vector of frame {int(rows[bad[0], 0])} is not unit length", int(bad[0]) + 2)
     return rows
+
+
+ROTATION_PREDICTIONS_HEADER = "frame_prev,frame,qw,qx,qy,qz,c00,c01,c02,c10,c11,c12,c20,c21,c22"
+
+
+def read_rotation_predictions_csv(path: Path) -> Array:
+    """(N, 15) rows of a HydraNet prediction file: the earlier and the later frame, the unit quaternion
+    (w, x, y, z) of C_later,earlier and its 3x3 covariance (rad², left tangent space) row-major."""
+    rows = _read_csv(Path(path), ROTATION_PREDICTIONS_HEADER, 15)
+    norms = np.linalg.norm(rows[:, 2:6], axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
+    if bad.size:
+        raise DataFormatError(path, f"quaternion of frame {int(rows[bad[0], 1])} is not unit length", int(bad[0]) + 2)
+    covariances = rows[:, 6:].reshape(-1, 3, 3)
+    symmetric = np.abs(covariances - covariances.transpose(0, 2, 1)).max(axis=(1, 2)) <= 1e-9 + 1e-6 * np.abs(covariances).max(
+        axis=(1, 2)
+    )
+    positive = np.all(np.linalg.eigvalsh(0.5 * (covariances + covariances.transpose(0, 2, 1))) > 0.0, axis=1)
+    bad = np.flatnonzero(~(symmetric & positive))
+    if bad.size:
+        raise DataFormatError(
+            path, f"covariance of frame {int(rows[bad[0], 1])} is not symmetric positive definite", int(bad[0]) + 2
+        )
+    return rows

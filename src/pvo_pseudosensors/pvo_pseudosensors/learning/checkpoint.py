@@ -169,3 +169,24 @@ def load_model(
     model.load_state_dict(state)
     model.eval()
     return model, card
+
+
+def shipped_model(name: str) -> Path:
+    """A model directory installed with pvo_pseudosensors (share/pvo_pseudosensors/models/NAME; the source
+    tree's models/NAME when the package is not installed)."""
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+    try:
+        return Path(get_package_share_directory("pvo_pseudosensors")) / "models" / name
+    except (PackageNotFoundError, ValueError):
+        return Path(__file__).resolve().parents[2] / "models" / name
+
+
+def resolve_model(model: str, shipped: tuple[str, ...]) -> Path:
+    """A ``model`` parameter as a directory: "" is the first of ``shipped``, a name in ``shipped`` that is not
+    a local path is that shipped model, anything else a path."""
+    if not model:
+        return shipped_model(shipped[0])
+    if model in shipped and not Path(model).exists():
+        return shipped_model(model)
+    return Path(model)

@@ -10,6 +10,7 @@ import torch
 from numpy.typing import NDArray
 from pvo_core.sun import unit_zenith_azimuth
 
+from ..learning.checkpoint import resolve_model as resolve_shipped
 from .infer import MODES, combine, draw_samples, load_sun_bcnn
 
 Array = NDArray[np.float64]
@@ -39,24 +40,10 @@ class SunBCNNSensorConfig:
 SHIPPED = ("sun_bcnn", "sun_bcnn_kitti")  # trained on the synthetic corpus / fine-tuned on KITTI 07
 
 
-def shipped_model(name: str = "sun_bcnn") -> Path:
-    """A model directory installed with the package (share/pvo_pseudosensors/models/NAME)."""
-    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-
-    try:
-        return Path(get_package_share_directory("pvo_pseudosensors")) / "models" / name
-    except (PackageNotFoundError, ValueError):
-        return Path(__file__).resolve().parents[2] / "models" / name
-
-
 def resolve_model(model: str) -> Path:
     """The ``model`` parameter as a directory: "" is the shipped synthetic model, a shipped model's name
     (``sun_bcnn``, ``sun_bcnn_kitti``) that is not a local path is that model, anything else a path."""
-    if not model:
-        return shipped_model()
-    if model in SHIPPED and not Path(model).exists():
-        return shipped_model(model)
-    return Path(model)
+    return resolve_shipped(model, SHIPPED)
 
 
 @dataclass

@@ -38,6 +38,17 @@ def register(sub: Any) -> None:
         "less, which integrates pixel areas anyway; pvo sim's default 2 costs a third of the rate)",
     )
     corpus.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+    kitti = corpus.add_argument_group("real vehicle motion (each sequence drives a window of a KITTI drive)")
+    kitti.add_argument(
+        "--kitti-poses", type=Path, help="directory of KITTI odometry pose files NN.txt (e.g. ../shared/data/kitti/poses)"
+    )
+    kitti.add_argument("--kitti-train", default="00,02,08,09", help="drives for the train split (default 00,02,08,09)")
+    kitti.add_argument("--kitti-validation", default="04,10", help="drives for the validation split (default 04,10)")
+    kitti.add_argument("--kitti-test", default="05,06,07", help="drives for the test split (default 05,06,07)")
+
+
+def _drives(text: str) -> tuple[str, ...]:
+    return tuple(part.strip() for part in text.split(",") if part.strip())
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,6 +69,10 @@ def run(args: argparse.Namespace) -> int:
         colour=args.colour,
         split=split,  # type: ignore[arg-type]
         supersample=args.supersample,
+        kitti_poses=str(args.kitti_poses or ""),
+        kitti_train=_drives(args.kitti_train),
+        kitti_validation=_drives(args.kitti_validation),
+        kitti_test=_drives(args.kitti_test),
     )
     bar: Progress | None = None
 

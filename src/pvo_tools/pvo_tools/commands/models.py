@@ -59,6 +59,12 @@ def _train_parser(actions: Any, entry: ModelEntry) -> None:
     train.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     train.add_argument("--cache", type=Path, help="decoded-image cache (default CORPUS/.cache of each corpus)")
     train.add_argument("--max-sequences", type=int, default=0, help="use at most this many sequences per split (0: all)")
+    train.add_argument(
+        "--presets-only",
+        type=lambda text: tuple(p.strip() for p in text.split(",") if p.strip()),
+        default=(),
+        help="train and validate on these presets' sequences only (e.g. urban: the others are then out of distribution)",
+    )
     train.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     loop = train.add_argument_group("training loop")
     for name, (kind, default, text) in TRAIN_DEFAULTS.items():
@@ -81,6 +87,9 @@ def _predict_parser(actions: Any, entry: ModelEntry) -> None:
     predict.add_argument("sequence", type=Path, help="KITTI-layout sequence directory")
     predict.add_argument("--model", type=Path, required=True, help="model directory (weights.safetensors + model.yaml)")
     predict.add_argument("--out", "-o", type=Path, required=True, help="prediction file (CSV)")
+    predict.add_argument("--cache", type=Path, help="decoded-image cache directory (default: none, decode afresh)")
+    if not entry.mc_sampling:
+        return
     predict.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
     predict.add_argument("--seed", type=int, default=0, help="seed of the dropout samples (default 0)")
     predict.add_argument(
@@ -102,7 +111,7 @@ def _eval_parser(actions: Any, entry: ModelEntry) -> None:
     evaluate = actions.add_parser("eval", help=f"evaluate {entry.name} predictions against the truth")
     evaluate.set_defaults(handler=lambda args: run_eval(args, entry))
     evaluate.add_argument("--pred", type=Path, required=True, help="prediction file from `predict`")
-    evaluate.add_argument("--gt", type=Path, required=True, help="true sun vectors (sun.csv of the sequence)")
+    evaluate.add_argument("--gt", type=Path, required=True, help=entry.truth)
     evaluate.add_argument("--json", type=Path, help="also write the figures as a run-result record here")
 
 
@@ -129,16 +138,24 @@ def _corpus_command(manifest: Any) -> str:
     presets = ",".join(data["presets"])
     colour = " --colour" if data.get("colour") else ""
     colour += f" --supersample {data['supersample']}" if data.get("supersample", 1) != 1 else ""
+    if data.get("kitti_poses"):
+        drives = {split: ",".join(data[f"kitti_{split}"]) for split in ("train", "validation", "test")}
+        colour += (
+            f" --kitti-poses {data['kitti_poses']} --kitti-train {drives['train']} --kitti-validation {drives['validation']}"
+            f" --kitti-test {drives['test']}"
+        )
     return (
         f"pvo sim corpus {manifest.path.parent} --sequences {data['sequences']} --frames {data['frames']} --size {size} "
         f"--presets {presets} --seed {data['seed']}{colour}"
     )
 
 
-def _dataset(sources: list, spec: Any, cache: Path, label: str, quiet: bool) -> Any:
-    """The dataset of ``sources``, with a progress bar while images are decoded into the cache (none when warm)."""
+def _dataset(entry: ModelEntry, config: Any, sources: list, cache: Path, label: str, quiet: bool) -> Any:
+    """The dataset of ``sources``, with a progress bar while images are decoded (and, for a model with a
+    dataset of its own, what it derives from them) into the cache (none when warm)."""
     from pvo_pseudosensors.learning import FrameDataset
 
+    spec = entry.spec(config)
     bar: Progress | None = None
 
     def decoded() -> None:
@@ -148,7 +165,11 @@ def _dataset(sources: list, spec: Any, cache: Path, label: str, quiet: bool) -> 
             bar = Progress(images, f"{label}: decoding images into {cache}")
         bar.update()
 
-    data = FrameDataset(sources, spec, cache, progress=None if quiet else decoded)
+    progress = None if quiet else decoded
+    if entry.dataset is not None:
+        data = entry.dataset(config, sources, cache, progress, training=label == "train")
+    else:
+        data = FrameDataset(sources, spec, cache, progress=progress)
     if bar is not None:
         bar.close()
     return data
@@ -165,16 +186,16 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
         sys.stdout = sys.stderr = open(os.devnull, "w")  # for the life of this worker process
     loop = TrainConfig(**{name: getattr(args, name) for name in TRAIN_DEFAULTS})
     manifests = [read_corpus_manifest(corpus) for corpus in args.corpus]
-    spec = entry.spec(config)
     sets = {}
     for split in ("train", "validation"):
         parts = []
         for manifest in manifests:
-            sequences = manifest.split(split)[: args.max_sequences or None]
+            sequences = [s for s in manifest.split(split) if not args.presets_only or s.preset in args.presets_only]
+            sequences = sequences[: args.max_sequences or None]
             if not sequences:
                 raise ValueError(f"{manifest.path}: no sequence in the {split} split")
             sources = [Source(sequence.root, sequence.name, split) for sequence in sequences]
-            parts.append(_dataset(sources, spec, args.cache or manifest.path.parent / ".cache", split, args.quiet))
+            parts.append(_dataset(entry, config, sources, args.cache or manifest.path.parent / ".cache", split, args.quiet))
         sets[split] = parts[0] if len(parts) == 1 else ConcatDataset(parts)
     print(f"{entry.name}: {len(sets['train'])} training and {len(sets['validation'])} validation samples", file=sys.stderr)
     bar: Progress | None = None
@@ -218,9 +239,16 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
 
 
 def run_predict(args: argparse.Namespace, entry: ModelEntry) -> int:
+    if not entry.mc_sampling:
+        predictions = entry.predict(args.model, args.sequence, cache_dir=args.cache)
+        path = predictions.write_csv(args.out)
+        print(f"{path}: {len(predictions.frames)} predictions")
+        return 0
     if args.samples < 2:
         raise ValueError(f"--samples must be >= 2 (the covariance needs two), got {args.samples}")
-    predictions = entry.predict(args.model, args.sequence, samples=args.samples, seed=args.seed, mode=args.mode)
+    predictions = entry.predict(
+        args.model, args.sequence, samples=args.samples, seed=args.seed, mode=args.mode, cache_dir=args.cache
+    )
     path = predictions.write_csv(args.out)
     print(f"{path}: {len(predictions.frames)} predictions ({args.samples} MC samples each)")
     return 0
@@ -243,21 +271,11 @@ def run_calibrate(args: argparse.Namespace, entry: ModelEntry) -> int:
 
 
 def run_eval(args: argparse.Namespace, entry: ModelEntry) -> int:
-    from pvo_core.readers import read_kitti_sun_csv, read_sun_predictions_csv
     from pvo_core.results import RunResult
 
-    predictions = read_sun_predictions_csv(args.pred)
-    truth = read_kitti_sun_csv(args.gt)
-    frames = predictions[:, 0].astype(int)
-    if frames.max() >= len(truth):
-        raise ValueError(f"{args.pred}: frame {frames.max()} is beyond the {len(truth)} rows of {args.gt}")
-    figures = entry.evaluate(predictions, truth[frames])
-    print(f"{'images':<22} {int(figures['images'])}")
-    for name in ("vector", "zenith", "azimuth"):
-        print(
-            f"{name + ' error (deg)':<22} mean {figures[f'{name}_mean_deg']:7.2f}   median {figures[f'{name}_median_deg']:7.2f}"
-        )
-    print(f"{'ANEES (zenith, azimuth)':<22} {figures['anees']:.3f}")
+    figures = entry.evaluate(args.pred, args.gt)
+    for line in entry.summary(figures):
+        print(line)
     if args.json:
         inputs = {"pred": str(args.pred), "gt": str(args.gt)}
         RunResult("eval", f"{entry.name} {args.pred.name}", figures=figures, inputs=inputs).write(args.json)

@@ -1,0 +1,58 @@
+"""HydraNet's settings (no torch: the `pvo hydranet` options are built from them)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from ..learning.spec import DataSpec
+
+ARCHITECTURE = "hydranet"
+COVARIANCES = ("cholesky", "diagonal")
+
+
+@dataclass(frozen=True)
+class HydraNetConfig:
+    """height, width: the size (px) both left images are resized to before the dense optical flow between them
+    (Farnebäck, the thesis's parameters) is computed; the flow (2, height, width) in pixels at that size is the
+    network's input. widths: channels of the body's stride-2 3x3 convolutions (each with batch norm and ReLU);
+    feature: the body's output (a linear layer on the flattened last map); heads: H quaternion heads
+    (thesis: 25), each Linear -> PReLU -> Dropout -> Linear(4), normalised; head_hidden, head_dropout: their
+    hidden width and dropout (off at prediction, as the authors' code); covariance: the aleatoric head's
+    form, "cholesky" (a full lower-triangular factor of the precision, the thesis) or "diagonal" (the
+    authors' code); reverse: add every training pair reversed (images swapped, target C_k-1,k), as the
+    thesis."""
+
+    height: int = 64
+    width: int = 208
+    widths: tuple[int, ...] = (16, 32, 64, 128, 128)
+    feature: int = 256
+    heads: int = 25
+    head_hidden: int = 128
+    head_dropout: float = 0.3
+    covariance: str = "cholesky"
+    reverse: bool = True
+
+    def __post_init__(self) -> None:
+        if min(self.height, self.width) < 16 or not self.widths:
+            raise ValueError("HydraNet needs a flow of at least 16 px and at least one convolution")
+        if self.heads < 2:
+            raise ValueError(f"HydraNet needs at least 2 heads for its epistemic covariance, got {self.heads}")
+        if not 0.0 <= self.head_dropout < 1.0:
+            raise ValueError(f"head_dropout must be in [0, 1), got {self.head_dropout}")
+        if self.covariance not in COVARIANCES:
+            raise ValueError(f"unknown covariance {self.covariance!r}: choose one of {', '.join(COVARIANCES)}")
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (self.height, self.width)
+
+    @property
+    def spec(self) -> DataSpec:
+        return DataSpec(self.size, delta=1)
+
+    @classmethod
+    def from_card(cls, card: Any) -> HydraNetConfig:
+        values = dict(card.hyperparameters)
+        values["widths"] = tuple(values["widths"])
+        return cls(**values)

@@ -1,0 +1,166 @@
+"""HydraNet's input: dense optical flow between consecutive left images, and the training pairs over sequences.
+
+The flow is OpenCV's Farnebäck with the parameters of the thesis's code (pyramid scale 0.5, 3 levels,
+window 15, 3 iterations, poly_n 5, poly_sigma 1.2) between the two grey images resized to the model's
+input: (2, H, W) float32, pixels at that size, flow[:, v, u] = where pixel (u, v) of the earlier image went
+in the later one. Per sequence, the flows of every consecutive pair, forward and reversed, are computed once
+and kept as float16 ``.npy`` beside the decoded-image cache (memory-mapped afterwards): Farnebäck on every
+sample every epoch would dominate a CPU epoch.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from pvo_core.errors import DataFormatError
+from pvo_core.lie import rotation_to_quaternion
+from pvo_core.trajectory import read_kitti_poses
+
+from ..learning.data import Source, cached_images
+
+FARNEBACK = (0.5, 3, 15, 3, 5, 1.2, 0)  # pyr_scale, levels, winsize, iterations, poly_n, poly_sigma, flags
+FLOW_REVISION = 1  # bump when the flow computation changes: the caches are rebuilt
+
+
+def dense_flow(earlier: NDArray[np.uint8], later: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """Farnebäck flow (2, H, W) in pixels from ``earlier`` to ``later``, both grey (H, W) uint8 of one size."""
+    import cv2
+
+    if earlier.shape != later.shape or earlier.ndim != 2:
+        raise ValueError(f"flow needs two grey images of one size, got {earlier.shape} and {later.shape}")
+    flow = cv2.calcOpticalFlowFarneback(earlier, later, None, *FARNEBACK)
+    return np.ascontiguousarray(flow.transpose(2, 0, 1))
+
+
+def relative_rotations(poses: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N-1, 4) quaternions (w >= 0) of C_k,k-1 for camera-to-world poses (N, 4, 4): the rotation that maps
+    directions in the earlier camera frame into the later one."""
+    relative = np.linalg.inv(poses[1:])[:, :3, :3] @ poses[:-1, :3, :3]
+    return np.stack([rotation_to_quaternion(r) for r in relative])
+
+
+def _flow_file(images_key: str, cache_dir: Path, reverse: bool) -> Path:
+    digest = hashlib.sha256(f"{images_key}:{FARNEBACK}:{FLOW_REVISION}:{reverse}".encode()).hexdigest()[:24]
+    return Path(cache_dir) / f"flow-{digest}.npy"
+
+
+def sequence_flows(
+    images: NDArray[np.uint8], cache_dir: Path | None, key: str, reverse: bool, progress: Callable[[], None] | None = None
+) -> NDArray[np.float16]:
+    """(N-1, 2, H, W) float16 flows of consecutive images (N, 1, H, W): k-1 -> k, or k -> k-1 with
+    ``reverse``; from the cache when present (written under a temporary name and renamed)."""
+    count = len(images) - 1
+    if cache_dir is None:
+        return np.stack([_pair_flow(images, k, reverse) for k in range(1, count + 1)]).astype(np.float16)
+    file = _flow_file(key, cache_dir, reverse)
+    if file.is_file():
+        try:
+            return np.load(file, mmap_mode="r")
+        except (ValueError, OSError):
+            file.unlink()
+    Path(cache_dir).mkdir(parents=True, exist_ok=True)
+    temporary = file.with_suffix(f".{os.getpid()}.tmp.npy")
+    array = np.lib.format.open_memmap(temporary, mode="w+", dtype=np.float16, shape=(count, 2, *images.shape[2:]))
+    for k in range(1, count + 1):
+        array[k - 1] = _pair_flow(images, k, reverse)
+        if progress:
+            progress()
+    array.flush()
+    del array
+    os.replace(temporary, file)
+    return np.load(file, mmap_mode="r")
+
+
+def _pair_flow(images: NDArray[np.uint8], k: int, reverse: bool) -> NDArray[np.float32]:
+    earlier, later = np.asarray(images[k - 1, 0]), np.asarray(images[k, 0])
+    return dense_flow(later, earlier) if reverse else dense_flow(earlier, later)
+
+
+@dataclass
+class _Pairs:
+    source: Source
+    forward: NDArray[np.float16]
+    backward: NDArray[np.float16] | None
+    rotations: NDArray[np.float64] | None
+
+
+@dataclass
+class FlowPairs(torch.utils.data.Dataset):
+    """Samples, one per consecutive pair of left images of every sequence (and one more per pair reversed
+    with ``reverse``), as dicts: ``flow`` (2, H, W) float32 pixels; ``rotation`` (4,) the unit quaternion
+    (w, x, y, z) of C_k,k-1 (C_k-1,k for a reversed pair); ``sequence``, ``frame`` (the later frame k),
+    ``reversed`` (0 or 1). targets: read each sequence's ``poses.txt`` for the rotations (False: flows only,
+    for prediction on sequences without truth; samples then carry no ``rotation``)."""
+
+    sources: Sequence[Source]
+    size: tuple[int, int]
+    reverse: bool = False
+    cache_dir: Path | None = None
+    progress: Callable[[], None] | None = None
+    targets: bool = True
+    pairs: list[_Pairs] = field(init=False, default_factory=list)
+    index: NDArray[np.int64] = field(init=False)
+
+    def __post_init__(self) -> None:
+        rows = []
+        for number, source in enumerate(self.sources):
+            paths = source.images("left", False)
+            if len(paths) < 2:
+                raise DataFormatError(source.root, "HydraNet needs at least two images per sequence")
+            rotations = self._rotations(source, len(paths)) if self.targets else None
+            images = cached_images(paths, self.size, False, self.cache_dir, self.progress)
+            key = _images_key(paths, self.size)
+            forward = sequence_flows(images, self.cache_dir, key, False, self.progress)
+            backward = sequence_flows(images, self.cache_dir, key, True, self.progress) if self.reverse else None
+            self.pairs.append(_Pairs(source, forward, backward, rotations))
+            frames = np.arange(1, len(paths))
+            rows.append(np.column_stack([np.full(len(frames), number), frames, np.zeros(len(frames), np.int64)]))
+            if self.reverse:
+                rows.append(np.column_stack([np.full(len(frames), number), frames, np.ones(len(frames), np.int64)]))
+        self.index = np.vstack(rows) if rows else np.zeros((0, 3), np.int64)
+        if len(self.index) == 0:
+            raise ValueError("the dataset holds no image pair")
+
+    @staticmethod
+    def _rotations(source: Source, images: int) -> NDArray[np.float64]:
+        poses_file = source.root / "poses.txt"
+        if not poses_file.is_file():
+            raise DataFormatError(poses_file, f"needed for HydraNet's targets but missing ({source.name})")
+        poses = read_kitti_poses(poses_file)
+        if len(poses) != images:
+            raise DataFormatError(poses_file, f"{len(poses)} poses for {images} images")
+        return relative_rotations(poses)
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, item: int) -> dict[str, torch.Tensor]:
+        number, k, backwards = (int(v) for v in self.index[item])
+        pairs = self.pairs[number]
+        flows = pairs.backward if backwards else pairs.forward
+        assert flows is not None
+        sample = {
+            "flow": torch.from_numpy(np.asarray(flows[k - 1], dtype=np.float32)),
+            "sequence": torch.tensor(number),
+            "frame": torch.tensor(k),
+            "reversed": torch.tensor(backwards),
+        }
+        if pairs.rotations is not None:
+            rotation = pairs.rotations[k - 1] * (np.array([1.0, -1.0, -1.0, -1.0]) if backwards else 1.0)
+            sample["rotation"] = torch.from_numpy(rotation.astype(np.float32))
+        return sample
+
+
+def _images_key(paths: Sequence[Path], size: tuple[int, int]) -> str:
+    digest = hashlib.sha256(f"{size}:{len(paths)}".encode())
+    for path in paths:
+        stat = path.stat()
+        digest.update(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
+    return digest.hexdigest()

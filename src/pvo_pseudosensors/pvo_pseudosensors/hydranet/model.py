@@ -1,0 +1,150 @@
+"""The HydraNet network (thesis §7.4, Fig. 7.3) and its loss (eq. 7.17).
+
+A convolutional body reads the optical flow; H quaternion heads each predict C_k,k-1; one head predicts the
+aleatoric covariance Sigma_a through the Cholesky factor of its inverse. In training every head's output is
+paired with the target and the shared Sigma_a (the heads learn to be good alone; their spread is what the
+data did not pin down). At prediction the heads' mean (eq. 7.14) is the estimate and
+Sigma = Sigma_e (eq. 7.16) + Sigma_a its covariance, in the left tangent space of the mean (rad²).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+from ..learning.checkpoint import ModelCard
+from . import quaternion as quat
+from .config import ARCHITECTURE, HydraNetConfig
+
+#: The aleatoric head starts at sigma = 1/this rad (0.57 deg) per axis: near a frame-to-frame error, so the
+#: first steps neither explode nor vanish.
+INITIAL_PRECISION_ROOT = 100.0
+#: log of the largest precision root (sigma >= 1e-5 rad): keeps exp() finite on a bad batch.
+MAX_LOG_ROOT = math.log(1e5)
+HEAD_INIT_SCALE = 0.01  # the heads start near the identity rotation, each from its own random weights
+
+
+class HydraNet(nn.Module):
+    def __init__(self, config: HydraNetConfig) -> None:
+        super().__init__()
+        self.config = config
+        layers: list[nn.Module] = []
+        channels = 2
+        for width in config.widths:
+            layers += [
+                nn.Conv2d(channels, width, 3, stride=2, padding=1, bias=False),
+                nn.BatchNorm2d(width),
+                nn.ReLU(inplace=True),
+            ]
+            channels = width
+        self.body = nn.Sequential(*layers)
+        with torch.no_grad():
+            flat = self.body(torch.zeros(1, 2, *config.size)).numel()
+        self.feature = nn.Sequential(nn.Flatten(), nn.Linear(flat, config.feature), nn.ReLU(inplace=True))
+        self.heads = nn.ModuleList(
+            nn.Sequential(
+                nn.Linear(config.feature, config.head_hidden),
+                nn.PReLU(),
+                nn.Dropout(config.head_dropout),
+                nn.Linear(config.head_hidden, 4),
+            )
+            for _ in range(config.heads)
+        )
+        for head in self.heads:
+            last = head[-1]
+            assert isinstance(last, nn.Linear)
+            with torch.no_grad():
+                last.weight.mul_(HEAD_INIT_SCALE)
+                last.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
+        outputs = 6 if config.covariance == "cholesky" else 3
+        self.covariance = nn.Sequential(nn.Linear(config.feature, 128), nn.PReLU(), nn.Linear(128, outputs))
+        with torch.no_grad():
+            last = self.covariance[-1]
+            assert isinstance(last, nn.Linear)
+            last.weight.mul_(HEAD_INIT_SCALE)
+            last.bias.zero_()
+
+    def forward(self, flow: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """flow (B, 2, H, W) in pixels -> the heads' unit quaternions (B, heads, 4) of C_k,k-1 (w >= 0) and
+        the lower-triangular Cholesky factor L (B, 3, 3) of the aleatoric precision Sigma_a^-1 = L L^T."""
+        features = self.feature(self.body(flow))
+        heads = torch.stack([head(features) for head in self.heads], dim=1)
+        heads = nn.functional.normalize(heads, dim=-1)
+        heads = torch.where(heads[..., :1] < 0.0, -heads, heads)
+        return heads, precision_root(self.covariance(features))
+
+
+def precision_root(raw: torch.Tensor) -> torch.Tensor:
+    """L (B, 3, 3) from the covariance head's output (B, 6) or (B, 3): L = diag(exp(a)) M with M unit lower
+    triangular (its three off-diagonal entries from the last outputs; none for the diagonal form), so log det
+    of the precision is 2 sum(a) and the off-diagonal terms scale with their row."""
+    log_root = (raw[:, :3] + math.log(INITIAL_PRECISION_ROOT)).clamp(max=MAX_LOG_ROOT)
+    unit = torch.eye(3, dtype=raw.dtype, device=raw.device).expand(len(raw), 3, 3).clone()
+    if raw.shape[1] == 6:
+        rows, columns = torch.tril_indices(3, 3, offset=-1)
+        unit[:, rows, columns] = raw[:, 3:]
+    return torch.exp(log_root).unsqueeze(-1) * unit
+
+
+def head_nll(heads: torch.Tensor, target: torch.Tensor, root: torch.Tensor) -> torch.Tensor:
+    """Eq. 7.17 per sample and head (B, H), each head paired with the target (B, 4) and the shared
+    precision L L^T: 1/2 |L^T phi|^2 - log det L (+ constant), phi = Log(q_i (x) q_t^-1)."""
+    phi = quat.log(quat.multiply(heads, quat.conjugate(target).unsqueeze(1)))  # (B, H, 3)
+    whitened = phi @ root  # rows phi^T L = (L^T phi)^T
+    log_det = torch.log(torch.diagonal(root, dim1=-2, dim2=-1)).sum(-1)
+    return 0.5 * (whitened**2).sum(-1) - log_det.unsqueeze(-1)
+
+
+@dataclass
+class HydraTask:
+    """HydraNet for the training loop: the heads' NLL (eq. 7.17) averaged over batch and heads."""
+
+    config: HydraNetConfig
+    architecture: str = ARCHITECTURE
+
+    def build(self) -> nn.Module:
+        return HydraNet(self.config)
+
+    def loss(self, model: nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        heads, root = model(batch["flow"])
+        return head_nll(heads, batch["rotation"], root).mean()
+
+    def card(self) -> ModelCard:
+        return ModelCard(
+            architecture=ARCHITECTURE,
+            hyperparameters=asdict(self.config),
+            input={
+                "size": list(self.config.size),
+                "colour": False,
+                "normalisation": "Farneback flow (pixels at the input size) between the grey left images resized to it",
+            },
+        )
+
+
+@dataclass
+class RotationOutput:
+    """Per sample (float64): the mean quaternion (B, 4) of C_k,k-1 (eq. 7.14, w >= 0), Sigma_e and Sigma_a
+    (B, 3, 3) in rad², left tangent space; Sigma = Sigma_e + Sigma_a."""
+
+    quaternion: torch.Tensor
+    epistemic: torch.Tensor
+    aleatoric: torch.Tensor
+
+    @property
+    def covariance(self) -> torch.Tensor:
+        return self.epistemic + self.aleatoric
+
+
+def predict_rotations(model: HydraNet, flow: torch.Tensor) -> RotationOutput:
+    """The estimate for a batch of flows (B, 2, H, W): eval mode (the heads' dropout off, as the authors'
+    code), no gradients."""
+    model.eval()
+    with torch.no_grad():
+        heads, root = model(flow)
+    heads, root = heads.double(), root.double()
+    mean = quat.mean(heads)
+    precision = root @ root.transpose(-1, -2)
+    return RotationOutput(mean, quat.epistemic_covariance(heads, mean), torch.linalg.inv(precision))

@@ -1,0 +1,175 @@
+"""HydraNet's network, loss, data and sensor: the loss is eq. 7.17 with Sigma_a = (L L^T)^-1; the flow pairs
+carry the true rotations (reversed pairs their inverse); a tiny model learns a rotation-only set to a fraction
+of its motion; the sensor reports the first image, a size change, a bad stamp and a missing model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from pvo_core.lie import quaternion_to_rotation, so3_exp
+from pvo_pseudosensors.hydranet import quaternion as quat
+from pvo_pseudosensors.hydranet.config import HydraNetConfig
+from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
+from pvo_pseudosensors.hydranet.flow import FlowPairs, dense_flow
+from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask, head_nll, precision_root, predict_rotations
+from pvo_pseudosensors.hydranet.synthetic import write_rotation_sequence
+from pvo_pseudosensors.learning import Source, TrainConfig, fit
+from pvo_pseudosensors.learning.checkpoint import ModelFileError, save_model
+
+TINY = HydraNetConfig(height=48, width=144, widths=(8, 16, 16), feature=32, heads=5, head_hidden=32, head_dropout=0.1)
+
+
+@pytest.fixture(scope="module")
+def rotations(tmp_path_factory) -> dict[str, list[Source]]:
+    root = tmp_path_factory.mktemp("rotations")
+    sources = {}
+    for split, seeds in (("train", range(6)), ("validation", (10,)), ("test", (20, 21))):
+        sources[split] = []
+        for seed in seeds:
+            write_rotation_sequence(root / f"{split}{seed}", frames=25, seed=seed)
+            sources[split].append(Source(root / f"{split}{seed}", f"{split}{seed}", split))
+    return sources
+
+
+def test_the_head_loss_is_eq_7_17_with_the_inverse_precision() -> None:
+    torch.manual_seed(0)
+    raw = torch.randn(4, 6, dtype=torch.float64)
+    root = precision_root(raw)
+    assert torch.all(torch.triu(root, diagonal=1) == 0.0)  # lower triangular
+    heads = quat.exp(0.01 * torch.randn(4, 3, 3, dtype=torch.float64))
+    target = quat.exp(0.01 * torch.randn(4, 3, dtype=torch.float64))
+    covariance = torch.linalg.inv(root @ root.transpose(-1, -2))
+    expected = quat.nll(heads, target.unsqueeze(1).expand_as(heads), covariance.unsqueeze(1).expand(4, 3, 3, 3))
+    torch.testing.assert_close(head_nll(heads, target, root), expected)
+    diagonal = precision_root(raw[:, :3])
+    assert torch.all(diagonal == torch.diag_embed(torch.diagonal(diagonal, dim1=-2, dim2=-1)))
+
+
+def test_prediction_is_the_head_mean_with_epistemic_plus_aleatoric_covariance() -> None:
+    torch.manual_seed(1)
+    model = HydraNet(TINY)
+    flow = torch.randn(3, 2, 48, 144)
+    output = predict_rotations(model, flow)
+    heads, root = model(flow)
+    heads, root = heads.double(), root.double()
+    torch.testing.assert_close(output.quaternion, quat.mean(heads))
+    torch.testing.assert_close(output.epistemic, quat.epistemic_covariance(heads, quat.mean(heads)))
+    torch.testing.assert_close(output.covariance, output.epistemic + torch.linalg.inv(root @ root.transpose(-1, -2)))
+    assert not model.training  # dropout off at prediction
+    # the heads start near the identity, apart: a small but non-zero spread
+    assert 0.0 < float(torch.linalg.eigvalsh(output.epistemic).max()) < 1e-3
+
+
+def test_flow_pairs_carry_the_true_rotations_and_reversed_pairs_their_inverse(rotations, tmp_path: Path) -> None:
+    source = rotations["train"][0]
+    data = FlowPairs([source], (48, 144), reverse=True, cache_dir=tmp_path / "cache")
+    assert len(data) == 2 * 24
+    from pvo_core.trajectory import read_kitti_poses
+
+    poses = read_kitti_poses(source.root / "poses.txt")
+    forward, backward = data[4], data[24 + 4]
+    assert int(forward["frame"]) == int(backward["frame"]) == 5 and int(backward["reversed"]) == 1
+    truth = poses[5, :3, :3].T @ poses[4, :3, :3]  # C_5,4
+    np.testing.assert_allclose(quaternion_to_rotation(forward["rotation"].numpy()), truth, atol=1e-6)
+    np.testing.assert_allclose(quaternion_to_rotation(backward["rotation"].numpy()), truth.T, atol=1e-6)
+    # the reversed flow points the other way
+    assert float((forward["flow"] * backward["flow"]).sum()) < 0.0
+    cached = sorted(p.name for p in (tmp_path / "cache").glob("flow-*.npy"))
+    assert len(cached) == 2
+    again = FlowPairs([source], (48, 144), reverse=True, cache_dir=tmp_path / "cache")  # from the cache
+    torch.testing.assert_close(again[30]["flow"], data[30]["flow"])
+
+
+def test_dense_flow_recovers_a_shift() -> None:
+    from pvo_pseudosensors.hydranet.synthetic import scene_texture
+
+    scene = scene_texture((80, 200), 3)
+    earlier, later = scene[10:58, 20:164], scene[10:58, 17:161]  # the scene moves 3 px right
+    flow = dense_flow(np.ascontiguousarray(earlier), np.ascontiguousarray(later))
+    np.testing.assert_allclose(np.median(flow[:, 10:-10, 10:-10], axis=(1, 2)), [3.0, 0.0], atol=0.1)
+    with pytest.raises(ValueError, match="two grey images of one size"):
+        dense_flow(earlier, later[:, :-1])
+
+
+def test_missing_poses_are_one_line_naming_the_file(tmp_path: Path) -> None:
+    write_rotation_sequence(tmp_path / "seq", frames=3)
+    (tmp_path / "seq" / "poses.txt").unlink()
+    with pytest.raises(ValueError, match=r"poses.txt: needed for HydraNet's targets but missing"):
+        FlowPairs([Source(tmp_path / "seq", "seq")], (48, 144))
+    assert len(FlowPairs([Source(tmp_path / "seq", "seq")], (48, 144), targets=False)) == 2  # prediction needs none
+
+
+def test_a_tiny_hydranet_learns_a_rotation_set(rotations, tmp_path: Path) -> None:
+    """Trained for seconds on rotation-only pairs, the heads' mean lands within a fraction of the motion and
+    the covariance is within an order of magnitude of consistent."""
+    train = FlowPairs(rotations["train"], TINY.size, reverse=True, cache_dir=tmp_path)
+    validation = FlowPairs(rotations["validation"], TINY.size, cache_dir=tmp_path)
+    config = TrainConfig(epochs=30, batch_size=16, learning_rate=3e-3, patience=0, threads=1)
+    result = fit(HydraTask(TINY), train, validation, config, tmp_path / "model", say=lambda _: None)
+    assert result.history[-1]["train_loss"] < result.history[0]["train_loss"]
+    from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+
+    model, card = load_hydranet(tmp_path / "model")
+    figures, motion = [], []
+    for source in rotations["test"]:
+        predictions = predict_sequence(model, card, source.root, cache_dir=tmp_path)
+        from pvo_core.trajectory import read_kitti_poses
+
+        truth = true_relative_rotations(read_kitti_poses(source.root / "poses.txt"), predictions.earlier, predictions.frames)
+        figures.append(evaluate_rotations(predictions.quaternions, predictions.covariance, truth))
+        identity = evaluate_rotations(np.tile([1.0, 0, 0, 0], (len(truth), 1)), predictions.covariance, truth)
+        motion.append(identity["angle_mean_deg"])
+    error = np.mean([f["angle_mean_deg"] for f in figures])
+    assert error < 0.35 * np.mean(motion), (error, motion)
+    assert 0.1 < np.mean([f["anees"] for f in figures]) < 10.0
+
+
+def test_evaluation_of_errors_known_by_construction() -> None:
+    rng = np.random.default_rng(4)
+    truth = np.stack([so3_exp(rng.normal(size=3) * 0.01) for _ in range(5)])
+    offsets = rng.normal(size=(5, 3)) * 1e-3
+    from pvo_core.lie import rotation_to_quaternion
+
+    # C_true = Exp(offset) C_est, so C_est = Exp(-offset) C_true
+    estimates = np.stack([rotation_to_quaternion(so3_exp(-d) @ t) for d, t in zip(offsets, truth, strict=True)])
+    covariance = np.tile(np.diag([1e-6, 4e-6, 1e-6]), (5, 1, 1))
+    figures = evaluate_rotations(estimates, covariance, truth)
+    np.testing.assert_allclose(figures["angle_mean_deg"], np.degrees(np.linalg.norm(offsets, axis=1)).mean(), rtol=1e-6)
+    nees = np.einsum("ni,ij,nj->n", offsets, np.linalg.inv(covariance[0]), offsets)
+    np.testing.assert_allclose(figures["anees"], nees.mean() / 3.0, rtol=1e-6)
+    np.testing.assert_allclose(figures["nll"], np.mean(0.5 * nees + 0.5 * np.log(np.linalg.det(covariance[0]))), rtol=1e-6)
+
+
+@pytest.fixture()
+def tiny_model(tmp_path: Path) -> Path:
+    torch.manual_seed(0)
+    return save_model(tmp_path / "model", HydraNet(TINY), HydraTask(TINY).card())
+
+
+def test_the_sensor_pairs_images_and_reports_what_it_cannot_pair(tiny_model: Path, tmp_path: Path) -> None:
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+
+    write_rotation_sequence(tmp_path / "seq", frames=4, size=(96, 288), focal=140.0)
+    import cv2
+
+    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted((tmp_path / "seq" / "image_0").glob("*.png"))]
+    sensor = HydraNetSensor(HydraNetSensorConfig(model=str(tiny_model)))
+    assert sensor.estimate(images[0], 100) is None  # no predecessor
+    estimate = sensor.estimate(images[1], 200)
+    assert estimate is not None and estimate.earlier_stamp == 100 and estimate.stamp == 200
+    assert np.linalg.norm(estimate.quaternion) == pytest.approx(1.0)
+    assert np.all(np.linalg.eigvalsh(estimate.covariance) > 0.0)
+    with pytest.raises(ValueError, match="is not after the previous image"):
+        sensor.estimate(images[2], 150)
+    with pytest.raises(ValueError, match="8-bit grey or RGB"):
+        sensor.estimate(images[2].astype(np.uint16), 300)
+    assert sensor.estimate(images[2], 300) is not None  # the last good image stayed the predecessor
+    with pytest.raises(ValueError, match=r"image size changed from \(96, 288\) to \(48, 144\)"):
+        sensor.estimate(images[3][::2, ::2].copy(), 400)
+    assert sensor.estimate(images[3][::2, ::2].copy(), 500) is not None  # the new size pairs from then on
+    assert sensor.estimate(images[3][::2, ::2].copy(), 500 + 10**9) is None  # a gap of 1 s: starts afresh
+    with pytest.raises(ModelFileError, match="model directory not found"):
+        HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "none")))

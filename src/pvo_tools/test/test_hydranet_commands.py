@@ -1,0 +1,84 @@
+"""`pvo hydranet train|predict|eval` on a tiny corpus of rotation-only sequences: the commands compose the
+learning harness, the prediction file has the documented columns, and bad input is one line."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from pvo_tools.cli import main
+
+TINY = ["--height", "48", "--width", "144", "--widths", "8,16", "--feature", "16", "--heads", "4", "--head-hidden", "8"]
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory) -> Path:
+    from pvo_pseudosensors.hydranet.synthetic import write_rotation_sequence
+
+    root = tmp_path_factory.mktemp("corpus")
+    entries = []
+    for i, (split, preset) in enumerate((("train", "urban"), ("train", "planetary"), ("validation", "urban"), ("test", "urban"))):
+        name = f"{i:04d}"
+        write_rotation_sequence(root / name, frames=12, seed=i)
+        entries.append(
+            {"name": name, "split": split, "preset": preset, "sha256": hashlib.sha256(name.encode()).hexdigest(), "config": {}}
+        )
+    corpus = {"sequences": 4, "frames": 12, "width": 144, "height": 48, "presets": ["urban"], "seed": 0, "colour": False}
+    (root / "manifest.yaml").write_text(yaml.safe_dump({"corpus": corpus, "sequences": entries}))
+    return root
+
+
+def test_train_predict_eval(corpus: Path, tmp_path: Path, capsys) -> None:
+    model = tmp_path / "model"
+    args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "2", "--batch-size", "8", "-q"]
+    assert main([*args, "--threads", "1", *TINY]) == 0
+    assert "44 training and 11 validation samples" in capsys.readouterr().err  # 2 x 11 pairs, reversed too; 11
+    card = yaml.safe_load((model / "model.yaml").read_text())
+    assert card["architecture"] == "hydranet" and card["hyperparameters"]["covariance"] == "cholesky"
+    assert card["input"]["size"] == [48, 144] and "hydranet train" in card["commands"]["train"]
+
+    predictions = tmp_path / "rotations.csv"
+    assert main(["hydranet", "predict", str(corpus / "0003"), "--model", str(model), "-o", str(predictions)]) == 0
+    lines = predictions.read_text().splitlines()
+    assert lines[0] == "frame_prev,frame,qw,qx,qy,qz,c00,c01,c02,c10,c11,c12,c20,c21,c22" and len(lines) == 12
+    values = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+    np.testing.assert_array_equal(values[:, :2], np.column_stack([np.arange(11), np.arange(1, 12)]))
+    np.testing.assert_allclose(np.linalg.norm(values[:, 2:6], axis=1), 1.0, atol=1e-6)
+    covariances = values[:, 6:].reshape(-1, 3, 3)
+    np.testing.assert_allclose(covariances, covariances.transpose(0, 2, 1), rtol=1e-6)
+
+    capsys.readouterr()
+    truth = corpus / "0003" / "poses.txt"
+    assert main(["hydranet", "eval", "--pred", str(predictions), "--gt", str(truth), "--json", str(tmp_path / "m")]) == 0
+    printed = capsys.readouterr().out
+    assert "angular error (deg)" in printed and "ANEES" in printed and "NLL" in printed
+    record = yaml.safe_load((tmp_path / "m" / "metrics.json").read_text())
+    assert record["figures"]["pairs"] == 11.0
+
+
+def test_presets_only_keeps_those_sequences(corpus: Path, tmp_path: Path, capsys) -> None:
+    args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(tmp_path / "m"), "--epochs", "1", "--presets-only", "urban"]
+    assert main([*args, "-q", "--threads", "1", *TINY]) == 0
+    assert "22 training and 11 validation samples" in capsys.readouterr().err
+
+
+def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
+    out = str(tmp_path / "p.csv")
+    assert main(["hydranet", "predict", str(corpus / "0003"), "--model", str(tmp_path / "none"), "-o", out]) == 2
+    assert "model directory not found" in capsys.readouterr().err
+    assert main(["hydranet", "train", "--corpus", str(corpus), "-o", str(tmp_path / "m"), *TINY, "--covariance", "full"]) == 2
+    assert "unknown covariance 'full': choose one of cholesky, diagonal" in capsys.readouterr().err
+    bad = tmp_path / "bad.csv"
+    header = "frame_prev,frame,qw,qx,qy,qz,c00,c01,c02,c10,c11,c12,c20,c21,c22\n"
+    bad.write_text(header + "0,1,1,0,0,0,1,0,0,0,1,0,0,0,1\n1,2,1,0,0,0,1,0,0,0,-1,0,0,0,1\n")
+    assert main(["hydranet", "eval", "--pred", str(bad), "--gt", str(corpus / "0003" / "poses.txt")]) == 2
+    assert "bad.csv:3: covariance of frame 2 is not symmetric positive definite" in capsys.readouterr().err
+    bad.write_text(header + "0,1,2,0,0,0,1,0,0,0,1,0,0,0,1\n")
+    assert main(["hydranet", "eval", "--pred", str(bad), "--gt", str(corpus / "0003" / "poses.txt")]) == 2
+    assert "bad.csv:2: quaternion of frame 1 is not unit length" in capsys.readouterr().err
+    bad.write_text(header + "0,40,1,0,0,0,1,0,0,0,1,0,0,0,1\n")
+    assert main(["hydranet", "eval", "--pred", str(bad), "--gt", str(corpus / "0003" / "poses.txt")]) == 2
+    assert "frame 40 is beyond the 12 poses" in capsys.readouterr().err
