@@ -82,3 +82,28 @@ def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     bad.write_text(header + "0,40,1,0,0,0,1,0,0,0,1,0,0,0,1\n")
     assert main(["hydranet", "eval", "--pred", str(bad), "--gt", str(corpus / "0003" / "poses.txt")]) == 2
     assert "frame 40 is beyond the 12 poses" in capsys.readouterr().err
+
+
+def test_experiment_reports_every_section(corpus: Path, pvo_data: Path, tmp_path: Path) -> None:
+    """`pvo experiment hydranet` on a tiny model (no fusion sequences: they take minutes to render): the
+    accuracy, out-of-distribution, covariance-form, real-image and speed sections, and the record."""
+    import json
+
+    model = tmp_path / "model"
+    assert main(["hydranet", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "-q", *TINY]) == 0
+    out = tmp_path / "experiment"
+    args = ["experiment", "hydranet", "--corpus", str(corpus), "--model", str(model), "--diagonal", str(model)]
+    options = ["--ood-model", str(model), "--fusion-sequences", "0", "--finetune-epochs", "1", "--data", str(pvo_data)]
+    assert main([*args, *options, "--threads", "1", "-o", str(out), "-q"]) == 0
+    report = (out / "report.md").read_text()
+    for heading in ("## 1. Accuracy", "## 2. Out of distribution", "## 3. Aleatoric covariance", "## 5. Real images", "## Speed"):
+        assert heading in report, heading
+    assert "fine-tuned on 07, KITTI 06 clip" in report
+    figures = json.loads((out / "metrics.json").read_text())["figures"]
+    assert figures["test.pairs"] == 11.0 and figures["ms_per_pair_median"] > 0.0
+    assert 0.0 < figures["kitti06.vo_angle_mean_deg"] < 0.2  # the stereo VO on the real clip, for comparison
+    tuned = yaml.safe_load((out / "kitti-finetuned" / "model.yaml").read_text())
+    assert "fine-tuned from" in tuned["notes"]
+    staged = (out / "kitti06" / "poses.txt").read_text().splitlines()
+    assert len(staged) == 51  # the clip's poses, relative to its first frame
+    np.testing.assert_allclose(np.array(staged[0].split(), float).reshape(3, 4), np.eye(4)[:3], atol=1e-12)

@@ -13,6 +13,7 @@ EXPERIMENTS: dict[str, str] = {
     "sun-bcnn": "pvo_tools.experiments.sun_bcnn",
     "probe": "pvo_tools.experiments.probe",
     "hydranet-1d": "pvo_tools.experiments.hydranet_1d",
+    "hydranet": "pvo_tools.experiments.hydranet",
 }
 
 
