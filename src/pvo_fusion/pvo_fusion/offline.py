@@ -7,7 +7,7 @@ The same events give the same estimates as the ``fusion`` node fed the same mess
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,20 +22,27 @@ Measurement = RelativeMeasurement | SunMeasurement
 Event = tuple[str, Measurement]  # kind: vo | sun | correction | rotation
 
 
-def ordered_events(vo: Sequence[RelativeMeasurement], others: Iterable[tuple[str, Measurement]] = ()) -> list[Event]:
+def ordered_events(
+    vo: Sequence[RelativeMeasurement], others: Iterable[tuple[str, Measurement]] = (), before: Collection[str] = ()
+) -> list[Event]:
     """Measurements in arrival order: each frame's VO, then the other measurements stamped at that frame
-    (those at the first VO's reference frame first of all); others at no VO frame come at the end."""
+    (those at the first VO's reference frame first of all); others at no VO frame come at the end. Kinds in
+    ``before`` come just before the VO of their frame instead (a sensor faster than the VO: HydraNet's
+    rotation ending at frame k reaches the fusion before the VO of frame k does, and waits for its state)."""
     by_stamp: dict[int, list[Event]] = {}
+    early: dict[int, list[Event]] = {}
     for kind, m in others:
-        by_stamp.setdefault(int(m.stamp), []).append((kind, m))
+        (early if kind in before else by_stamp).setdefault(int(m.stamp), []).append((kind, m))
     events: list[Event] = []
     if vo:
+        events.extend(early.pop(int(vo[0].reference_stamp), []))
         events.extend(by_stamp.pop(int(vo[0].reference_stamp), []))
     for m in vo:
+        events.extend(early.pop(int(m.stamp), []))
         events.append(("vo", m))
         events.extend(by_stamp.pop(int(m.stamp), []))
-    for stamp in sorted(by_stamp):
-        events.extend(by_stamp[stamp])
+    for stamp in sorted(set(by_stamp) | set(early)):
+        events.extend(early.get(stamp, []) + by_stamp.get(stamp, []))
     return events
 
 

@@ -141,3 +141,27 @@ def test_ephemeris_in_a_map_frame_found_from_the_gps_track() -> None:
     with pytest.raises(ValueError, match="straight line"):
         line = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
         TabulatedSunReference.from_ephemeris_in_map(stamps, enu_to_geodetic(origin, line), line)
+
+
+def test_kinds_named_before_come_ahead_of_the_vo_of_their_frame() -> None:
+    from pvo_fusion import RelativeMeasurement
+
+    def relative(stamp: int, rotation_only: bool = False) -> RelativeMeasurement:
+        return RelativeMeasurement(stamp, stamp - 1, np.eye(4), np.eye(6), rotation_only)
+
+    vo = [relative(s) for s in (1, 2, 3)]
+    sun = SunMeasurement(2, np.array([0.0, 0.0, 1.0]), np.eye(2))
+    rotations = [("rotation", relative(s, True)) for s in (1, 2, 3, 4)]
+    events = ordered_events(vo, [("sun", sun), *rotations], before={"rotation"})
+    assert [(kind, int(m.stamp)) for kind, m in events] == [
+        ("rotation", 1),
+        ("vo", 1),
+        ("rotation", 2),
+        ("vo", 2),
+        ("sun", 2),
+        ("rotation", 3),
+        ("vo", 3),
+        ("rotation", 4),
+    ]
+    default = ordered_events(vo, rotations[:2])
+    assert [(kind, int(m.stamp)) for kind, m in default] == [("vo", 1), ("rotation", 1), ("vo", 2), ("rotation", 2), ("vo", 3)]

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 from pvo_core.msgconv import image_to_array
 from sensor_msgs.msg import Image
 
@@ -21,8 +20,6 @@ from pvo_msgs.msg import RelativePose
 from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, reliable, run_node, stamp_to_nanoseconds
 
 from .hydranet.estimator import HydraNetSensor, HydraNetSensorConfig, RotationEstimate
-
-UNMEASURED = 9999.0  # variance of the translation block: HydraNet says nothing about it
 
 
 def rotation_message(estimate: RotationEstimate, header: Any) -> RelativePose:
@@ -32,9 +29,7 @@ def rotation_message(estimate: RotationEstimate, header: Any) -> RelativePose:
     w, x, y, z = (float(v) for v in estimate.quaternion)
     out.pose.pose.orientation.w, out.pose.pose.orientation.x = w, x
     out.pose.pose.orientation.y, out.pose.pose.orientation.z = y, z
-    covariance = np.diag([UNMEASURED] * 3 + [0.0] * 3)
-    covariance[3:, 3:] = estimate.covariance
-    out.pose.covariance = [float(v) for v in covariance.reshape(-1)]
+    out.pose.covariance = [float(v) for v in estimate.pose_covariance.reshape(-1)]
     out.rotation_only = True
     return out
 

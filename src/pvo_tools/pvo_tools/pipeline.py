@@ -1,9 +1,10 @@
 """The node graph's algorithms as plain objects over a recorded bag: what ``stereo_vo`` → ``simulated_sun`` or
-``sun_bcnn`` → ``fusion`` compute, without ROS. The demo runs it beside the real graph to check that both agree."""
+``sun_bcnn`` (and ``hydranet``) → ``fusion`` compute, without ROS. The demo runs it beside the real graph to check
+that both agree."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,7 @@ class PipelineResult:
     vo: list[RelativeMeasurement]
     sun: list[SunMeasurement]
     fused: OfflineResult
+    rotations: list[RelativeMeasurement] = field(default_factory=list)
 
 
 def run_pipeline(
@@ -50,13 +52,19 @@ def run_pipeline(
     sun_reference: SunReference | None,
     initial_pose: Array,
     sun_stamps: list[int] | None = None,
+    rotation_config: Any = None,
+    rotation_handled: dict[int, int] | None = None,
 ) -> PipelineResult:
     """Every stereo pair through :class:`StereoVO`; the sun from every ground-truth sun vector through the
     simulated sun sensor (``sun_config``: a :class:`SimulatedSunConfig`) or from every left image through
     Sun-BCNN (a :class:`~pvo_pseudosensors.sun_bcnn.estimator.SunBCNNSensorConfig`); both through a
     :class:`FusionGraph` in the usual arrival order (:func:`pvo_fusion.run_offline`; each sun before the next
     frame); ``sun_stamps``: the frames a ``sun_bcnn`` node estimated at (it counts the images it receives: one it
-    never got shifts its choice)."""
+    never got shifts its choice); ``rotation_config``: a
+    :class:`~pvo_pseudosensors.hydranet.estimator.HydraNetSensorConfig` adds HydraNet's rotations between
+    consecutive left images, each reaching the fusion before the VO of its frame (HydraNet is the faster), or,
+    with ``rotation_handled`` (VO frame stamp -> rotations the fusion node had handled when it reported that
+    frame, its ``handled.rotation``), in the order the node took them."""
     camera = StereoCamera.from_camera_infos(sample.left_info, sample.right_info)
     vo = StereoVO(camera, vo_config)
     stamps = sample.frame_stamps
@@ -75,10 +83,46 @@ def run_pipeline(
         sun = simulated_sun(sample, sun_config)
     else:
         sun = learned_sun(sample, sun_config, sun_stamps)
+    rotations = learned_rotations(sample, rotation_config) if rotation_config is not None else []
     graph = FusionGraph(fusion_config, sun_reference)
     graph.set_initial_pose(initial_pose)
-    fused = run_offline(graph, stamps, ordered_events(measurements, sun_events(sun)), covariance_every=1)
-    return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused)
+    if rotation_handled is None:
+        events = ordered_events(measurements, [*sun_events(sun), *(("rotation", m) for m in rotations)], before={"rotation"})
+    else:
+        events = in_node_order(ordered_events(measurements, sun_events(sun)), "rotation", rotations, rotation_handled)
+    fused = run_offline(graph, stamps, events, covariance_every=1)
+    return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused, rotations)
+
+
+def in_node_order(events: list[Any], kind: str, extra: list[Any], handled: dict[int, int]) -> list[Any]:
+    """``events`` with the measurements ``extra`` (of ``kind``, in the order their sensor sent them) placed as
+    the fusion node took them: the j-th right before the first VO whose report counted more than j of them."""
+    out: list[Any] = []
+    taken = 0
+    for event in events:
+        if event[0] == "vo" and int(event[1].stamp) in handled:
+            while taken < min(handled[int(event[1].stamp)], len(extra)):
+                out.append((kind, extra[taken]))
+                taken += 1
+        out.append(event)
+    return out + [(kind, m) for m in extra[taken:]]
+
+
+def learned_rotations(sample: StereoSample, config: Any) -> list[RelativeMeasurement]:
+    """What ``hydranet`` publishes for the sample's left images, as the fusion reads it."""
+    from pvo_core.lie import quaternion_to_rotation
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor
+
+    sensor = HydraNetSensor(config)
+    rotations = []
+    for stamp in sample.frame_stamps:
+        estimate = sensor.estimate(image_to_array(sample.pairs[int(stamp)][0]), int(stamp))
+        if estimate is not None:
+            transform = np.eye(4)
+            q = estimate.quaternion
+            transform[:3, :3] = quaternion_to_rotation(q / np.linalg.norm(q))  # as the fusion node reads the message
+            rotations.append(RelativeMeasurement(int(stamp), estimate.earlier_stamp, transform, estimate.pose_covariance, True))
+    return rotations
 
 
 def simulated_sun(sample: StereoSample, config: SimulatedSunConfig) -> list[SunMeasurement]:

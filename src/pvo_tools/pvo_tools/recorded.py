@@ -39,8 +39,9 @@ class RecordedPoses:
 
 
 def read_recorded(bag: Path, topics: list[str]) -> dict[str, RecordedPoses]:
-    """Every ``nav_msgs/Odometry`` message of the given topics, and the last ``nav_msgs/Path`` message of each
-    path topic, by stamp. A topic with no message is missing from the result."""
+    """Every ``nav_msgs/Odometry`` or ``pvo_msgs/RelativePose`` message of the given topics (a relative pose:
+    T_to,from at its header stamp, the later frame), and the last ``nav_msgs/Path`` message of each path topic,
+    by stamp. A topic with no message is missing from the result."""
     store = project_typestore()
     odometry: dict[str, list[tuple[int, Array, Array]]] = {}
     last_path: dict[str, tuple] = {}
@@ -50,7 +51,7 @@ def read_recorded(bag: Path, topics: list[str]) -> dict[str, RecordedPoses]:
                 continue
             if connection.msgtype == "nav_msgs/msg/Path":
                 last_path[connection.topic] = (connection, raw)
-            elif connection.msgtype == "nav_msgs/msg/Odometry":
+            elif connection.msgtype in ("nav_msgs/msg/Odometry", "pvo_msgs/msg/RelativePose"):
                 msg = store.deserialize_cdr(raw, connection.msgtype)
                 odometry.setdefault(connection.topic, []).append(
                     (
@@ -60,7 +61,7 @@ def read_recorded(bag: Path, topics: list[str]) -> dict[str, RecordedPoses]:
                     )
                 )
             else:
-                raise PvoError(f"{bag}: {connection.topic} is {connection.msgtype}, not an odometry or path topic")
+                raise PvoError(f"{bag}: {connection.topic} is {connection.msgtype}, not an odometry, relative pose or path topic")
     out: dict[str, RecordedPoses] = {}
     for topic, rows in odometry.items():
         out[topic] = RecordedPoses(

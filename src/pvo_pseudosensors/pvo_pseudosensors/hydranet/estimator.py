@@ -16,6 +16,7 @@ from .infer import load_hydranet
 from .model import predict_rotations
 
 Array = NDArray[np.float64]
+UNMEASURED = 9999.0  # variance of a RelativePose's translation block: HydraNet says nothing about it
 SHIPPED = ("hydranet", "hydranet_kitti")  # trained on the synthetic corpus / fine-tuned on KITTI 07
 
 
@@ -56,6 +57,14 @@ class RotationEstimate:
     @property
     def covariance(self) -> Array:
         return self.epistemic + self.aleatoric
+
+    @property
+    def pose_covariance(self) -> Array:
+        """(6, 6) in ROS order (x y z rotX rotY rotZ) as a ``RelativePose`` carries it: Sigma in the rotation
+        block, the translation marked unmeasured (:data:`UNMEASURED` on its diagonal)."""
+        covariance = np.diag([UNMEASURED] * 3 + [0.0] * 3)
+        covariance[3:, 3:] = self.covariance
+        return covariance
 
 
 class HydraNetSensor:

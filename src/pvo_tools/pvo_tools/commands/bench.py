@@ -21,7 +21,7 @@ from .vo import add_sequence_arguments, open_sequence
 
 
 def register(sub: Any) -> None:
-    bench = sub.add_parser("bench", help="benchmarks: vo | probe | sim | realism | fusion | soak | faults")
+    bench = sub.add_parser("bench", help="benchmarks: vo | probe | hydranet | sim | realism | fusion | soak | faults")
     kinds = bench.add_subparsers(dest="bench", required=True, metavar="WHAT")
     bvo = kinds.add_parser("vo", help="stereo VO per-stage timings and accuracy on a KITTI clip")
     bvo.set_defaults(handler=bench_vo)
@@ -40,6 +40,12 @@ def register(sub: Any) -> None:
     bp.add_argument("--image", type=Path, help="left image (default KITTI 06 frame 10 of the data directory)")
     bp.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
     bp.add_argument("--repeat", type=int, default=50, help="frames timed (default 50)")
+
+    bh = kinds.add_parser("hydranet", help="HydraNet: resize, Farneback flow and the network per frame pair on one core")
+    bh.set_defaults(handler=bench_hydranet)
+    bh.add_argument("--model", default="", help="HydraNet model (default: the shipped one)")
+    bh.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
+    bh.add_argument("--repeat", type=int, default=3, help="passes over the KITTI 06 clip; the fastest is reported (default 3)")
 
     bs = kinds.add_parser("sim", help="synthetic world: stereo frames/s at 620x188 and 1241x376, world generation vs length")
     bs.set_defaults(handler=bench_sim)
@@ -151,6 +157,54 @@ def bench_probe(args: argparse.Namespace) -> int:
             stage()
             times.append(1e3 * (time.perf_counter() - tic))
         print(f"  {name:<28} median {np.median(times):6.2f} ms, p95 {np.percentile(times, 95):6.2f} ms")
+    return 0
+
+
+def bench_hydranet(args: argparse.Namespace) -> int:
+    """Issue 15's budget: flow + inference <= 25 ms per frame pair on one core, stage by stage, over the KITTI
+    06 clip's full-size left images (what the node receives)."""
+    import time
+
+    import cv2
+    import numpy as np
+    import torch
+    from pvo_core.imageio import read_image
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+    from pvo_pseudosensors.hydranet.flow import dense_flow
+    from pvo_pseudosensors.hydranet.model import predict_rotations
+
+    from ..paths import data_directory
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+    sensor = HydraNetSensor(HydraNetSensorConfig(model=args.model, threads=1))
+    paths = sorted((data_directory(args.data) / "kitti" / "sequences" / "06" / "image_0").glob("*.png"))
+    images = [read_image(p) for p in paths]
+    size = (sensor.width, sensor.height)
+    small = [cv2.resize(i, size, interpolation=cv2.INTER_AREA) for i in images]
+    flow = torch.from_numpy(dense_flow(small[0], small[1]))[None]
+    stages = {
+        "resize": lambda k: cv2.resize(images[k], size, interpolation=cv2.INTER_AREA),
+        "Farneback flow": lambda k: dense_flow(small[k - 1], small[k]),
+        "network (25 heads, Sigma)": lambda k: predict_rotations(sensor.model, flow),
+        "sensor total": lambda k: sensor.estimate(images[k], (k + 1) * 100_000_000),
+    }
+    print(
+        f"pvo bench hydranet: {sensor.height}x{sensor.width} flow from {images[0].shape[1]}x{images[0].shape[0]} images, "
+        f"{len(images) - 1} pairs of the KITTI 06 clip, one core"
+    )
+    for name, stage in stages.items():
+        best: list[float] = []
+        for _ in range(args.repeat):
+            sensor.reset()
+            sensor.estimate(images[0], 100_000_000)
+            times = []
+            for k in range(1, len(images)):
+                tic = time.perf_counter()
+                stage(k)
+                times.append(1e3 * (time.perf_counter() - tic))
+            best = times if not best or np.median(times) < np.median(best) else best
+        print(f"  {name:<28} median {np.median(best):6.2f} ms, p95 {np.percentile(best, 95):6.2f} ms")
     return 0
 
 

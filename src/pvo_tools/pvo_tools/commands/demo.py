@@ -5,7 +5,9 @@
 
 The sun sensor: ``sun_bcnn`` (Sun-BCNN on the left images, the shipped model) where the bag has GPS fixes,
 with the fusion's sun reference from the ephemeris at the first fix; elsewhere (the KITTI sample: no GPS)
-``simulated_sun`` (GT-Sun-10) with the reference from the ground truth."""
+``simulated_sun`` (GT-Sun-10) with the reference from the ground truth. With the learned sun comes
+``hydranet`` (HydraNet's rotation between consecutive left images, the shipped model), fused by the
+rotation factor."""
 
 from __future__ import annotations
 
@@ -57,6 +59,13 @@ def register(sub: Any) -> None:
         help="sun sensor: sun-bcnn, simulated (GT-Sun) or auto (default: sun-bcnn where the bag has /gps/fix)",
     )
     demo.add_argument("--sun-model", default="", help="Sun-BCNN model directory (default: the shipped model)")
+    demo.add_argument(
+        "--hydranet",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="run hydranet beside the learned sun (default: yes)",
+    )
+    demo.add_argument("--hydranet-model", default="", help="HydraNet model directory (default: the shipped model)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
     root = repository_root()
     bags = args.bags or [(root or Path.cwd()) / s for s in SAMPLES]
-    settings = DemoSettings(args.rate, args.sun_error, args.timeout, args.sun, args.sun_model)
+    settings = DemoSettings(args.rate, args.sun_error, args.timeout, args.sun, args.sun_model, args.hydranet, args.hydranet_model)
     domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
     start = time.perf_counter()
     results = []
@@ -103,6 +112,8 @@ class DemoSettings:
     timeout_s: float = 120.0
     sun: str = "auto"  # one of SUN_SOURCES
     sun_model: str = ""  # Sun-BCNN model directory; "" = the shipped one
+    hydranet: bool = True  # hydranet beside the learned sun
+    hydranet_model: str = ""  # HydraNet model directory; "" = the shipped one
 
 
 @dataclass
@@ -181,14 +192,21 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         "inputs.sun.reference": "table",
         "inputs.sun.reference_table": str(reference_table.resolve()),
     }
+    rotation_config = None
+    if learned and settings.hydranet:
+        from pvo_pseudosensors.hydranet.estimator import HydraNetSensorConfig
+
+        rotation_config = HydraNetSensorConfig(model=settings.hydranet_model)
     parameters = {
         "stereo_vo": {},
         sun_node: sun_parameters,
+        **({"hydranet": {"model": settings.hydranet_model}} if rotation_config else {}),
         "fusion": {**fusion_overrides, "initial_pose": initial_pose, "path_period": 0.0, "path_max_poses": 0},
     }
     params_file = write_params(out / "params.yaml", parameters)
     recorded_bag = out / "recorded"
-    run_graph(bag, params_file, recorded_bag, out / "logs", settings, domain_id, len(stamps), sun_node)
+    hydranet = rotation_config is not None
+    run_graph(bag, params_file, recorded_bag, out / "logs", settings, domain_id, len(stamps), sun_node, hydranet)
     graph_seconds = time.perf_counter() - start
 
     from pvo_frontend.vo import VOConfig
@@ -207,6 +225,9 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         TabulatedSunReference.read(reference_table),
         xyz_xyzw_to_pose(initial_pose),
         sun_stamps=sun_stamps if sun_node == "sun_bcnn" else None,
+        rotation_config=rotation_config,
+        # HydraNet and the VO race for each image: the objects take the rotations in the order the node did
+        rotation_handled=read_handled_counts(recorded_bag, "rotation") if hydranet else None,
     )
     late = late_frames(read_handled_counts(recorded_bag), stamps, sun_stamps)
     result = evaluate_sample(bag.name, recorded_bag, stamps, ground_truth, ros_free, out, sun_node, late)
@@ -235,9 +256,10 @@ def run_graph(
     domain_id: int,
     frames: int,
     sun_node: str = "simulated_sun",
+    hydranet: bool = False,
 ) -> None:
-    """stereo_vo, the sun node (simulated_sun or sun_bcnn) and fusion as processes; the bag played and the
-    outputs recorded in this process."""
+    """stereo_vo, the sun node (simulated_sun or sun_bcnn), hydranet (when asked) and fusion as processes; the
+    bag played and the outputs recorded in this process."""
     import rclpy
     from rclpy.context import Context
     from rclpy.node import Node
@@ -252,27 +274,28 @@ def run_graph(
     context = Context()
     rclpy.init(context=context, domain_id=domain_id)
     try:
-        for package, executable in (
-            ("pvo_frontend", "stereo_vo"),
-            ("pvo_pseudosensors", sun_node),
-            ("pvo_fusion", "fusion"),
-        ):
+        executables = [("pvo_frontend", "stereo_vo"), ("pvo_pseudosensors", sun_node), ("pvo_fusion", "fusion")]
+        if hydranet:
+            executables.insert(2, ("pvo_pseudosensors", "hydranet"))
+        for package, executable in executables:
             nodes.start(package, executable, params_file, log_dir, env)
         recorder_node = Node("pvo_demo_recorder", context=context)
         player_node = Node("pvo_demo_player", context=context)
-        recorder = BagRecorder(recorder_node, recorded_bag, RecordOptions(topics=OUTPUT_TOPICS, stamp="header"))
+        outputs = [*OUTPUT_TOPICS, *(["/pvo/hydranet/rotation"] if hydranet else [])]
+        recorder = BagRecorder(recorder_node, recorded_bag, RecordOptions(topics=outputs, stamp="header"))
         player = BagPlayer(player_node, bag, PlayOptions(rate=settings.rate, topics=INPUT_TOPICS, wait_for_subscribers=0))
         try:
             with Spinner(context, recorder_node):
                 # Every edge of the graph, publishers and subscribers, as this process sees them.
-                sun_input = (
-                    {"/stereo/left/image_rect": (0, 2)} if sun_node == "sun_bcnn" else {"/ground_truth/sun_direction": (0, 1)}
-                )
+                image_readers = 1 + (sun_node == "sun_bcnn") + hydranet
+                sun_input = {} if sun_node == "sun_bcnn" else {"/ground_truth/sun_direction": (0, 1)}
+                rotation = {"/pvo/hydranet/rotation": (1, 2)} if hydranet else {}
                 wait_for_graph(
                     player_node,
                     {
-                        "/stereo/left/image_rect": (0, 1),
+                        "/stereo/left/image_rect": (0, image_readers),
                         **sun_input,
+                        **rotation,
                         "/pvo/vo/relative": (1, 2),
                         "/pvo/sun/direction": (1, 2),
                         "/pvo/fusion/odometry": (1, 1),
@@ -281,7 +304,7 @@ def run_graph(
                     timeout_s=60.0,
                     check=nodes.check,
                 )
-                wait_until(lambda: len(recorder.subscribed_topics) == len(OUTPUT_TOPICS), 10.0, nodes.check)
+                wait_until(lambda: len(recorder.subscribed_topics) == len(outputs), 10.0, nodes.check)
                 # Discovery shows the endpoints before each pair of them has matched: let the matching settle.
                 time.sleep(GRAPH_SETTLE_S)
                 player.play()  # returns once every subscriber acknowledged every message
@@ -297,7 +320,7 @@ def run_graph(
                     nodes.check,
                     stalled=lambda: (recorder.received("/pvo/fusion/status"), recorder.received("/pvo/fusion/odometry")),
                 )
-                counts = {topic: recorder.received(topic) for topic in OUTPUT_TOPICS}
+                counts = {topic: recorder.received(topic) for topic in outputs}
         finally:
             recorder.close()
             for node in (recorder_node, player_node):
@@ -311,7 +334,13 @@ def run_graph(
             "node(s) did not exit cleanly: "
             + ", ".join(f"{name} (exit {code}, log {log_dir / (name + '.log')})" for name, code in died.items())
         )
-    empty = [topic for topic in ("/pvo/vo/relative", "/pvo/sun/direction", "/pvo/fusion/odometry") if counts[topic] == 0]
+    expected = [
+        "/pvo/vo/relative",
+        "/pvo/sun/direction",
+        "/pvo/fusion/odometry",
+        *(["/pvo/hydranet/rotation"] if hydranet else []),
+    ]
+    empty = [topic for topic in expected if counts[topic] == 0]
     if empty:
         raise PvoError(f"{bag}: nothing received on {', '.join(empty)} (node logs in {log_dir})")
     if not finished:
@@ -333,6 +362,7 @@ def evaluate_sample(
     late: list[int] | None = None,
 ) -> SampleResult:
     """Metrics of VO alone and fused against the ground truth, agreement with the ROS-free run, report files."""
+    import numpy as np
     from pvo_core.evaluation import evaluate, pose_consistency
     from pvo_core.results import RunResult
 
@@ -385,7 +415,18 @@ def evaluate_sample(
             "fused estimates not compared with the objects, the VO is",
             flush=True,
         )
-    worst = max(v for k, v in agreement.items() if k.endswith("_m"))
+    if ros_free.rotations:
+        rotations = read_recorded(recorded_bag, ["/pvo/hydranet/rotation"]).get("/pvo/hydranet/rotation")
+        if rotations is None:
+            raise PvoError(f"{recorded_bag}: nothing recorded on /pvo/hydranet/rotation")
+        expected = np.array([m.transform for m in ros_free.rotations])
+        published, _ = rotations.at(np.array([m.stamp for m in ros_free.rotations]))
+        if metrics.count_finite_poses(published) != len(expected):
+            raise PvoError(f"{recorded_bag}: hydranet published {len(rotations.stamps)} of {len(expected)} rotations")
+        angles = metrics.rotation_angle(published[:, :3, :3] @ expected[:, :3, :3].transpose(0, 2, 1))
+        # one unit of the position tolerance per radian: the rotations must agree to the same digits
+        agreement["hydranet_max_rotation_difference_rad"] = float(np.max(angles))
+    worst = max(v for k, v in agreement.items() if k.endswith(("_m", "_rad")))
     figures["agreement_with_ros_free"] = agreement
     table = format_demo_table(name, figures)
     record = RunResult(
@@ -403,7 +444,8 @@ def evaluate_sample(
     record.write(out)
     plot_demo(out, name, ground_truth, {label: estimates[key][0] for label, key in ESTIMATES})
     (out / "report.md").write_text(
-        f"# pvo demo: {name}\n\nThe sample replayed through stereo_vo -> {sun_node} -> fusion over DDS "
+        f"# pvo demo: {name}\n\nThe sample replayed through stereo_vo -> {sun_node}"
+        f"{' + hydranet' if ros_free.rotations else ''} -> fusion over DDS "
         "and recorded (`recorded/`), evaluated against its ground truth.\n\n```\n"
         + table
         + "\n```\n\n![trajectory](trajectory.png)\n\n![errors](errors.png)\n"
@@ -433,6 +475,10 @@ def format_demo_table(name: str, figures: dict[str, dict[str, Any]]) -> str:
         else f"fused not compared (a sun message reached the fusion after a later frame at {a['late_sun_frames']} frames)"
     )
     lines.append(f"nodes vs ROS-free objects, max position difference: VO {a['vo_max_position_difference_m']:.1e} m, {fused}")
+    if "hydranet_max_rotation_difference_rad" in a:
+        lines.append(
+            f"hydranet node vs HydraNet object, max rotation difference: {a['hydranet_max_rotation_difference_rad']:.1e} rad"
+        )
     return "\n".join(lines)
 
 
