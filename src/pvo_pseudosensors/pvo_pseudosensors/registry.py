@@ -180,7 +180,6 @@ def _hydranet() -> ModelEntry:
             "head_dropout": "dropout in each head (training only)",
             "covariance": "aleatoric covariance: cholesky (full, the thesis) | diagonal (the authors' code)",
             "reverse": "add every training pair reversed (images swapped, target C_k-1,k)",
-            "flow_grid": "rows,columns of the averaged flow fed linearly into the features (0,0: none)",
         },
     )
 

@@ -21,9 +21,7 @@ class HydraNetConfig:
     hidden width and dropout (off at prediction, as the authors' code); covariance: the aleatoric head's
     form, "cholesky" (a full lower-triangular factor of the precision, the thesis) or "diagonal" (the
     authors' code); reverse: add every training pair reversed (images swapped, target C_k-1,k), as the
-    thesis; flow_grid: rows and columns of a grid the flow is averaged over and fed linearly into the body's
-    output beside the convolutions ((0, 0): none) — the small uniform shift a pitch or roll makes is there in
-    a linear read of the averaged flow, and the convolutions alone did not find it."""
+    thesis."""
 
     height: int = 64
     width: int = 208
@@ -34,7 +32,6 @@ class HydraNetConfig:
     head_dropout: float = 0.3
     covariance: str = "cholesky"
     reverse: bool = True
-    flow_grid: tuple[int, ...] = (8, 26)
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths:
@@ -43,8 +40,6 @@ class HydraNetConfig:
             raise ValueError(f"HydraNet needs at least 2 heads for its epistemic covariance, got {self.heads}")
         if not 0.0 <= self.head_dropout < 1.0:
             raise ValueError(f"head_dropout must be in [0, 1), got {self.head_dropout}")
-        if len(self.flow_grid) != 2 or min(self.flow_grid) < 0:
-            raise ValueError(f"flow_grid must be two numbers >= 0 (rows, columns), got {self.flow_grid}")
         if self.covariance not in COVARIANCES:
             raise ValueError(f"unknown covariance {self.covariance!r}: choose one of {', '.join(COVARIANCES)}")
 
@@ -60,5 +55,4 @@ class HydraNetConfig:
     def from_card(cls, card: Any) -> HydraNetConfig:
         values = dict(card.hyperparameters)
         values["widths"] = tuple(values["widths"])
-        values["flow_grid"] = tuple(values.get("flow_grid", (0, 0)))  # models from before the option had none
         return cls(**values)

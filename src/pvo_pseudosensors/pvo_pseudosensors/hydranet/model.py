@@ -43,10 +43,7 @@ class HydraNet(nn.Module):
         self.body = nn.Sequential(*layers)
         with torch.no_grad():
             flat = self.body(torch.zeros(1, 2, *config.size)).numel()
-        self.feature = nn.Sequential(nn.Flatten(), nn.Linear(flat, config.feature))
-        rows, columns = config.flow_grid
-        # the flow averaged over a grid, straight into the features: a linear path the convolutions need not find
-        self.flow_path = nn.Linear(2 * rows * columns, config.feature) if rows and columns else None
+        self.feature = nn.Sequential(nn.Flatten(), nn.Linear(flat, config.feature), nn.ReLU(inplace=True))
         self.heads = nn.ModuleList(
             nn.Sequential(
                 nn.Linear(config.feature, config.head_hidden),
@@ -74,9 +71,6 @@ class HydraNet(nn.Module):
         """flow (B, 2, H, W) in pixels -> the heads' unit quaternions (B, heads, 4) of C_k,k-1 (w >= 0) and
         the lower-triangular Cholesky factor L (B, 3, 3) of the aleatoric precision Sigma_a^-1 = L L^T."""
         features = self.feature(self.body(flow))
-        if self.flow_path is not None:
-            features = features + self.flow_path(nn.functional.adaptive_avg_pool2d(flow, self.config.flow_grid).flatten(1))
-        features = nn.functional.relu(features)
         heads = torch.stack([head(features) for head in self.heads], dim=1)
         heads = nn.functional.normalize(heads, dim=-1)
         heads = torch.where(heads[..., :1] < 0.0, -heads, heads)
