@@ -20,13 +20,14 @@ def corpus(tmp_path_factory) -> Path:
 
     root = tmp_path_factory.mktemp("corpus")
     entries = []
-    for i, (split, preset) in enumerate((("train", "urban"), ("train", "planetary"), ("validation", "urban"), ("test", "urban"))):
+    plan = (("train", "urban"), ("train", "planetary"), ("validation", "urban"), ("test", "urban"), ("test", "planetary"))
+    for i, (split, preset) in enumerate(plan):
         name = f"{i:04d}"
         write_rotation_sequence(root / name, frames=12, seed=i)
         entries.append(
             {"name": name, "split": split, "preset": preset, "sha256": hashlib.sha256(name.encode()).hexdigest(), "config": {}}
         )
-    corpus = {"sequences": 4, "frames": 12, "width": 144, "height": 48, "presets": ["urban"], "seed": 0, "colour": False}
+    corpus = {"sequences": 5, "frames": 12, "width": 144, "height": 48, "presets": ["urban"], "seed": 0, "colour": False}
     (root / "manifest.yaml").write_text(yaml.safe_dump({"corpus": corpus, "sequences": entries}))
     return root
 
@@ -63,6 +64,7 @@ def test_presets_only_keeps_those_sequences(corpus: Path, tmp_path: Path, capsys
     args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(tmp_path / "m"), "--epochs", "1", "--presets-only", "urban"]
     assert main([*args, "-q", "--threads", "1", *TINY]) == 0
     assert "22 training and 11 validation samples" in capsys.readouterr().err
+    assert yaml.safe_load((tmp_path / "m" / "model.yaml").read_text())["corpus"]["presets"] == ["urban"]
 
 
 def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
@@ -90,17 +92,20 @@ def test_experiment_reports_every_section(corpus: Path, pvo_data: Path, tmp_path
     import json
 
     model = tmp_path / "model"
-    assert main(["hydranet", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "-q", *TINY]) == 0
+    train = ["hydranet", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "--presets-only", "urban"]
+    assert main([*train, "-q", *TINY]) == 0
     out = tmp_path / "experiment"
     args = ["experiment", "hydranet", "--corpus", str(corpus), "--model", str(model), "--diagonal", str(model)]
-    options = ["--ood-model", str(model), "--fusion-sequences", "0", "--finetune-epochs", "1", "--data", str(pvo_data)]
+    options = ["--fusion-sequences", "0", "--finetune-epochs", "1", "--data", str(pvo_data)]
     assert main([*args, *options, "--threads", "1", "-o", str(out), "-q"]) == 0
     report = (out / "report.md").read_text()
     for heading in ("## 1. Accuracy", "## 2. Out of distribution", "## 3. Aleatoric covariance", "## 5. Real images", "## Speed"):
         assert heading in report, heading
     assert "fine-tuned on 07, KITTI 06 clip" in report
     figures = json.loads((out / "metrics.json").read_text())["figures"]
-    assert figures["test.pairs"] == 11.0 and figures["ms_per_pair_median"] > 0.0
+    assert figures["test.urban.pairs"] == 11.0 and figures["ms_per_pair_median"] > 0.0
+    assert "urban: 1 sequences (in distribution)" in report and "planetary: 1 sequences (out of distribution)" in report
+    assert figures["ood.epistemic_ratio"] > 0.0
     assert 0.0 < figures["kitti06.vo_angle_mean_deg"] < 0.2  # the stereo VO on the real clip, for comparison
     tuned = yaml.safe_load((out / "kitti-finetuned" / "model.yaml").read_text())
     assert "fine-tuned from" in tuned["notes"]

@@ -211,6 +211,9 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
         bar.update()
 
     corpora = [{"path": str(m.path.parent), "sha256": m.sha256, "sequences": len(m.sequences)} for m in manifests]
+    if args.presets_only:  # the model card says which rig the model is for
+        for corpus in corpora:
+            corpus["presets"] = list(args.presets_only)
     extra = {
         "corpus": corpora[0] if len(corpora) == 1 else {"corpora": corpora},
         "commands": {
