@@ -307,7 +307,7 @@ def run(args: argparse.Namespace) -> int:
         report += fusion_section(args, model, card, manifest, data, out, say, figures, tables)
 
     # 5. real images
-    report += real_images_section(args, model, card, data, out, say, figures, tables)
+    report += real_images_section(args, model, card, data, out, say, figures, tables, session.command)
 
     # speed: flow and network per pair on one thread
     report += speed_section(args.model, data, figures)
@@ -419,7 +419,7 @@ def fusion_section(
 
 
 def real_images_section(
-    args: Any, model: Any, card: Any, data: Path, out: Path, say: Any, figures: dict, tables: dict
+    args: Any, model: Any, card: Any, data: Path, out: Path, say: Any, figures: dict, tables: dict, command: str
 ) -> list[str]:
     from pvo_pseudosensors.hydranet.config import HydraNetConfig
     from pvo_pseudosensors.hydranet.flow import FlowPairs
@@ -449,7 +449,11 @@ def real_images_section(
         validation = FlowPairs([Source(validation07, "07-validation")], config.size)
         loop = TrainConfig(epochs=args.finetune_epochs, batch_size=16, learning_rate=1e-4, patience=0, threads=args.threads)
         tuned_dir = out / "kitti-finetuned"
-        fit(FineTune(HydraTask(config), args.model), train, validation, loop, tuned_dir, say=lambda _: None)
+        extra = {
+            "corpus": card.corpus,
+            "commands": {**card.commands, "finetune": f"{command}  # section 5: KITTI 07 frames 0-127, selected on 128-159"},
+        }
+        fit(FineTune(HydraTask(config), args.model), train, validation, loop, tuned_dir, say=lambda _: None, card_extra=extra)
         tuned, tuned_card = load_hydranet(tuned_dir)
         evaluated, _ = evaluate_sequence(tuned, tuned_card, clip06, "fine-tuned on 07, KITTI 06 clip", None)
         rows.append(evaluated)
