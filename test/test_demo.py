@@ -51,7 +51,7 @@ def test_demo_runs_sun_bcnn_where_the_bag_has_gps(tmp_path: Path, ros_env) -> No
     record = json.loads((sample / "metrics.json").read_text())
     for key in ("vo", "fused_smoothed", "fused_online"):
         assert record["figures"][f"agreement_with_ros_free.{key}_max_position_difference_m"] < 1e-6
-    assert record["figures"]["agreement_with_ros_free.hydranet_max_rotation_difference_rad"] < 1e-6
+    assert record["figures"]["agreement_with_ros_free.hydranet_max_rotation_difference"] < 1e-6
     bag_info = subprocess.run(["pvo", "bag", "info", str(sample / "recorded")], capture_output=True, text=True, timeout=60)
     assert "Topic: /pvo/sun/direction" in bag_info.stdout and "Count: 30 " in bag_info.stdout  # every 10th of 300
     assert "Topic: /pvo/hydranet/rotation" in bag_info.stdout and "Count: 299 " in bag_info.stdout  # every pair

@@ -125,6 +125,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         # measurements other than VO handed to the graph, by kind: the status carries them so that an offline
         # replay can reproduce the order in which the node saw its inputs
         self.handled: Counter[str] = Counter()
+        self.arrivals: list[str] = []  # kinds of the measurements taken since the last VO frame, in order
         self._waiting_vo: list[RelativePose] = []
         self._ground_truth: dict[int, np.ndarray] = {}
         self._initial_known = self.config.prior.source == "identity"
@@ -249,7 +250,8 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
             if self.settings.publish_path and due:
                 self._publish_path(stamp)
                 self._last_path_stamp = stamp
-        self._publish_status(stamp, outcome)
+        self._publish_status(stamp, outcome, arrivals=self.arrivals)
+        self.arrivals = []
 
     def _on_sun(self, msg: SunDirection) -> None:
         self._other("sun", self.graph.add_sun, sun_from_msg(msg))
@@ -271,6 +273,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
     def _other(self, name: str, add: Any, measurement: Any) -> None:
         outcome = add(measurement)
         self.handled[name] += 1
+        self.arrivals.append(name)
         if outcome not in (ACCEPTED, BUFFERED):
             self._publish_status(measurement.stamp, f"{name}: {outcome}")
 
@@ -314,7 +317,9 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         path.poses = poses[-limit:] if limit else poses
         self.pub_path.publish(path)
 
-    def _publish_status(self, stamp: int, message: str) -> None:
+    def _publish_status(self, stamp: int, message: str, arrivals: list[str] | None = None) -> None:
+        """The node's diagnostics; a VO frame's status also lists ``arrivals``: the kinds of the measurements
+        taken since the frame before, in the order taken (what replays the node's order exactly)."""
         problems = any(k.startswith(("solver.", "vo.gap", "vo.lost")) for k in self.graph.counts)
         level = WARN if (problems or message not in (ACCEPTED, BUFFERED)) else OK
         values: dict[str, Any] = {
@@ -328,6 +333,8 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         values.update({f"factors.{k}": v for k, v in sorted(self.graph.factor_counts.items())})
         values.update({f"count.{k}": v for k, v in sorted(self.graph.counts.items()) if v})
         values.update({f"handled.{k}": v for k, v in sorted(self.handled.items())})
+        if arrivals is not None:
+            values["arrivals"] = ",".join(arrivals)
         self.publish_status(stamp, self.settings.map_frame, level, message, values)
 
 

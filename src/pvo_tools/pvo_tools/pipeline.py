@@ -53,7 +53,7 @@ def run_pipeline(
     initial_pose: Array,
     sun_stamps: list[int] | None = None,
     rotation_config: Any = None,
-    rotation_handled: dict[int, int] | None = None,
+    arrivals: dict[int, list[str]] | None = None,
 ) -> PipelineResult:
     """Every stereo pair through :class:`StereoVO`; the sun from every ground-truth sun vector through the
     simulated sun sensor (``sun_config``: a :class:`SimulatedSunConfig`) or from every left image through
@@ -62,9 +62,10 @@ def run_pipeline(
     frame); ``sun_stamps``: the frames a ``sun_bcnn`` node estimated at (it counts the images it receives: one it
     never got shifts its choice); ``rotation_config``: a
     :class:`~pvo_pseudosensors.hydranet.estimator.HydraNetSensorConfig` adds HydraNet's rotations between
-    consecutive left images, each reaching the fusion before the VO of its frame (HydraNet is the faster), or,
-    with ``rotation_handled`` (VO frame stamp -> rotations the fusion node had handled when it reported that
-    frame, its ``handled.rotation``), in the order the node took them."""
+    consecutive left images, each reaching the fusion before the VO of its frame (HydraNet is the faster).
+    ``arrivals`` (VO frame stamp -> the kinds of the measurements the fusion node took since the frame before,
+    in order: its status's ``arrivals``): every measurement is taken in the order the node took it instead (the
+    sensors race the VO for each image; load decides who wins)."""
     camera = StereoCamera.from_camera_infos(sample.left_info, sample.right_info)
     vo = StereoVO(camera, vo_config)
     stamps = sample.frame_stamps
@@ -86,26 +87,31 @@ def run_pipeline(
     rotations = learned_rotations(sample, rotation_config) if rotation_config is not None else []
     graph = FusionGraph(fusion_config, sun_reference)
     graph.set_initial_pose(initial_pose)
-    if rotation_handled is None:
-        events = ordered_events(measurements, [*sun_events(sun), *(("rotation", m) for m in rotations)], before={"rotation"})
+    others = [*sun_events(sun), *(("rotation", m) for m in rotations)]
+    if arrivals is None:
+        events = ordered_events(measurements, others, before={"rotation"})
     else:
-        events = in_node_order(ordered_events(measurements, sun_events(sun)), "rotation", rotations, rotation_handled)
+        events = in_node_order(measurements, others, arrivals)
     fused = run_offline(graph, stamps, events, covariance_every=1)
     return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused, rotations)
 
 
-def in_node_order(events: list[Any], kind: str, extra: list[Any], handled: dict[int, int]) -> list[Any]:
-    """``events`` with the measurements ``extra`` (of ``kind``, in the order their sensor sent them) placed as
-    the fusion node took them: the j-th right before the first VO whose report counted more than j of them."""
-    out: list[Any] = []
-    taken = 0
-    for event in events:
-        if event[0] == "vo" and int(event[1].stamp) in handled:
-            while taken < min(handled[int(event[1].stamp)], len(extra)):
-                out.append((kind, extra[taken]))
-                taken += 1
-        out.append(event)
-    return out + [(kind, m) for m in extra[taken:]]
+def in_node_order(vo: list[RelativeMeasurement], others: list[Any], arrivals: dict[int, list[str]]) -> list[Any]:
+    """The events as the fusion node took them: before each VO frame the measurements it reported taking since
+    the frame before (``arrivals``), each kind's in the order its sensor sent them. Those it took after its
+    last report reached no published estimate and are left out."""
+    queues: dict[str, list[Any]] = {}
+    for kind, m in others:
+        queues.setdefault(kind, []).append(m)
+    taken = dict.fromkeys(queues, 0)
+    events: list[Any] = []
+    for m in vo:
+        for kind in arrivals.get(int(m.stamp), []):
+            if taken.get(kind, 0) < len(queues.get(kind, [])):
+                events.append((kind, queues[kind][taken[kind]]))
+                taken[kind] += 1
+        events.append(("vo", m))
+    return events
 
 
 def learned_rotations(sample: StereoSample, config: Any) -> list[RelativeMeasurement]:

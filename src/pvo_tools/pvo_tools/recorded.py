@@ -95,6 +95,23 @@ def read_handled_counts(bag: Path, kind: str = "sun", topic: str = "/pvo/fusion/
     return counts
 
 
+def read_arrivals(bag: Path, topic: str = "/pvo/fusion/status") -> dict[int, list[str]]:
+    """VO frame stamp (ns) -> the kinds of the measurements the fusion node took since the frame before, in the
+    order it took them (its status's ``arrivals``); empty without such statuses."""
+    store = project_typestore()
+    arrivals: dict[int, list[str]] = {}
+    with open_bag(bag) as reader:
+        for connection, _, raw in iter_messages(reader):
+            if connection.topic != topic:
+                continue
+            msg = store.deserialize_cdr(raw, connection.msgtype)
+            for status in msg.status:
+                values = {v.key: v.value for v in status.values}
+                if "arrivals" in values:
+                    arrivals[stamp_to_nanoseconds(msg.header.stamp)] = [k for k in values["arrivals"].split(",") if k]
+    return arrivals
+
+
 def read_header_stamps(bag: Path, topic: str) -> list[int]:
     """Header stamps (ns) of every message on ``topic``, in recording order."""
     store = project_typestore()

@@ -1,16 +1,28 @@
-"""The demo's check of the fusion node's input order: a frame reported before an earlier frame's sun message
-had been handled is late; the usual order (each sun before the next frame) has none."""
+"""The demo's replay of the fusion node's input order: before each VO frame the measurements the node reported
+taking since the frame before, each kind in its sensor's order; what it took after its last report is left out."""
 
 from __future__ import annotations
 
 import numpy as np
-from pvo_tools.commands.demo import late_frames
+from pvo_tools.pipeline import in_node_order
+
+from pvo_fusion import RelativeMeasurement, SunMeasurement
 
 
-def test_late_frames_from_the_handled_counts() -> None:
-    stamps = np.arange(0, 60, 10)  # frames 0..5
-    suns = [0, 20, 40]
-    usual = {10: 1, 20: 1, 30: 2, 40: 2, 50: 3}  # each sun handled before the next frame
-    assert late_frames(usual, stamps, suns) == []
-    delayed = {10: 0, 20: 1, 30: 1, 40: 2, 50: 3}  # sun 0 reached the node only after frame 1; sun 20 after frame 3
-    assert late_frames(delayed, stamps, suns) == [1, 3]
+def test_events_follow_the_reported_arrivals() -> None:
+    vo = [RelativeMeasurement(s, s - 10, np.eye(4), np.eye(6)) for s in (10, 20, 30)]
+    suns = [SunMeasurement(s, np.array([0.0, 0.0, 1.0]), np.eye(2)) for s in (0, 20)]
+    rotations = [RelativeMeasurement(s, s - 10, np.eye(4), np.eye(6), True) for s in (10, 20, 30)]
+    others = [("sun", m) for m in suns] + [("rotation", m) for m in rotations]
+    # rotation 10 came before frame 10 and sun 0 after it; sun 20 only after frame 30, with rotation 30 before it
+    arrivals = {10: ["rotation"], 20: ["sun", "rotation"], 30: ["rotation"]}
+    events = in_node_order(vo, others, arrivals)
+    assert [(kind, int(m.stamp)) for kind, m in events] == [
+        ("rotation", 10),
+        ("vo", 10),
+        ("sun", 0),
+        ("rotation", 20),
+        ("vo", 20),
+        ("rotation", 30),
+        ("vo", 30),
+    ]  # sun 20, taken after the last report, reached no published estimate: left out
