@@ -180,6 +180,7 @@ def _hydranet() -> ModelEntry:
             "head_dropout": "dropout in each head (training only)",
             "covariance": "aleatoric covariance: cholesky (full, the thesis) | diagonal (the authors' code)",
             "reverse": "add every training pair reversed (images swapped, target C_k-1,k)",
+            "bootstrap": "each head trains on its own fixed half of the samples (bootstrapped heads)",
         },
     )
 

@@ -173,3 +173,22 @@ def test_the_sensor_pairs_images_and_reports_what_it_cannot_pair(tiny_model: Pat
     assert sensor.estimate(images[3][::2, ::2].copy(), 500 + 10**9) is None  # a gap of 1 s: starts afresh
     with pytest.raises(ModelFileError, match="model directory not found"):
         HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "none")))
+
+
+def test_bootstrapped_heads_each_train_on_a_fixed_half() -> None:
+    from pvo_pseudosensors.hydranet.model import bootstrap_mask
+
+    batch = {"sequence": torch.arange(400) % 7, "frame": torch.arange(400), "reversed": torch.arange(400) % 2}
+    mask = bootstrap_mask(batch, 25)
+    assert set(mask.unique().tolist()) == {0.0, 1.0}
+    assert 0.45 < float(mask.mean()) < 0.55 and bool(torch.all((mask.mean(0) > 0.35) & (mask.mean(0) < 0.65)))
+    torch.testing.assert_close(bootstrap_mask(batch, 25), mask)  # fixed per sample: every epoch the same half
+    agreement = (mask[:, :1] == mask[:, 1:]).float().mean()
+    assert 0.4 < float(agreement) < 0.6  # the heads' halves are unrelated
+    task = HydraTask(HydraNetConfig(**{**TINY.__dict__, "bootstrap": True}))
+    model = task.build()
+    flows = torch.randn(4, 2, 48, 144)
+    small = {"flow": flows, "rotation": torch.tensor([[1.0, 0, 0, 0]] * 4), **{k: v[:4] for k, v in batch.items()}}
+    model.eval()  # in evaluation every head counts: the plain mean
+    heads, root = model(flows)
+    torch.testing.assert_close(task.loss(model, small), head_nll(heads, small["rotation"], root).mean())

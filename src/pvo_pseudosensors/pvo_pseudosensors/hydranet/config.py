@@ -21,7 +21,8 @@ class HydraNetConfig:
     hidden width and dropout (off at prediction, as the authors' code); covariance: the aleatoric head's
     form, "cholesky" (a full lower-triangular factor of the precision, the thesis) or "diagonal" (the
     authors' code); reverse: add every training pair reversed (images swapped, target C_k-1,k), as the
-    thesis."""
+    thesis; bootstrap: each head trains on its own fixed half of the samples (bootstrapped heads), so the heads
+    disagree more where the data did not pin them down."""
 
     height: int = 64
     width: int = 208
@@ -32,6 +33,7 @@ class HydraNetConfig:
     head_dropout: float = 0.3
     covariance: str = "cholesky"
     reverse: bool = True
+    bootstrap: bool = False
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths:
@@ -55,4 +57,5 @@ class HydraNetConfig:
     def from_card(cls, card: Any) -> HydraNetConfig:
         values = dict(card.hyperparameters)
         values["widths"] = tuple(values["widths"])
+        values.setdefault("bootstrap", False)  # models from before the option
         return cls(**values)

@@ -98,6 +98,17 @@ def head_nll(heads: torch.Tensor, target: torch.Tensor, root: torch.Tensor) -> t
     return 0.5 * (whitened**2).sum(-1) - log_det.unsqueeze(-1)
 
 
+def bootstrap_mask(batch: dict[str, torch.Tensor], heads: int) -> torch.Tensor:
+    """(B, heads) 0/1: whether each head trains on each sample, half of them each, fixed per sample (a hash of
+    its sequence, frame and direction) so every epoch each head sees the same half — bootstrapped heads, as
+    bagging's networks see their own resamples, so that they disagree where the data did not pin them down."""
+    key = batch["sequence"].long() * 1_000_003 + batch["frame"].long() * 2 + batch["reversed"].long()
+    head = torch.arange(1, heads + 1, dtype=torch.long)
+    mixed = (key[:, None] * 2_654_435_761 + head[None, :] * 40_503) % 4_294_967_296
+    mixed = (mixed ^ (mixed >> 16)) * 73_244_475 % 4_294_967_296
+    return ((mixed >> 15) & 1).to(torch.float32)
+
+
 @dataclass
 class HydraTask:
     """HydraNet for the training loop: the heads' NLL (eq. 7.17) averaged over batch and heads."""
@@ -110,7 +121,11 @@ class HydraTask:
 
     def loss(self, model: nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         heads, root = model(batch["flow"])
-        return head_nll(heads, batch["rotation"], root).mean()
+        nll = head_nll(heads, batch["rotation"], root)
+        if not (self.config.bootstrap and model.training):
+            return nll.mean()
+        mask = bootstrap_mask(batch, nll.shape[1])
+        return (nll * mask).sum() / mask.sum().clamp(min=1.0)
 
     def card(self) -> ModelCard:
         return ModelCard(
