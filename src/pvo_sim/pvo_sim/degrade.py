@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 @dataclass(frozen=True)
 class Degradations:
-    distortion: float = 0.0  # kappa
+    distortion: float | tuple[float, ...] = 0.0  # plumb-bob radial coefficients k1 [, k2, k3]; one number is k1
     blur_px: float = 0.0
     exposure: float = 0.0  # relative gain amplitude, e.g. 0.3 = +-30 %
     noise: float = 0.0  # grey levels (std)
@@ -27,8 +27,12 @@ class Degradations:
     moving_vehicles: int = 3
 
     def __post_init__(self) -> None:
+        if not isinstance(self.distortion, int | float):  # a YAML list from a manifest, or the command's numbers
+            object.__setattr__(self, "distortion", tuple(float(v) for v in self.distortion))
+            if not 1 <= len(self.distortion) <= 3:
+                raise ValueError(f"--distortion takes one to three coefficients (k1 k2 k3), got {len(self.distortion)}")
         checks = [
-            (-0.5 <= self.distortion <= 0.5, "--distortion must be in [-0.5, 0.5]"),
+            (all(-0.5 <= k <= 0.5 for k in self.radial), "--distortion coefficients must be in [-0.5, 0.5]"),
             (0.0 <= self.blur_px <= 50.0, "--blur must be in [0, 50] px"),
             (0.0 <= self.exposure < 1.0, "--exposure must be in [0, 1)"),
             (self.noise >= 0.0, "--noise must be >= 0"),
@@ -41,8 +45,14 @@ class Degradations:
                 raise ValueError(message)
 
     @property
+    def radial(self) -> tuple[float, float, float]:
+        """(k1, k2, k3) of the plumb-bob radial model r_d = r (1 + k1 r² + k2 r⁴ + k3 r⁶)."""
+        values = (self.distortion,) if isinstance(self.distortion, int | float) else tuple(self.distortion)
+        return tuple(float(v) for v in values) + (0.0,) * (3 - len(values))  # type: ignore[return-value]
+
+    @property
     def touches_images(self) -> bool:
-        return bool(self.distortion or self.blur_px or self.exposure or self.noise)
+        return bool(any(self.radial) or self.blur_px or self.exposure or self.noise)
 
 
 def exposure_gains(frames: int, amplitude: float, seed: int) -> NDArray[np.float64]:
@@ -57,26 +67,41 @@ def exposure_gains(frames: int, amplitude: float, seed: int) -> NDArray[np.float
     return 1.0 + amplitude * wave
 
 
-def distortion_maps(width: int, height: int, focal: float, kappa: float) -> tuple[np.ndarray, np.ndarray]:
+def distortion_maps(
+    width: int, height: int, focal: float, coefficients: float | tuple[float, ...]
+) -> tuple[np.ndarray, np.ndarray]:
     """cv2.remap maps giving the radially distorted, cropped image (same size) from the pinhole render.
 
-    An output pixel at normalised radius r samples the render at ``s x (1 + kappa (s r)^2)``; the crop
-    factor ``s <= 1`` keeps every sample inside the render (needed for kappa > 0; s = 1 otherwise).
+    ``coefficients``: k1 or (k1, k2, k3) of the plumb-bob model (the thesis's ch. 6 uses (-0.3, 0.2, 0.01)). An
+    output pixel at normalised radius r samples the render at ``s x f(s r)``, f(q) = 1 + k1 q² + k2 q⁴ + k3 q⁶;
+    the crop factor ``s <= 1`` keeps every sample inside the render (s = 1 when the corner already samples
+    inside). ``ValueError`` when the model folds the image (r f(r) not increasing out to the corner).
     """
+    k1, k2, k3 = Degradations(distortion=coefficients).radial
+
+    def factor(q: np.ndarray | float) -> np.ndarray | float:
+        q2 = np.square(q)
+        return 1.0 + k1 * q2 + k2 * q2**2 + k3 * q2**3
+
     cu, cv = (width - 1) / 2.0, (height - 1) / 2.0
     corner = np.hypot(cu, cv) / focal
+    radii = np.linspace(0.0, corner, 512)
+    if np.any(np.diff(radii * factor(radii)) <= 0.0):
+        raise ValueError(
+            f"--distortion {k1:g} {k2:g} {k3:g} folds the image: r (1 + k1 r² + k2 r⁴ + k3 r⁶) must grow to the corner"
+        )
     crop = 1.0
-    if kappa > 0:
+    if corner * factor(corner) > corner:
         lo, hi = 0.0, 1.0
-        for _ in range(60):  # bisection on s (1 + kappa s^2 c^2) = 1
+        for _ in range(60):  # bisection on s f(s c) = 1
             mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if mid * (1.0 + kappa * (mid * corner) ** 2) < 1.0 else (lo, mid)
+            lo, hi = (mid, hi) if mid * factor(mid * corner) < 1.0 else (lo, mid)
         crop = lo
     v, u = np.mgrid[0:height, 0:width].astype(np.float64)
     x = (u - cu) / focal * crop
     y = (v - cv) / focal * crop
-    factor = 1.0 + kappa * (x**2 + y**2)
-    return (cu + focal * x * factor).astype(np.float32), (cv + focal * y * factor).astype(np.float32)
+    scale = factor(np.hypot(x, y))
+    return (cu + focal * x * scale).astype(np.float32), (cv + focal * y * scale).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -143,7 +168,7 @@ class ImageDegrader:
         self.seed = seed
         self.gains = exposure_gains(frames, degradations.exposure, seed)
         self.rng = np.random.default_rng(seed + 15485863)
-        self.maps = distortion_maps(width, height, focal, degradations.distortion) if degradations.distortion else None
+        self.maps = distortion_maps(width, height, focal, degradations.distortion) if any(degradations.radial) else None
         v, u = np.mgrid[0:height, 0:width].astype(np.float32)
         radius2 = ((u - (width - 1) / 2) ** 2 + (v - (height - 1) / 2) ** 2) / (((width - 1) / 2) ** 2 + ((height - 1) / 2) ** 2)
         self.vignette = 1.0 - self.camera.vignetting * radius2

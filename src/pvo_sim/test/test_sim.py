@@ -165,6 +165,30 @@ def test_degradations_are_what_they_say(tmp_path: Path) -> None:
     assert np.abs(np.diff(blurred, axis=1)).mean() < 0.8 * np.abs(np.diff(sharp, axis=1)).mean()
 
 
+def test_the_thesis_plumb_bob_distortion_matches_opencv() -> None:
+    """(k1, k2, k3) = (-0.3, 0.2, 0.01), the thesis's ch. 6: each output pixel samples the render where OpenCV's
+    plumb-bob model (cv2.projectPoints with those coefficients) puts the same ray; one number is k1 alone;
+    a folding model and too many coefficients are one-line errors."""
+    import cv2
+    from pvo_sim.degrade import Degradations, distortion_maps
+
+    width, height, focal = 320, 120, 185.4
+    mx, my = distortion_maps(width, height, focal, (-0.3, 0.2, 0.01))
+    cu, cv = (width - 1) / 2.0, (height - 1) / 2.0
+    v, u = np.mgrid[0:height:7, 0:width:11].astype(np.float64)
+    rays = np.column_stack([(u.ravel() - cu) / focal, (v.ravel() - cv) / focal, np.ones(u.size)])  # barrel: no crop
+    camera = np.array([[focal, 0.0, cu], [0.0, focal, cv], [0.0, 0.0, 1.0]])
+    projected, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), camera, np.array([-0.3, 0.2, 0.0, 0.0, 0.01]))
+    sampled = np.column_stack([mx[0:height:7, 0:width:11].ravel(), my[0:height:7, 0:width:11].ravel()])
+    np.testing.assert_allclose(sampled, projected[:, 0, :], atol=1e-3)
+    np.testing.assert_array_equal(distortion_maps(width, height, focal, 0.2)[0], distortion_maps(width, height, focal, (0.2,))[0])
+    assert Degradations(distortion=[-0.3, 0.2, 0.01]).radial == (-0.3, 0.2, 0.01)  # a YAML list from a manifest
+    with pytest.raises(ValueError, match="folds the image"):
+        distortion_maps(width, height, focal, (-0.5, 0.0, 0.0))
+    with pytest.raises(ValueError, match="one to three coefficients"):
+        Degradations(distortion=(0.1, 0.1, 0.1, 0.1))
+
+
 def test_a_pole_casts_its_shadow_away_from_the_sun_azimuth() -> None:
     import os
 

@@ -52,7 +52,14 @@ def register(sub: Any) -> None:
     sensors.add_argument("--accel-bias", type=float, nargs=3, default=[0.0, 0.0, 0.0], metavar="B", help="accel bias, m/s^2")
     sensors.add_argument("--gps-sigma", type=float, default=0.0, help="GPS position noise std, m")
     deg = sim.add_argument_group("degradations")
-    deg.add_argument("--distortion", type=float, default=0.0, help="radial distortion kappa, then crop (e.g. -0.3, 0.2, 0.01)")
+    deg.add_argument(
+        "--distortion",
+        type=float,
+        nargs="+",
+        default=[0.0],
+        metavar="K",
+        help="plumb-bob radial distortion k1 [k2 k3], then crop (the thesis's ch. 6: -0.3 0.2 0.01)",
+    )
     deg.add_argument("--blur", type=float, default=0.0, help="horizontal motion blur length in px")
     deg.add_argument("--exposure", type=float, default=0.0, help="exposure change amplitude (relative gain, e.g. 0.3)")
     deg.add_argument("--noise", type=float, default=0.0, help="sensor noise std in grey levels")
@@ -126,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
         imu=ImuNoise(args.gyro_noise, args.accel_noise, tuple(args.gyro_bias), tuple(args.accel_bias)),
         gps_sigma=args.gps_sigma,
         degradations=Degradations(
-            distortion=args.distortion,
+            distortion=args.distortion[0] if len(args.distortion) == 1 else tuple(args.distortion),
             blur_px=args.blur,
             exposure=args.exposure,
             noise=args.noise,
