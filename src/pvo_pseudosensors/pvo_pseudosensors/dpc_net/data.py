@@ -1,0 +1,122 @@
+"""DPC-Net's training windows: this project's stereo VO run over each sequence once (its poses cached beside
+the decoded images), and for every window of Δp frames the images at both ends with the target correction
+T* = T_gt T̂^-1 of the VO's transform T̂_k,k-Δp (thesis §6.4.1).
+
+A correction learned this way is for this VO on this camera: the card names both.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from pvo_core.errors import DataFormatError
+from pvo_core.lie import so3_log
+
+from ..learning.data import Source, cached_images
+from .config import DPCNetConfig
+
+Array = NDArray[np.float64]
+
+
+def vo_poses(source: Source, cache_dir: Path | None) -> Array:
+    """The stereo VO's camera poses T_odom,k (N, 4, 4) over ``source`` (default VO settings), cached."""
+    from pvo_core.readers import KittiSequence
+    from pvo_frontend.offline import run_sequence
+    from pvo_frontend.vo import VOConfig
+
+    sequence = KittiSequence(source.root, rate_hz=10.0)
+    file = None
+    if cache_dir is not None:
+        digest = hashlib.sha256(repr(VOConfig()).encode())
+        for path in [*sequence.left_paths, *sequence.right_paths, source.root / "calib.txt"]:
+            stat = path.stat()
+            digest.update(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
+        file = Path(cache_dir) / f"vo-{digest.hexdigest()[:24]}.npy"
+        if file.is_file():
+            return np.load(file)
+    poses = run_sequence(sequence, VOConfig()).poses
+    if file is not None:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        np.save(file, poses)
+    return poses
+
+
+def window_targets(ground_truth: Array, estimates: Array, first: NDArray[np.int64], last: NDArray[np.int64]) -> Array:
+    """T* = T_gt T̂^-1 (N, 4, 4) for windows from ``first`` to ``last`` (frame indices), T = T_last,first of
+    camera-to-world poses: the left correction that turns the VO's transform into the true one."""
+    truth = np.linalg.inv(ground_truth[last]) @ ground_truth[first]
+    estimate = np.linalg.inv(estimates[last]) @ estimates[first]
+    return truth @ np.linalg.inv(estimate)
+
+
+@dataclass
+class DPCWindows(torch.utils.data.Dataset):
+    """Samples, one per window (k - Δp, k) of every sequence and every Δp in ``config.deltas`` (``deltas`` to
+    override, e.g. the test span): ``first``, ``last`` (C, H, W) float32 in [0, 1] (left and right stacked for
+    the pose variant); ``target`` (4, 4) T*; ``target_yaw`` its rotation about the camera's y axis (rad);
+    ``sequence``, ``frame`` (k), ``delta``."""
+
+    sources: Sequence[Source]
+    config: DPCNetConfig
+    cache_dir: Path | None = None
+    deltas: tuple[int, ...] | None = None
+    progress: Callable[[], None] | None = None
+    images: list[tuple[NDArray[np.uint8], NDArray[np.uint8] | None]] = field(init=False, default_factory=list)
+    index: NDArray[np.int64] = field(init=False)
+    targets: Array = field(init=False)
+
+    def __post_init__(self) -> None:
+        from pvo_core.trajectory import read_kitti_poses
+
+        size = (self.config.height, self.config.width)
+        rows, targets = [], []
+        for number, source in enumerate(self.sources):
+            poses_file = source.root / "poses.txt"
+            if not poses_file.is_file():
+                raise DataFormatError(poses_file, f"needed for DPC-Net's targets but missing ({source.name})")
+            truth = read_kitti_poses(poses_file)
+            estimates = vo_poses(source, self.cache_dir)
+            if len(truth) != len(estimates):
+                raise DataFormatError(poses_file, f"{len(truth)} poses for {len(estimates)} frames")
+            left = cached_images(source.images("left", False), size, False, self.cache_dir, self.progress)
+            right = (
+                cached_images(source.images("right", False), size, False, self.cache_dir, self.progress)
+                if self.config.stereo
+                else None
+            )
+            self.images.append((left, right))
+            for delta in self.deltas or self.config.deltas:
+                last = np.arange(delta, len(truth))
+                rows.append(np.column_stack([np.full(len(last), number), last, np.full(len(last), delta)]))
+                targets.append(window_targets(truth, estimates, last - delta, last))
+        if not rows or sum(len(r) for r in rows) == 0:
+            raise ValueError("the dataset holds no window (every sequence shorter than its span)")
+        self.index = np.vstack(rows)
+        self.targets = np.concatenate(targets)
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def frame(self, number: int, k: int) -> torch.Tensor:
+        left, right = self.images[number]
+        stacked = np.concatenate([left[k], right[k]]) if right is not None else np.asarray(left[k])
+        return torch.from_numpy(stacked.astype(np.float32) / 255.0)
+
+    def __getitem__(self, item: int) -> dict[str, torch.Tensor]:
+        number, k, delta = (int(v) for v in self.index[item])
+        target = self.targets[item]
+        return {
+            "first": self.frame(number, k - delta),
+            "last": self.frame(number, k),
+            "target": torch.from_numpy(target.astype(np.float32)),
+            "target_yaw": torch.tensor(float(so3_log(target[:3, :3])[1]), dtype=torch.float32),
+            "sequence": torch.tensor(number),
+            "frame": torch.tensor(k),
+            "delta": torch.tensor(delta),
+        }
