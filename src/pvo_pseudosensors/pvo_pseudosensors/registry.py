@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .learning.spec import DataSpec
 
 
@@ -21,6 +23,8 @@ class ModelEntry:
     something else than :class:`~.learning.data.FrameDataset`'s samples; predict: the library call behind
     `predict` (an object with ``frames`` and ``write_csv``); evaluate: (prediction file, truth file) ->
     figures, behind `eval`, and summary: figures -> the lines it prints; truth: what `eval --gt` takes;
+    fit_task: the task from the settings and the training set (DPC-Net weighs its loss by the training
+    targets' covariance);
     mc_sampling: `predict` takes MC-dropout options (--samples, --seed, --mode)."""
 
     name: str
@@ -28,12 +32,13 @@ class ModelEntry:
     config: type
     task: Callable[[Any], Any]
     spec: Callable[[Any], DataSpec]
-    predict: Callable[..., Any]
-    evaluate: Callable[[Path, Path], dict[str, float]]
-    summary: Callable[[dict[str, float]], list[str]]
-    truth: str
+    predict: Callable[..., Any] | None = None  # None: the command module adds its own predict / eval
+    evaluate: Callable[[Path, Path], dict[str, float]] | None = None
+    summary: Callable[[dict[str, float]], list[str]] | None = None
+    truth: str = ""
     calibrate: Callable[..., dict[str, float]] | None = None  # model dir, validation sequences -> card figures
     dataset: Callable[..., Any] | None = None
+    fit_task: Callable[[Any, Any], Any] | None = None  # (settings, training set) -> Task, for a loss that needs the data
     mc_sampling: bool = True
     prediction_header: str = ""
     options: dict[str, str] = field(default_factory=dict)  # option help per config field
@@ -185,7 +190,49 @@ def _hydranet() -> ModelEntry:
     )
 
 
+def _dpc_net() -> ModelEntry:
+    from .dpc_net.config import DPCNetConfig
+
+    def task(config: DPCNetConfig):
+        from .dpc_net.model import DPCTask
+
+        return DPCTask(config)
+
+    def fit_task(config: DPCNetConfig, train: Any):
+        from .dpc_net.loss import target_covariance
+        from .dpc_net.model import DPCTask
+
+        parts = getattr(train, "datasets", [train])  # a ConcatDataset of several corpora, or one
+        targets = np.concatenate([part.targets for part in parts])
+        return DPCTask(config, target_covariance(targets))
+
+    def dataset(config: DPCNetConfig, sources, cache_dir, progress=None, training: bool = True):
+        from .dpc_net.data import DPCWindows
+
+        return DPCWindows(sources, config, cache_dir, None if training else (config.test_delta,), progress)
+
+    return ModelEntry(
+        name="dpc-net",
+        description="DPC-Net: learned SE(3) corrections to the stereo VO over Δp frames (thesis ch. 6)",
+        config=DPCNetConfig,
+        task=task,
+        spec=lambda config: DataSpec((config.height, config.width), right=config.stereo),
+        dataset=dataset,
+        fit_task=fit_task,
+        options={
+            "height": "input height (px)",
+            "width": "input width (px)",
+            "stem": "channels of the siamese stem's three convolutions, comma-separated",
+            "body": "channels of the stride-2 convolutions after the stems, comma-separated",
+            "dropout": "dropout after every convolution",
+            "variant": "pose (SE(3) from stereo) | rotation (SO(3) from the left images) | yaw",
+            "deltas": "frame spans of the training windows, comma-separated (thesis 3,4,5; 2,3,4 for distorted images)",
+            "test_delta": "frame span at prediction and validation",
+        },
+    )
+
+
 def models() -> dict[str, ModelEntry]:
     """Every learned pseudo-sensor, by command name."""
-    entries = [_sun_bcnn(), _hydranet()]
+    entries = [_sun_bcnn(), _hydranet(), _dpc_net()]
     return {entry.name: entry for entry in entries}

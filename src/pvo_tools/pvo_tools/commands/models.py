@@ -35,8 +35,13 @@ def register(sub: Any) -> None:
         parser = sub.add_parser(entry.name, help=entry.description)
         actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
         _train_parser(actions, entry)
-        _predict_parser(actions, entry)
-        _eval_parser(actions, entry)
+        if entry.predict is not None:
+            _predict_parser(actions, entry)
+            _eval_parser(actions, entry)
+        else:
+            from .dpc_net import register_actions
+
+            register_actions(actions, entry)
         if entry.calibrate is not None:
             _calibrate_parser(actions, entry)
 
@@ -222,7 +227,7 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
         },
     }
     result = fit(
-        entry.task(config),
+        entry.task(config) if entry.fit_task is None else entry.fit_task(config, sets["train"]),
         sets["train"],
         sets["validation"],
         loop,
@@ -242,6 +247,7 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
 
 
 def run_predict(args: argparse.Namespace, entry: ModelEntry) -> int:
+    assert entry.predict is not None
     if not entry.mc_sampling:
         predictions = entry.predict(args.model, args.sequence, cache_dir=args.cache)
         path = predictions.write_csv(args.out)
@@ -276,6 +282,7 @@ def run_calibrate(args: argparse.Namespace, entry: ModelEntry) -> int:
 def run_eval(args: argparse.Namespace, entry: ModelEntry) -> int:
     from pvo_core.results import RunResult
 
+    assert entry.evaluate is not None and entry.summary is not None
     figures = entry.evaluate(args.pred, args.gt)
     for line in entry.summary(figures):
         print(line)
