@@ -16,6 +16,8 @@ def _nodes():
     from pvo_frontend.stereo_vo_node import StereoVONode, StereoVONodeConfig
     from pvo_frontend.vo import VOConfig
     from pvo_fusion.fusion_node import FusionNode, FusionNodeConfig
+    from pvo_pseudosensors.dpc_net.estimator import DPCNetSensorConfig
+    from pvo_pseudosensors.dpc_net_node import DPCNetNode
     from pvo_pseudosensors.hydranet.estimator import HydraNetSensorConfig
     from pvo_pseudosensors.hydranet_node import HydraNetNode
     from pvo_pseudosensors.simulated_sun import SimulatedSunConfig
@@ -31,6 +33,7 @@ def _nodes():
         "simulated_sun": (SimulatedSunNode, (SimulatedSunConfig(),), ROOT / "src/pvo_pseudosensors/config/simulated_sun.yaml"),
         "sun_bcnn": (SunBCNNNode, (SunBCNNSensorConfig(),), ROOT / "src/pvo_pseudosensors/config/sun_bcnn.yaml"),
         "hydranet": (HydraNetNode, (HydraNetSensorConfig(),), ROOT / "src/pvo_pseudosensors/config/hydranet.yaml"),
+        "dpc_net": (DPCNetNode, (DPCNetSensorConfig(),), ROOT / "src/pvo_pseudosensors/config/dpc_net.yaml"),
     }
 
 
@@ -38,7 +41,7 @@ def _plain(value):
     return list(value) if hasattr(value, "__len__") and not isinstance(value, str) else value
 
 
-@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun", "sun_bcnn", "hydranet"])
+@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun", "sun_bcnn", "hydranet", "dpc_net"])
 def test_declared_parameters_equal_the_config_fields_and_the_yaml(name: str, ros_context) -> None:
     from pvo_core.config import flatten
 
@@ -59,7 +62,7 @@ def test_declared_parameters_equal_the_config_fields_and_the_yaml(name: str, ros
         node.destroy_node()
 
 
-@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun", "sun_bcnn", "hydranet"])
+@pytest.mark.parametrize("name", ["stereo_vo", "fusion", "simulated_sun", "sun_bcnn", "hydranet", "dpc_net"])
 def test_runtime_change_of_an_algorithm_parameter_is_refused_with_the_reason(name: str, ros_context) -> None:
     from pvo_core.config import flatten
     from rclpy.parameter import Parameter
@@ -111,6 +114,7 @@ def test_fusion_applies_path_period_at_run_time_and_validates_it(ros_context) ->
         ("pvo_pseudosensors", "simulated_sun", "every_n:=0", "invalid simulated sun configuration: every_n must be >= 1, got 0"),
         ("pvo_pseudosensors", "sun_bcnn", "mode:=sideways", "unknown mode 'sideways': choose one of full, head"),
         ("pvo_pseudosensors", "hydranet", "max_gap:=0.0", "max_gap must be > 0 s, got 0.0"),
+        ("pvo_pseudosensors", "dpc_net", "threads:=0", "threads must be >= 1, got 0"),
     ],
 )
 def test_a_wrong_parameter_is_one_clear_line_and_exit_2(ros_env, package: str, node: str, parameter: str, message: str) -> None:

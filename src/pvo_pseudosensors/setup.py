@@ -21,13 +21,14 @@ setup(
     zip_safe=True,
     maintainer="pvo maintainers",
     maintainer_email="maintainers@pvo-project.org",
-    description="Pseudo-sensors of pvo: the learning harness, Sun-BCNN, the simulated sun HydraNet (and later DPC-Net)",
+    description="Pseudo-sensors of pvo: the learning harness, Sun-BCNN, the simulated sun HydraNet, DPC-Net",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "simulated_sun = pvo_pseudosensors.simulated_sun_node:main",
             "sun_bcnn = pvo_pseudosensors.sun_bcnn_node:main",
             "hydranet = pvo_pseudosensors.hydranet_node:main",
+            "dpc_net = pvo_pseudosensors.dpc_net_node:main",
         ]
     },
 )

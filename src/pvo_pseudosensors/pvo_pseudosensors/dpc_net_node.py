@@ -1,0 +1,91 @@
+"""dpc_net: stereo images + /pvo/vo/relative -> /pvo/dpc/correction, DPC-Net's correction of the VO over Δp
+frames (thesis ch. 6), fused by the fusion node's correction factor (the smoother relaxes the pose graph).
+
+Parameters mirror :class:`~pvo_pseudosensors.dpc_net.estimator.DPCNetSensorConfig` (``model``, ``threads``);
+defaults in ``config/dpc_net.yaml``. A model that cannot be loaded, a stereo pair it cannot take and a VO
+chain it cannot follow are reported on ``/pvo/dpc_net/status``; the node keeps running.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pvo_core.msgconv import fill_pose, image_to_array, pose_to_matrix
+from sensor_msgs.msg import Image
+
+from pvo_msgs.msg import RelativePose
+from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, reliable, run_node, stamp_to_nanoseconds
+
+from .dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
+
+
+class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("dpc_net", DPCNetSensorConfig(), status_topic="/pvo/dpc_net/status", **kwargs)
+        self.sensor: DPCNetSensor | None = None
+        self.model_error = ""
+        try:
+            self.sensor = DPCNetSensor(self.config)
+        except ValueError as exc:  # ModelFileError is one
+            self.model_error = str(exc)
+            self.problem(f"no DPC-Net model: {exc}")
+        self.lefts: dict[int, Image] = {}
+        self.published = 0
+        self.rejected = 0
+        self.publisher = self.create_publisher(RelativePose, "/pvo/dpc/correction", reliable(100))
+        self.create_subscription(Image, "/stereo/left/image_rect", lambda m: self._on_image(m, "left"), reliable(10))
+        self.create_subscription(Image, "/stereo/right/image_rect", lambda m: self._on_image(m, "right"), reliable(10))
+        self.create_subscription(RelativePose, "/pvo/vo/relative", self._on_vo, reliable(100))
+        self.rights: dict[int, Image] = {}
+
+    def _on_image(self, msg: Image, side: str) -> None:
+        stamp = stamp_to_nanoseconds(msg.header.stamp)
+        (self.lefts if side == "left" else self.rights)[stamp] = msg
+        for store in (self.lefts, self.rights):
+            while len(store) > 32:
+                del store[min(store)]
+        if self.sensor is None or stamp not in self.lefts or stamp not in self.rights:
+            return
+        left, right = self.lefts.pop(stamp), self.rights.pop(stamp)
+        try:
+            self.sensor.add_images(stamp, image_to_array(left), image_to_array(right))
+        except ValueError as exc:
+            self.rejected += 1
+            self.problem(f"stereo pair at {stamp * 1e-9:.3f} s: {exc}")
+            self._status(stamp, WARN, f"stereo pair rejected: {exc}")
+
+    def _on_vo(self, msg: RelativePose) -> None:
+        stamp = stamp_to_nanoseconds(msg.header.stamp)
+        if self.sensor is None:
+            self._status(stamp, ERROR, f"no model: {self.model_error}")
+            return
+        try:
+            transform = pose_to_matrix(msg.pose.pose)
+        except ValueError as exc:
+            self.rejected += 1
+            self._status(stamp, WARN, f"VO transform rejected: {exc}")
+            return
+        correction = self.sensor.add_vo(stamp_to_nanoseconds(msg.reference_stamp), stamp, transform)
+        if correction is None:
+            return
+        out = RelativePose()
+        out.header = msg.header
+        fill_stamp(out.reference_stamp, correction.reference_stamp)
+        fill_pose(out.pose.pose, correction.transform)
+        out.pose.covariance = [float(v) for v in correction.covariance.reshape(-1)]
+        out.rotation_only = False
+        self.publisher.publish(out)
+        self.published += 1
+        self._status(stamp, OK, "published")
+
+    def _status(self, stamp: int, level: int, message: str) -> None:
+        values = {"published": self.published, "rejected": self.rejected}
+        self.publish_status(stamp, "camera_left_optical", level, message, values)
+
+
+def main(args: list[str] | None = None) -> None:
+    run_node(DPCNetNode, "dpc_net", args)
+
+
+if __name__ == "__main__":
+    main()
