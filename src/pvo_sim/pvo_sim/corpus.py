@@ -66,6 +66,9 @@ class CorpusConfig:
     kitti_train: tuple[str, ...] = ("00", "02", "08", "09")
     kitti_validation: tuple[str, ...] = ("04", "10")
     kitti_test: tuple[str, ...] = ("05", "06", "07")
+    # one lens for the whole corpus (the rig DPC-Net learns to correct): plumb-bob k1 [k2 k3] on every sequence,
+    # instead of the drawn distortion
+    lens_distortion: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.supersample not in (1, 2, 3, 4):
@@ -204,6 +207,10 @@ def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
         supersample=corpus.supersample,
     )
     del elevation  # drawn through the time of day; the render records the actual range
+    if corpus.lens_distortion:  # the rig's lens, on every sequence (nothing drawn: the draws stay as they were)
+        lens = corpus.lens_distortion[0] if len(corpus.lens_distortion) == 1 else tuple(corpus.lens_distortion)
+        config = replace(config, degradations=replace(config.degradations, distortion=lens))
+        conditions = [c for c in conditions if c != "radial distortion"] + ["lens distortion"]
     if corpus.kitti_poses:  # drawn last: a corpus without KITTI drives draws exactly as before
         drives = corpus.kitti_drives(split)
         drive = drives[int(rng.integers(len(drives)))]

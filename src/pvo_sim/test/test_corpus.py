@@ -164,3 +164,13 @@ def test_an_unreadable_manifest_is_one_clear_error(tmp_path: Path) -> None:
     (tmp_path / "manifest.yaml").write_text("sequences: [unclosed")
     with pytest.raises(ValueError, match="manifest.yaml: unreadable corpus manifest"):
         render_corpus(TINY, tmp_path)
+
+
+def test_one_lens_for_the_whole_corpus() -> None:
+    lens = CorpusConfig(sequences=30, frames=10, seed=5, lens_distortion=(-0.3, 0.2, 0.01))
+    plain = CorpusConfig(sequences=30, frames=10, seed=5)
+    for i in range(30):
+        plan, before = plan_sequence(lens, i), plan_sequence(plain, i)
+        assert plan.config.degradations.radial == (-0.3, 0.2, 0.01) and "lens distortion" in plan.conditions
+        assert "radial distortion" not in plan.conditions
+        assert plan.config.seed == before.config.seed and plan.split == before.split  # nothing else changes

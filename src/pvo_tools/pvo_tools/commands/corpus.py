@@ -38,6 +38,14 @@ def register(sub: Any) -> None:
         "less, which integrates pixel areas anyway; pvo sim's default 2 costs a third of the rate)",
     )
     corpus.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+    corpus.add_argument(
+        "--lens-distortion",
+        type=float,
+        nargs="+",
+        default=[],
+        metavar="K",
+        help="one lens for every sequence: plumb-bob k1 [k2 k3] (DPC-Net's rig: -0.3 0.2 0.01)",
+    )
     kitti = corpus.add_argument_group("real vehicle motion (each sequence drives a window of a KITTI drive)")
     kitti.add_argument(
         "--kitti-poses", type=Path, help="directory of KITTI odometry pose files NN.txt (e.g. ../shared/data/kitti/poses)"
@@ -73,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
         kitti_train=_drives(args.kitti_train),
         kitti_validation=_drives(args.kitti_validation),
         kitti_test=_drives(args.kitti_test),
+        lens_distortion=tuple(args.lens_distortion),
     )
     bar: Progress | None = None
 

@@ -143,6 +143,8 @@ def _corpus_command(manifest: Any) -> str:
     presets = ",".join(data["presets"])
     colour = " --colour" if data.get("colour") else ""
     colour += f" --supersample {data['supersample']}" if data.get("supersample", 1) != 1 else ""
+    if data.get("lens_distortion"):
+        colour += " --lens-distortion " + " ".join(f"{k:g}" for k in data["lens_distortion"])
     if data.get("kitti_poses"):
         drives = {split: ",".join(data[f"kitti_{split}"]) for split in ("train", "validation", "test")}
         colour += (
