@@ -16,6 +16,7 @@ setup(
         ("share/" + package_name + "/models/sun_bcnn_kitti", glob("models/sun_bcnn_kitti/*")),
         ("share/" + package_name + "/models/hydranet", glob("models/hydranet/*")),
         ("share/" + package_name + "/models/hydranet_kitti", glob("models/hydranet_kitti/*")),
+        ("share/" + package_name + "/models/dpc_net", glob("models/dpc_net/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
