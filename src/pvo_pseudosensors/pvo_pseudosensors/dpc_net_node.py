@@ -22,13 +22,7 @@ from .dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
 class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("dpc_net", DPCNetSensorConfig(), status_topic="/pvo/dpc_net/status", **kwargs)
-        self.sensor: DPCNetSensor | None = None
-        self.model_error = ""
-        try:
-            self.sensor = DPCNetSensor(self.config)
-        except ValueError as exc:  # ModelFileError is one
-            self.model_error = str(exc)
-            self.problem(f"no DPC-Net model: {exc}")
+        self.sensor, self.model_error = self.load(lambda: DPCNetSensor(self.config), "DPC-Net model")
         self.lefts: dict[int, Image] = {}
         self.published = 0
         self.rejected = 0

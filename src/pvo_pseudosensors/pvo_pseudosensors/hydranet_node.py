@@ -37,13 +37,7 @@ def rotation_message(estimate: RotationEstimate, header: Any) -> RelativePose:
 class HydraNetNode(PvoNode[HydraNetSensorConfig, None]):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("hydranet", HydraNetSensorConfig(), status_topic="/pvo/hydranet/status", **kwargs)
-        self.sensor: HydraNetSensor | None = None
-        self.model_error = ""
-        try:
-            self.sensor = HydraNetSensor(self.config)
-        except ValueError as exc:  # ModelFileError is one: a missing, truncated or foreign model
-            self.model_error = str(exc)
-            self.problem(f"no HydraNet model: {exc}")
+        self.sensor, self.model_error = self.load(lambda: HydraNetSensor(self.config), "HydraNet model")
         self.images = 0
         self.published = 0
         self.rejected = 0

@@ -22,13 +22,7 @@ from .sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
 class SunBCNNNode(PvoNode[SunBCNNSensorConfig, None]):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("sun_bcnn", SunBCNNSensorConfig(), status_topic="/pvo/sun_bcnn/status", **kwargs)
-        self.sensor: SunBCNNSensor | None = None
-        self.model_error = ""
-        try:
-            self.sensor = SunBCNNSensor(self.config)
-        except ValueError as exc:  # ModelFileError is one: a missing, truncated or foreign model
-            self.model_error = str(exc)
-            self.problem(f"no Sun-BCNN model: {exc}")
+        self.sensor, self.model_error = self.load(lambda: SunBCNNSensor(self.config), "Sun-BCNN model")
         self.images = 0
         self.published = 0
         self.rejected = 0

@@ -15,6 +15,7 @@ from .qos import reliable
 
 CoreConfig = TypeVar("CoreConfig")
 NodeConfig = TypeVar("NodeConfig")
+Loaded = TypeVar("Loaded")
 
 
 class PvoNode(Node, Generic[CoreConfig, NodeConfig]):
@@ -81,6 +82,16 @@ class PvoNode(Node, Generic[CoreConfig, NodeConfig]):
         if self._node_parameters is None:
             raise AttributeError(f"{self.get_name()} has no node settings")
         return self._node_parameters.value
+
+    def load(self, factory: Callable[[], Loaded], what: str) -> tuple[Loaded | None, str]:
+        """What the node needs to work (a learned model): ``(factory(), "")``, or ``(None, reason)`` with one
+        log line when it raises ``ValueError`` (a missing, truncated or foreign model file says so in one
+        line): the node keeps running and reports the reason on its status instead of publishing guesses."""
+        try:
+            return factory(), ""
+        except ValueError as exc:
+            self.problem(f"no {what}: {exc}")
+            return None, str(exc)
 
     def publish_status(self, stamp_ns: int, hardware_id: str, level: int, message: str, values: Mapping[str, Any]) -> None:
         """One ``DiagnosticArray`` on ``/pvo/<node>/status``, stamped with the message time it reports on."""

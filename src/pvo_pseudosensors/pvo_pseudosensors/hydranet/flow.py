@@ -11,7 +11,6 @@ sample every epoch would dominate a CPU epoch.
 from __future__ import annotations
 
 import hashlib
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +22,7 @@ from pvo_core.errors import DataFormatError
 from pvo_core.lie import rotation_to_quaternion
 from pvo_core.trajectory import read_kitti_poses
 
-from ..learning.data import Source, cached_images
+from ..learning.data import Source, cached_array, cached_images
 
 FARNEBACK = (0.5, 3, 15, 3, 5, 1.2, 0)  # pyr_scale, levels, winsize, iterations, poly_n, poly_sigma, flags
 FLOW_REVISION = 1  # bump when the flow computation changes: the caches are rebuilt
@@ -59,23 +58,9 @@ def sequence_flows(
     count = len(images) - 1
     if cache_dir is None:
         return np.stack([_pair_flow(images, k, reverse) for k in range(1, count + 1)]).astype(np.float16)
-    file = _flow_file(key, cache_dir, reverse)
-    if file.is_file():
-        try:
-            return np.load(file, mmap_mode="r")
-        except (ValueError, OSError):
-            file.unlink()
-    Path(cache_dir).mkdir(parents=True, exist_ok=True)
-    temporary = file.with_suffix(f".{os.getpid()}.tmp.npy")
-    array = np.lib.format.open_memmap(temporary, mode="w+", dtype=np.float16, shape=(count, 2, *images.shape[2:]))
-    for k in range(1, count + 1):
-        array[k - 1] = _pair_flow(images, k, reverse)
-        if progress:
-            progress()
-    array.flush()
-    del array
-    os.replace(temporary, file)
-    return np.load(file, mmap_mode="r")
+    shape = (count, 2, *images.shape[2:])
+    item = lambda i: _pair_flow(images, i + 1, reverse)  # noqa: E731 - the pair ending at frame i + 1
+    return cached_array(_flow_file(key, cache_dir, reverse), shape, np.dtype(np.float16), item, progress)
 
 
 def _pair_flow(images: NDArray[np.uint8], k: int, reverse: bool) -> NDArray[np.float32]:

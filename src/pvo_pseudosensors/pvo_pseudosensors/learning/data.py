@@ -94,19 +94,31 @@ def cached_images(
     (written to a temporary name and renamed: an interrupted run never leaves a half-written cache)."""
     if cache_dir is None:
         return np.stack([load_resized(p, size, colour) for p in paths])
-    cache_dir = Path(cache_dir)
-    file = cache_dir / f"{_cache_key(paths, size, colour)}.npy"
+    file = Path(cache_dir) / f"{_cache_key(paths, size, colour)}.npy"
+    shape = (len(paths), 3 if colour else 1, *size)
+    return cached_array(file, shape, np.dtype(np.uint8), lambda i: load_resized(paths[i], size, colour), progress)
+
+
+def cached_array(
+    file: Path,
+    shape: tuple[int, ...],
+    dtype: np.dtype,
+    item: Callable[[int], NDArray],
+    progress: Callable[[], None] | None = None,
+) -> NDArray:
+    """``file`` memory-mapped when it holds a readable array, else made from ``item(i)`` for each of shape[0]
+    entries: written to a temporary name and renamed, so an interrupted run never leaves a half-written cache,
+    and a damaged one is rebuilt."""
     if file.is_file():
         try:
             return np.load(file, mmap_mode="r")
         except (ValueError, OSError):
-            file.unlink()  # a damaged cache entry is rebuilt
-    cache_dir.mkdir(parents=True, exist_ok=True)
-    channels = 3 if colour else 1
+            file.unlink()
+    file.parent.mkdir(parents=True, exist_ok=True)
     temporary = file.with_suffix(f".{os.getpid()}.tmp.npy")
-    array = np.lib.format.open_memmap(temporary, mode="w+", dtype=np.uint8, shape=(len(paths), channels, *size))
-    for i, path in enumerate(paths):
-        array[i] = load_resized(path, size, colour)
+    array = np.lib.format.open_memmap(temporary, mode="w+", dtype=dtype, shape=shape)
+    for i in range(shape[0]):
+        array[i] = item(i)
         if progress:
             progress()
     array.flush()
