@@ -24,7 +24,8 @@ class ModelEntry:
     `predict` (an object with ``frames`` and ``write_csv``); evaluate: (prediction file, truth file) ->
     figures, behind `eval`, and summary: figures -> the lines it prints; truth: what `eval --gt` takes;
     fit_task: the task from the settings and the training set (DPC-Net weighs its loss by the training
-    targets' covariance);
+    targets' covariance); work: how many progress steps a dataset of those sequences reports, when its
+    dataset does more than decode images (HydraNet computes flows);
     mc_sampling: `predict` takes MC-dropout options (--samples, --seed, --mode)."""
 
     name: str
@@ -39,6 +40,7 @@ class ModelEntry:
     calibrate: Callable[..., dict[str, float]] | None = None  # model dir, validation sequences -> card figures
     dataset: Callable[..., Any] | None = None
     fit_task: Callable[[Any, Any], Any] | None = None  # (settings, training set) -> Task, for a loss that needs the data
+    work: Callable[[Any, list[int], bool], int] | None = None  # (settings, frames per sequence, training) -> progress steps
     mc_sampling: bool = True
     prediction_header: str = ""
     options: dict[str, str] = field(default_factory=dict)  # option help per config field
@@ -173,6 +175,8 @@ def _hydranet() -> ModelEntry:
         summary=summary,
         truth="true camera poses (poses.txt, KITTI format)",
         dataset=dataset,
+        # each image decoded, then the flow of each consecutive pair (and of each reversed pair in training)
+        work=lambda config, frames, training: sum(n + (n - 1) * (2 if config.reverse and training else 1) for n in frames),
         mc_sampling=False,
         prediction_header=ROTATION_PREDICTIONS_HEADER,
         options={

@@ -77,24 +77,6 @@ def read_recorded(bag: Path, topics: list[str]) -> dict[str, RecordedPoses]:
     return out
 
 
-def read_handled_counts(bag: Path, kind: str = "sun", topic: str = "/pvo/fusion/status") -> dict[int, int]:
-    """VO frame stamp (ns) -> how many ``kind`` measurements the fusion node had handled when it reported that
-    frame (``handled.<kind>`` of each status for an accepted VO frame); empty without such statuses."""
-    store = project_typestore()
-    counts: dict[int, int] = {}
-    with open_bag(bag) as reader:
-        for connection, _, raw in iter_messages(reader):
-            if connection.topic != topic:
-                continue
-            msg = store.deserialize_cdr(raw, connection.msgtype)
-            stamp = stamp_to_nanoseconds(msg.header.stamp)  # exact, unlike the "stamp" value's decimal text
-            for status in msg.status:
-                if status.message == "accepted":
-                    values = {v.key: v.value for v in status.values}
-                    counts[stamp] = int(values.get(f"handled.{kind}", 0))
-    return counts
-
-
 def read_arrivals(bag: Path, topic: str = "/pvo/fusion/status") -> dict[int, list[str]]:
     """VO frame stamp (ns) -> the kinds of the measurements the fusion node took since the frame before, in the
     order it took them (its status's ``arrivals``); empty without such statuses."""

@@ -60,11 +60,15 @@ class RotationEstimate:
 
     @property
     def pose_covariance(self) -> Array:
-        """(6, 6) in ROS order (x y z rotX rotY rotZ) as a ``RelativePose`` carries it: Sigma in the rotation
-        block, the translation marked unmeasured (:data:`UNMEASURED` on its diagonal)."""
-        covariance = np.diag([UNMEASURED] * 3 + [0.0] * 3)
-        covariance[3:, 3:] = self.covariance
-        return covariance
+        return pose_covariance(self.covariance)
+
+
+def pose_covariance(rotation_covariance: Array) -> Array:
+    """(6, 6) in ROS order (x y z rotX rotY rotZ) as a ``RelativePose`` carries a rotation: Sigma (3, 3) in the
+    rotation block, the translation marked unmeasured (:data:`UNMEASURED` on its diagonal)."""
+    covariance = np.diag([UNMEASURED] * 3 + [0.0] * 3)
+    covariance[3:, 3:] = rotation_covariance
+    return covariance
 
 
 class HydraNetSensor:

@@ -24,6 +24,11 @@ def rotation_errors(estimates: ArrayLike, truth: ArrayLike) -> Array:
     return np.stack([so3_log(t @ e.T) for e, t in zip(estimates, truth, strict=True)])
 
 
+def angular_errors_deg(estimates: ArrayLike, truth: ArrayLike) -> Array:
+    """(N,) angles (deg) between estimated and true rotations (N, 3, 3)."""
+    return np.degrees(np.linalg.norm(rotation_errors(estimates, truth), axis=1))
+
+
 def evaluate_rotations(quaternions: ArrayLike, covariances: ArrayLike, truth: ArrayLike) -> dict[str, float]:
     """Figures of estimates (N, 4) (w, x, y, z) with covariances (N, 3, 3) against true rotations (N, 3, 3):
     mean / median / RMS angular error (deg), mean NLL (eq. 7.17 without its constant: 1/2 NEES + 1/2 log det),

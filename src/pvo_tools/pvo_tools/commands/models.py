@@ -30,6 +30,10 @@ TRAIN_DEFAULTS = {
 }
 
 
+#: command modules for the models whose predict / eval are not the generated ones (``register_actions``)
+CUSTOM_ACTIONS = {"dpc-net": "pvo_tools.commands.dpc_net"}
+
+
 def register(sub: Any) -> None:
     for entry in models().values():
         parser = sub.add_parser(entry.name, help=entry.description)
@@ -38,10 +42,12 @@ def register(sub: Any) -> None:
         if entry.predict is not None:
             _predict_parser(actions, entry)
             _eval_parser(actions, entry)
-        else:
-            from .dpc_net import register_actions
+        else:  # a model whose predict / eval take other inputs brings its own actions
+            import importlib
 
-            register_actions(actions, entry)
+            if entry.name not in CUSTOM_ACTIONS:
+                raise RuntimeError(f"model {entry.name!r} has no predict/eval and no command module in CUSTOM_ACTIONS")
+            importlib.import_module(CUSTOM_ACTIONS[entry.name]).register_actions(actions, entry)
         if entry.calibrate is not None:
             _calibrate_parser(actions, entry)
 
@@ -168,8 +174,9 @@ def _dataset(entry: ModelEntry, config: Any, sources: list, cache: Path, label: 
     def decoded() -> None:
         nonlocal bar
         if bar is None:
-            images = sum(len(s.images("left", spec.colour)) for s in sources) * (2 if spec.right else 1)
-            bar = Progress(images, f"{label}: decoding images into {cache}")
+            frames = [len(s.images("left", spec.colour)) for s in sources]
+            work = entry.work(config, frames, label == "train") if entry.work else sum(frames) * (2 if spec.right else 1)
+            bar = Progress(work, f"{label}: decoding images{' and computing their inputs' if entry.work else ''} into {cache}")
         bar.update()
 
     progress = None if quiet else decoded

@@ -81,19 +81,19 @@ def pooled(label: str, parts: list[tuple[Any, Array]]) -> Evaluated:
     return Evaluated(label, figures)
 
 
-def vo_rotation_errors(root: Path) -> tuple[Array, Any]:
-    """The stereo VO's frame-to-frame rotation error (deg) per pair of a sequence, and its run."""
+def vo_rotation_errors(root: Path, poses_file: Path | None = None, rate_hz: float | None = None) -> tuple[Array, Any]:
+    """The stereo VO's frame-to-frame rotation error (deg) per pair of a sequence (truth: ``poses_file``, default
+    its poses.txt), and its run."""
     from pvo_core.readers import KittiSequence
     from pvo_frontend.offline import run_sequence
     from pvo_frontend.vo import VOConfig
-    from pvo_pseudosensors.hydranet.evaluation import rotation_errors, true_relative_rotations
+    from pvo_pseudosensors.hydranet.evaluation import angular_errors_deg, true_relative_rotations
 
-    sequence = KittiSequence(root, poses_file=root / "poses.txt")
+    sequence = KittiSequence(root, rate_hz=rate_hz, poses_file=poses_file or root / "poses.txt")
     run = run_sequence(sequence, VOConfig())
     frames = np.arange(1, len(sequence))
     truth = true_relative_rotations(sequence.poses, frames - 1, frames)
-    estimates = run.relative()["transforms"][:, :3, :3]
-    return np.degrees(np.linalg.norm(rotation_errors(estimates, truth), axis=1)), run
+    return angular_errors_deg(run.relative()["transforms"][:, :3, :3], truth), run
 
 
 COLUMNS = (
@@ -154,19 +154,20 @@ def render_fusion_sequences(data: Path, count: int, frames: int, out: Path, say:
 
 def rotation_measurements(predictions: Any, stamps: NDArray[np.int64]) -> list[Any]:
     """HydraNet's predictions as the rotation-only measurements the fusion takes (what the node publishes)."""
+    from pvo_core.lie import quaternion_to_rotation
+    from pvo_pseudosensors.hydranet.estimator import pose_covariance
+
     from pvo_fusion import RelativeMeasurement
 
     out = []
     for a, b, q, covariance in zip(
         predictions.earlier, predictions.frames, predictions.quaternions, predictions.covariance, strict=True
     ):
-        from pvo_core.lie import quaternion_to_rotation
-
         transform = np.eye(4)
         transform[:3, :3] = quaternion_to_rotation(q)
-        full = np.diag([9999.0] * 3 + [0.0] * 3)
-        full[3:, 3:] = covariance
-        out.append(RelativeMeasurement(int(stamps[b]), int(stamps[a]), transform, full, rotation_only=True))
+        out.append(
+            RelativeMeasurement(int(stamps[b]), int(stamps[a]), transform, pose_covariance(covariance), rotation_only=True)
+        )
     return out
 
 
@@ -323,6 +324,10 @@ def fusion_section(
     args: Any, model: Any, card: Any, manifest: Any, data: Path, out: Path, say: Any, figures: dict, tables: dict
 ) -> list[str]:
     from pvo_core.metrics import mean_relative_change
+    from pvo_core.readers import KittiSequence
+    from pvo_core.trajectory import read_kitti_poses
+    from pvo_frontend.offline import run_sequence
+    from pvo_frontend.vo import VOConfig
     from pvo_pseudosensors.hydranet.infer import predict_sequence
 
     from pvo_fusion import (
@@ -346,8 +351,6 @@ def fusion_section(
     for sequence in [s for s in manifest.split("validation") if s.preset in presets]:
         _, run = vo_rotation_errors(sequence.root)
         relative = run.relative()
-        from pvo_core.trajectory import read_kitti_poses
-
         truth = read_kitti_poses(sequence.root / "poses.txt")
         calibration_sequences.append(CalibrationSequence(sequence.name, truth, relative["transforms"], relative["covariances"]))
     calibration = calibrate_vo(calibration_sequences, 1)
@@ -358,10 +361,6 @@ def fusion_section(
     config: FusionConfig = from_flat({"prior.source": "given"})
     results: dict[str, dict[str, dict[str, float]]] = {}
     for folder in folders:
-        from pvo_core.readers import KittiSequence
-        from pvo_frontend.offline import run_sequence
-        from pvo_frontend.vo import VOConfig
-
         say(f"fusion sequence {folder.name}: VO, HydraNet, fusion ...")
         sequence = KittiSequence(folder, poses_file=folder / "poses.txt")
         truth = sequence.poses
@@ -441,7 +440,8 @@ def real_images_section(
     ):
         evaluated, _ = evaluate_sequence(model, card, root, label, None)
         rows.append(evaluated)
-    vo06, _ = vo_rotation_errors_kitti(data)
+    clip = kitti / "sequences" / "06"
+    vo06 = float(vo_rotation_errors(clip, clip / "poses_frames000-050.txt", rate_hz=10.0)[0].mean())
     if args.finetune_epochs:
         say(f"fine-tuning on KITTI 07 frames 0-127 for {args.finetune_epochs} epochs (validation 128-{count07 - 1}) ...")
         config = HydraNetConfig.from_card(card)
@@ -473,22 +473,6 @@ def real_images_section(
         f"This project's stereo VO on the 06 clip: mean frame-to-frame rotation error {vo06:.4f} deg.",
         "",
     ]
-
-
-def vo_rotation_errors_kitti(data: Path) -> tuple[float, Array]:
-    """The stereo VO's mean frame-to-frame rotation error (deg) on the KITTI 06 clip."""
-    from pvo_core.readers import KittiSequence
-    from pvo_frontend.offline import run_sequence
-    from pvo_frontend.vo import VOConfig
-    from pvo_pseudosensors.hydranet.evaluation import rotation_errors, true_relative_rotations
-
-    root = data / "kitti" / "sequences" / "06"
-    sequence = KittiSequence(root, rate_hz=10.0, poses_file=root / "poses_frames000-050.txt")
-    run = run_sequence(sequence, VOConfig())
-    frames = np.arange(1, len(sequence))
-    truth = true_relative_rotations(sequence.poses, frames - 1, frames)
-    errors = np.degrees(np.linalg.norm(rotation_errors(run.relative()["transforms"][:, :3, :3], truth), axis=1))
-    return float(errors.mean()), errors
 
 
 def speed_section(model_dir: Path, data: Path, figures: dict) -> list[str]:
