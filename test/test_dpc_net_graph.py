@@ -4,7 +4,6 @@ missing model are reported and the node keeps running."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +66,7 @@ def run_graph(ros_context, parameters: dict, script) -> tuple[list[RelativePose]
         with Spinner(ros_context, node), Spinner(ros_context, source):
             wait_for(lambda: vo.get_subscription_count() > 0 and right.get_subscription_count() > 0, 10)
             wait_for(lambda: node.publisher.get_subscription_count() > 0, 10)
-            script(left, right, vo, received, statuses)
+            script(left, right, vo, received, statuses, node)
     finally:
         node.destroy_node()
         source.destroy_node()
@@ -83,11 +82,11 @@ def test_windows_of_vo_in_corrections_out(ros_context, tiny_model: Path) -> None
         se3_exp(np.r_[0.02 * rng.normal(size=3), 0.01 * rng.normal(size=3)]) @ se3_exp([0, 0, 0.8, 0, 0, 0]) for _ in range(8)
     ]
 
-    def script(left, right, vo, received, statuses) -> None:
+    def script(left, right, vo, received, statuses, node) -> None:
         for k, (a, b) in enumerate(frames):
             left.publish(image_message(a, (k + 1) * STEP))
             right.publish(image_message(b, (k + 1) * STEP))
-        time.sleep(1.0)  # the images before their VO, as the VO needs them first
+        wait_for(lambda: len(node.sensor.images) == len(frames), 20)  # the pairs before their VO, as on a robot
         for k in range(1, 8):
             vo.publish(vo_message((k + 1) * STEP, k * STEP, motions[k]))
         wait_for(lambda: len(received) >= 2, 20)
@@ -128,7 +127,7 @@ def test_a_broken_chain_starts_a_new_window_and_a_bad_pair_is_reported(ros_conte
     with pytest.raises(ValueError, match="left and right images differ in size"):
         sensor.add_images(9 * STEP, image, image[:, :100])
 
-    def script(left, right, vo, received, statuses) -> None:
+    def script(left, right, vo, received, statuses, node) -> None:
         left.publish(image_message(image, STEP))
         right.publish(image_message(image[:, :100].copy(), STEP))
         wait_for(lambda: any(s.status[0].level == DiagnosticStatus.WARN for s in statuses), 20)
@@ -138,7 +137,7 @@ def test_a_broken_chain_starts_a_new_window_and_a_bad_pair_is_reported(ros_conte
 
 
 def test_a_missing_model_is_reported_and_the_node_keeps_running(ros_context, tmp_path: Path) -> None:
-    def script(left, right, vo, received, statuses) -> None:
+    def script(left, right, vo, received, statuses, node) -> None:
         vo.publish(vo_message(2 * STEP, STEP, np.eye(4)))
         vo.publish(vo_message(3 * STEP, 2 * STEP, np.eye(4)))
         wait_for(lambda: len(statuses) >= 2, 20)

@@ -86,7 +86,10 @@ class CorpusConfig:
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be a fraction in [0, 1], got {getattr(self, name)}")
         if self.lens_distortion:  # one line now, not after the first sequence rendered
-            Degradations(distortion=tuple(self.lens_distortion))
+            try:
+                Degradations(distortion=tuple(self.lens_distortion))
+            except ValueError as exc:
+                raise ValueError(str(exc).replace("--distortion", "--lens-distortion")) from None
         if self.kitti_poses:
             if set(self.kitti_train) & set(self.kitti_test) or set(self.kitti_validation) & set(self.kitti_test):
                 raise ValueError("a KITTI drive is in the test split and another split: keep the test drives apart")
