@@ -26,7 +26,9 @@ class ModelEntry:
     fit_task: the task from the settings and the training set (DPC-Net weighs its loss by the training
     targets' covariance); work: how many progress steps a dataset of those sequences reports, when its
     dataset does more than decode images (HydraNet computes flows);
-    mc_sampling: `predict` takes MC-dropout options (--samples, --seed, --mode)."""
+    mc_sampling: `predict` takes MC-dropout options (--samples, --seed, --mode); off_rig: corpus conditions that
+    make a sequence another camera's (a drawn calibration error or lens), left out of training when the model
+    is one rig's (DPC-Net's correction is for one camera and one VO)."""
 
     name: str
     description: str
@@ -44,6 +46,7 @@ class ModelEntry:
     mc_sampling: bool = True
     prediction_header: str = ""
     options: dict[str, str] = field(default_factory=dict)  # option help per config field
+    off_rig: tuple[str, ...] = ()
 
 
 def _sun_bcnn() -> ModelEntry:
@@ -205,10 +208,11 @@ def _dpc_net() -> ModelEntry:
     def fit_task(config: DPCNetConfig, train: Any):
         from .dpc_net.loss import target_covariance
         from .dpc_net.model import DPCTask
+        from .dpc_net.rig import training_rig
 
         parts = getattr(train, "datasets", [train])  # a ConcatDataset of several corpora, or one
         targets = np.concatenate([part.targets for part in parts])
-        return DPCTask(config, target_covariance(targets))
+        return DPCTask(config, target_covariance(targets), training_rig(r for part in parts for r in part.rigs))
 
     def dataset(config: DPCNetConfig, sources, cache_dir, progress=None, training: bool = True):
         from .dpc_net.data import DPCWindows
@@ -223,6 +227,7 @@ def _dpc_net() -> ModelEntry:
         spec=lambda config: DataSpec((config.height, config.width), right=config.stereo),
         dataset=dataset,
         fit_task=fit_task,
+        off_rig=("wrong calibration", "radial distortion"),
         options={
             "height": "input height (px)",
             "width": "input width (px)",

@@ -69,6 +69,10 @@ class CorpusConfig:
     # one lens for the whole corpus (the rig DPC-Net learns to correct): plumb-bob k1 [k2 k3] on every sequence,
     # instead of the drawn distortion
     lens_distortion: tuple[float, ...] = ()
+    # one wrong calibration for the whole corpus (the other rig DPC-Net learns to correct, Table 6.1): every
+    # calib.txt written with the focal length and the baseline times these, instead of the drawn error
+    calib_focal_scale: float = 1.0
+    calib_baseline_scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.supersample not in (1, 2, 3, 4):
@@ -90,6 +94,11 @@ class CorpusConfig:
                 Degradations(distortion=tuple(self.lens_distortion))
             except ValueError as exc:
                 raise ValueError(str(exc).replace("--distortion", "--lens-distortion")) from None
+        for name in ("calib_focal_scale", "calib_baseline_scale"):
+            if not 0.5 <= getattr(self, name) <= 2.0:
+                raise ValueError(
+                    f"--{name.replace('_', '-')} must be in [0.5, 2] (a calibration error), got {getattr(self, name)}"
+                )
         if self.kitti_poses:
             if set(self.kitti_train) & set(self.kitti_test) or set(self.kitti_validation) & set(self.kitti_test):
                 raise ValueError("a KITTI drive is in the test split and another split: keep the test drives apart")
@@ -216,6 +225,10 @@ def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
         lens = corpus.lens_distortion[0] if len(corpus.lens_distortion) == 1 else tuple(corpus.lens_distortion)
         config = replace(config, degradations=replace(config.degradations, distortion=lens))
         conditions = [c for c in conditions if c != "radial distortion"] + ["lens distortion"]
+    if (corpus.calib_focal_scale, corpus.calib_baseline_scale) != (1.0, 1.0):  # the rig's calibration error
+        rig = {"focal_scale": corpus.calib_focal_scale, "baseline_scale": corpus.calib_baseline_scale}
+        config = replace(config, degradations=replace(config.degradations, **rig))
+        conditions = [c for c in conditions if c != "wrong calibration"] + ["rig calibration error"]
     if corpus.kitti_poses:  # drawn last: a corpus without KITTI drives draws exactly as before
         drives = corpus.kitti_drives(split)
         drive = drives[int(rng.integers(len(drives)))]

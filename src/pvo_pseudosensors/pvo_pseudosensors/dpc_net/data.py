@@ -20,6 +20,7 @@ from pvo_core.lie import so3_log
 
 from ..learning.data import Source, cached_images
 from .config import DPCNetConfig
+from .rig import Rig, sequence_rig
 
 Array = NDArray[np.float64]
 
@@ -60,7 +61,7 @@ class DPCWindows(torch.utils.data.Dataset):
     """Samples, one per window (k - Δp, k) of every sequence and every Δp in ``config.deltas`` (``deltas`` to
     override, e.g. the test span): ``first``, ``last`` (C, H, W) float32 in [0, 1] (left and right stacked for
     the pose variant); ``target`` (4, 4) T*; ``target_yaw`` its rotation about the camera's y axis (rad);
-    ``sequence``, ``frame`` (k), ``delta``."""
+    ``sequence``, ``frame`` (k), ``delta``; ``rigs``: each sequence's camera (:mod:`.rig`)."""
 
     sources: Sequence[Source]
     config: DPCNetConfig
@@ -70,6 +71,7 @@ class DPCWindows(torch.utils.data.Dataset):
     images: list[tuple[NDArray[np.uint8], NDArray[np.uint8] | None]] = field(init=False, default_factory=list)
     index: NDArray[np.int64] = field(init=False)
     targets: Array = field(init=False)
+    rigs: list[Rig] = field(init=False, default_factory=list)
 
     def __post_init__(self) -> None:
         from pvo_core.trajectory import read_kitti_poses
@@ -91,6 +93,7 @@ class DPCWindows(torch.utils.data.Dataset):
                 else None
             )
             self.images.append((left, right))
+            self.rigs.append(sequence_rig(source.root))
             for delta in self.deltas or self.config.deltas:
                 last = np.arange(delta, len(truth))
                 rows.append(np.column_stack([np.full(len(last), number), last, np.full(len(last), delta)]))

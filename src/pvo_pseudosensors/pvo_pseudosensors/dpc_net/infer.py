@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -53,17 +54,45 @@ class Corrections:
         return path
 
 
+#: the variance of an axis a variant does not correct (rad², m²): the fusion then takes the VO's alone there
+UNMEASURED = 9999.0
+
+
+def correction_vectors(config: DPCNetConfig, output: Array) -> Array:
+    """The network's output (N, 6 | 3 | 1) as left corrections ξ = [ρ; φ] (N, 6): the rotation variant's φ with
+    no translation, the yaw variant's angle about the camera's y axis (down in the optical frame)."""
+    output = np.asarray(output, dtype=float).reshape(len(output), -1)
+    xi = np.zeros((len(output), 6))
+    if config.variant == "pose":
+        xi[:] = output
+    elif config.variant == "rotation":
+        xi[:, 3:] = output
+    else:
+        xi[:, 4] = output[:, 0]
+    return xi
+
+
+def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
+    """The corrected transform's covariance (6, 6), ROS order, on the axes the variant corrects (:data:`UNMEASURED`
+    on the others, uncorrelated): the corrected transforms' own residual covariance on the validation split when
+    the card has it (`pvo dpc-net calibrate`), else the training targets' (eq. 6.6, the thesis's; an upper bound:
+    the error of the VO the model corrects)."""
+    covariance = np.asarray(calibration.get("residual_covariance", calibration["target_covariance"]), dtype=float)
+    axes = {"pose": range(6), "rotation": range(3, 6), "yaw": [4]}[config.variant]
+    kept = np.zeros((6, 6), dtype=bool)
+    kept[np.ix_(list(axes), list(axes))] = True
+    return np.where(kept, covariance, np.diag(np.full(6, UNMEASURED)))
+
+
 def predict_corrections(model: DPCNet, card: ModelCard, sequence: Path, vo: Array, cache_dir: Path | None = None) -> Corrections:
     """Corrections of the VO's transforms (camera-to-odom poses ``vo`` (N, 4, 4)) over consecutive windows of
-    the card's ``test_delta`` frames (0 → Δp, Δp → 2Δp, ...). Pose variant only. The covariance is the training
-    targets' (eq. 6.6, in the card), an upper bound on the corrected transform's error."""
+    the card's ``test_delta`` frames (0 → Δp, Δp → 2Δp, ...), any variant (:func:`correction_vectors`), with
+    :func:`measurement_covariance`."""
     config = DPCNetConfig.from_card(card)
-    if config.variant != "pose":
-        raise ValueError(f"predicting corrections needs the pose variant; this model is {config.variant!r}")
     source = Source(Path(sequence), Path(sequence).name)
     size = (config.height, config.width)
     left = cached_images(source.images("left", False), size, False, cache_dir)
-    right = cached_images(source.images("right", False), size, False, cache_dir)
+    right = cached_images(source.images("right", False), size, False, cache_dir) if config.stereo else None
     if len(vo) != len(left):
         raise ValueError(f"the VO has {len(vo)} poses for the {len(left)} images of {sequence}")
     delta = config.test_delta
@@ -71,11 +100,62 @@ def predict_corrections(model: DPCNet, card: ModelCard, sequence: Path, vo: Arra
     first = last - delta
 
     def frames(index: NDArray[np.int64]) -> torch.Tensor:
-        return torch.from_numpy(np.concatenate([left[index], right[index]], axis=1).astype(np.float32) / 255.0)
+        stacked = np.concatenate([left[index], right[index]], axis=1) if right is not None else np.asarray(left[index])
+        return torch.from_numpy(stacked.astype(np.float32) / 255.0)
 
     with torch.no_grad():
-        xi = model(frames(first), frames(last)).double().numpy() if len(last) else np.zeros((0, 6))
+        output = model(frames(first), frames(last)).double().numpy() if len(last) else np.zeros((0, config.outputs))
+    xi = correction_vectors(config, output)
     estimate = np.linalg.inv(vo[last]) @ vo[first]
     transforms = np.stack([se3_exp(x) @ t for x, t in zip(xi, estimate, strict=True)]) if len(last) else np.zeros((0, 4, 4))
-    covariance = np.asarray(card.calibration["target_covariance"], dtype=float)
+    covariance = measurement_covariance(config, card.calibration)
     return Corrections(first, last, transforms, np.broadcast_to(covariance, (len(last), 6, 6)).copy())
+
+
+def overwrite_trajectory(vo: Array, corrections: Corrections) -> Array:
+    """The authors' shipped use of the corrections (thesis code facts §5): every window's last pose overwritten
+    by its first pose times the corrected transform, the VO's own transforms chained in between. ``vo``: camera-
+    to-odom poses (N, 4, 4); the windows must be consecutive (each starts where the last ended). Returns (N, 4, 4)."""
+    poses = np.array(vo, dtype=float)
+    anchor, anchored = np.eye(4), 0  # poses[k] = anchor @ vo[k] for k after the last overwritten frame
+    for a, b, transform in zip(corrections.first, corrections.last, corrections.transforms, strict=True):
+        if int(a) != anchored:
+            raise ValueError(
+                f"the corrections' windows are not consecutive: one starts at frame {a}, the last ended at {anchored}"
+            )
+        poses[a : b + 1] = anchor @ vo[a : b + 1]
+        poses[b] = poses[a] @ np.linalg.inv(transform)
+        anchor, anchored = poses[b] @ np.linalg.inv(vo[b]), int(b)
+    poses[anchored:] = anchor @ vo[anchored:]
+    return poses
+
+
+def residual_covariance(model: DPCNet, card: ModelCard, windows: Any, batch_size: int = 64) -> tuple[Array, dict[str, float]]:
+    """The covariance (6, 6), ROS order, of the corrected transforms' left errors g = log(T_gt (exp(ξ^) T̂)^-1)
+    = log(T* exp(-ξ^)) over ``windows`` (a :class:`.data.DPCWindows` of validation sequences at the test span),
+    eq. 6.6's estimator applied to what is left after the correction; and figures: the windows, the mean
+    translation and rotation error (m, deg) before and after the correction."""
+    from pvo_core.lie import se3_log
+
+    config = DPCNetConfig.from_card(card)
+    residuals, before = [], []
+    with torch.no_grad():
+        for start in range(0, len(windows), batch_size):
+            batch = [windows[i] for i in range(start, min(start + batch_size, len(windows)))]
+            output = model(torch.stack([b["first"] for b in batch]), torch.stack([b["last"] for b in batch]))
+            for xi, sample in zip(correction_vectors(config, output.double().numpy()), batch, strict=True):
+                target = sample["target"].double().numpy()
+                residuals.append(se3_log(target @ se3_exp(-xi)))
+                before.append(se3_log(target))
+    if not residuals:
+        raise ValueError("no validation window to calibrate on")
+    g, b = np.asarray(residuals), np.asarray(before)
+    covariance = g.T @ g / len(g)
+    figures = {
+        "windows": float(len(g)),
+        "translation_error_m_before": float(np.linalg.norm(b[:, :3], axis=1).mean()),
+        "translation_error_m_after": float(np.linalg.norm(g[:, :3], axis=1).mean()),
+        "rotation_error_deg_before": float(np.degrees(np.linalg.norm(b[:, 3:], axis=1)).mean()),
+        "rotation_error_deg_after": float(np.degrees(np.linalg.norm(g[:, 3:], axis=1)).mean()),
+    }
+    return covariance, figures

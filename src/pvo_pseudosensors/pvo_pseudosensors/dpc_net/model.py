@@ -58,10 +58,12 @@ class DPCNet(nn.Module):
 class DPCTask:
     """DPC-Net for the training loop: the variant's loss against the targets T* = T_gt T̂^-1, weighted by the
     inverse of the training targets' covariance (eq. 6.6; ``covariance``, (6, 6) for the pose variant, its
-    rotation block for the rotation variant)."""
+    rotation block for the rotation variant); ``rig``: the training sequences' camera (:func:`.rig.training_rig`),
+    which the card records so that the model is not used on another."""
 
     config: DPCNetConfig
     covariance: np.ndarray = field(default_factory=lambda: np.eye(6))
+    rig: dict | None = None
     architecture: str = ARCHITECTURE
 
     def build(self) -> nn.Module:
@@ -88,6 +90,7 @@ class DPCTask:
                 "normalisation": "grey levels / 255, minus 0.5; left and right stacked per frame"
                 if self.config.stereo
                 else "grey levels / 255, minus 0.5; left image",
-            },
+            }
+            | ({"rig": self.rig} if self.rig else {}),
             calibration={"target_covariance": self.covariance.tolist()},
         )

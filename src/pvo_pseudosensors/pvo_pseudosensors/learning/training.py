@@ -258,6 +258,7 @@ def fit(
                     "config": asdict(config),
                     "train_samples": len(train),
                     "validation_samples": len(validation),
+                    "seconds_to_best": round(sum(r["seconds"] for r in history), 1),
                 }
                 card.commit = card.commit or current_commit()
                 save_model(out, model, card)

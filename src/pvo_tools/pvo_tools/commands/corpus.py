@@ -46,6 +46,15 @@ def register(sub: Any) -> None:
         metavar="K",
         help="one lens for every sequence: plumb-bob k1 [k2 k3] (DPC-Net's rig: -0.3 0.2 0.01)",
     )
+    for name, what in (("focal", "focal length"), ("baseline", "stereo baseline")):
+        corpus.add_argument(
+            f"--calib-{name}-scale",
+            type=float,
+            default=1.0,
+            metavar="S",
+            help=f"one wrong calibration for every sequence: calib.txt written with the {what} times S (images unchanged; "
+            "DPC-Net's Table 6.1 rig, e.g. --calib-focal-scale 1.03)",
+        )
     kitti = corpus.add_argument_group("real vehicle motion (each sequence drives a window of a KITTI drive)")
     kitti.add_argument(
         "--kitti-poses", type=Path, help="directory of KITTI odometry pose files NN.txt (e.g. ../shared/data/kitti/poses)"
@@ -82,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
         kitti_validation=_drives(args.kitti_validation),
         kitti_test=_drives(args.kitti_test),
         lens_distortion=tuple(args.lens_distortion),
+        calib_focal_scale=args.calib_focal_scale,
+        calib_baseline_scale=args.calib_baseline_scale,
     )
     bar: Progress | None = None
 

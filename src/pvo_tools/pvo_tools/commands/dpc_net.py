@@ -4,6 +4,7 @@ the fixed-lag smoother, and the figures against the truth (`train` is the generi
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -15,12 +16,28 @@ def register_actions(actions: Any, entry: Any) -> None:
     predict.add_argument("--vo", type=Path, required=True, help="the VO trajectory of that sequence (`pvo vo`, KITTI poses)")
     predict.add_argument("--model", type=Path, required=True, help="model directory")
     predict.add_argument("--out", "-o", type=Path, required=True, help="corrections file (CSV)")
+    predict.add_argument("--any-rig", action="store_true", help="use the model even on a sequence of another rig")
     correct = actions.add_parser("correct", help="run the VO, predict the corrections and fuse both (FusionGraph)")
     correct.set_defaults(handler=run_correct)
     correct.add_argument("sequence", type=Path, help="KITTI-layout sequence directory (stereo)")
     correct.add_argument("--model", type=Path, required=True, help="model directory")
     correct.add_argument("--out", "-o", type=Path, required=True, help="corrected trajectory (KITTI poses; the VO's beside it)")
     correct.add_argument("--rate", type=float, default=10.0, help="frame rate without times.txt (default 10 Hz)")
+    correct.add_argument(
+        "--method",
+        choices=("fusion", "overwrite"),
+        default="fusion",
+        help="fusion: VO and corrections through the fixed-lag smoother (thesis §6.4.5; default); overwrite: every "
+        "window's last pose overwritten by the corrected transform (the authors' shipped code)",
+    )
+    correct.add_argument("--any-rig", action="store_true", help="use the model even on a sequence of another rig")
+    calibrate = actions.add_parser(
+        "calibrate", help="the corrected transforms' residual covariance on a corpus's validation split, into the card"
+    )
+    calibrate.set_defaults(handler=run_calibrate)
+    calibrate.add_argument("--model", type=Path, required=True, help="model directory; its model.yaml gets the result")
+    calibrate.add_argument("--corpus", type=Path, required=True, help="the corpus whose validation split to use (the model's)")
+    calibrate.add_argument("--cache", type=Path, help="decoded-image cache (default CORPUS/.cache)")
     evaluate = actions.add_parser("eval", help="m-ATE and mean segment errors, corrected vs uncorrected")
     evaluate.set_defaults(handler=run_eval)
     evaluate.add_argument("--gt", type=Path, required=True, help="true poses (KITTI)")
@@ -29,11 +46,18 @@ def register_actions(actions: Any, entry: Any) -> None:
     evaluate.add_argument("--json", type=Path, help="also write the figures as a run-result record here")
 
 
+def _warn(lines: list[str], model: Path) -> None:
+    for line in lines:
+        print(f"pvo dpc-net: warning: {model}: {line}", file=sys.stderr)
+
+
 def run_predict(args: argparse.Namespace) -> int:
     from pvo_core.trajectory import read_kitti_poses
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net, predict_corrections
+    from pvo_pseudosensors.dpc_net.rig import check_rig
 
     model, card = load_dpc_net(args.model)
+    _warn(check_rig(card.input.get("rig"), args.sequence, args.any_rig), args.model)
     corrections = predict_corrections(model, card, args.sequence, read_kitti_poses(args.vo))
     path = corrections.write_csv(args.out)
     print(f"{path}: {len(corrections.first)} corrections over {card.hyperparameters['test_delta']}-frame windows")
@@ -41,39 +65,57 @@ def run_predict(args: argparse.Namespace) -> int:
 
 
 def run_correct(args: argparse.Namespace) -> int:
-    import numpy as np
-    from pvo_core.readers import KittiSequence
     from pvo_core.trajectory import write_kitti_poses
-    from pvo_frontend.offline import run_sequence
-    from pvo_frontend.vo import VOConfig
-    from pvo_pseudosensors.dpc_net.infer import load_dpc_net, predict_corrections
+    from pvo_pseudosensors.dpc_net.infer import load_dpc_net
 
-    from pvo_fusion import FusionGraph, RelativeMeasurement, ordered_events, run_offline
-    from pvo_fusion.config import from_flat
+    from ..dpc import correct_sequence
 
     model, card = load_dpc_net(args.model)
-    sequence = KittiSequence(args.sequence, rate_hz=None if (args.sequence / "times.txt").is_file() else args.rate)
-    run = run_sequence(sequence, VOConfig())
-    corrections = predict_corrections(model, card, args.sequence, run.poses)
-    stamps = 1_000_000_000 + (np.asarray(sequence.stamps) * 1e9).round().astype(np.int64)
-    relative = run.relative()
-    vo = [
-        RelativeMeasurement(int(stamps[k + 1]), int(stamps[k]), relative["transforms"][k], relative["covariances"][k])
-        for k in range(len(stamps) - 1)
-    ]
-    others = [
-        ("correction", RelativeMeasurement(int(stamps[b]), int(stamps[a]), t, c))
-        for a, b, t, c in zip(corrections.first, corrections.last, corrections.transforms, corrections.covariances, strict=True)
-    ]
-    graph = FusionGraph(from_flat({"prior.source": "given"}))
-    graph.set_initial_pose(np.eye(4))
-    fused = run_offline(graph, stamps, ordered_events(vo, others))
+    result = correct_sequence(args.sequence, model, card, args.method, rate_hz=args.rate, allow_any_rig=args.any_rig)
+    _warn(result.warnings, args.model)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    write_kitti_poses(args.out, fused.poses)
+    write_kitti_poses(args.out, result.corrected)
     vo_file = args.out.with_name(args.out.stem + "_vo.txt")
-    write_kitti_poses(vo_file, run.poses)
-    accepted = fused.counts.get("correction.accepted", 0)
-    print(f"{args.out}: {len(stamps)} poses, {accepted} of {len(others)} corrections fused; the VO alone in {vo_file}")
+    write_kitti_poses(vo_file, result.vo)
+    count = len(result.corrections.first)
+    how = f"{result.accepted} of {count} corrections fused" if args.method == "fusion" else f"{count} poses overwritten"
+    print(f"{args.out}: {len(result.vo)} poses, {how}; the VO alone in {vo_file}")
+    return 0
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    import numpy as np
+    from pvo_core.readers import read_corpus_manifest
+    from pvo_pseudosensors.dpc_net.config import DPCNetConfig
+    from pvo_pseudosensors.dpc_net.data import DPCWindows
+    from pvo_pseudosensors.dpc_net.infer import load_dpc_net, residual_covariance
+    from pvo_pseudosensors.learning.checkpoint import write_card
+    from pvo_pseudosensors.learning.data import Source
+    from pvo_pseudosensors.registry import models
+
+    model, card = load_dpc_net(args.model)
+    config = DPCNetConfig.from_card(card)
+    manifest = read_corpus_manifest(args.corpus)
+    off_rig = set(models()["dpc-net"].off_rig)
+    presets = set((card.corpus or {}).get("presets") or [])
+    sources = [
+        Source(s.root, s.name, "validation")
+        for s in manifest.split("validation")
+        if not set(s.conditions) & off_rig and (not presets or s.preset in presets)
+    ]
+    if not sources:
+        raise ValueError(f"{manifest.path}: no validation sequence of the model's rig")
+    windows = DPCWindows(sources, config, args.cache or manifest.path.parent / ".cache", (config.test_delta,))
+    covariance, figures = residual_covariance(model, card, windows)
+    card.calibration["residual_covariance"] = covariance.tolist()
+    card.calibration["residual"] = figures | {"corpus": str(args.corpus), "sequences": len(sources)}
+    write_card(args.model, card)
+    print(
+        f"{args.model}: {int(figures['windows'])} validation windows of {len(sources)} sequences; mean error translation "
+        f"{figures['translation_error_m_before']:.4f} -> {figures['translation_error_m_after']:.4f} m, rotation "
+        f"{figures['rotation_error_deg_before']:.4f} -> {figures['rotation_error_deg_after']:.4f} deg; residual "
+        f"standard deviations (x y z rx ry rz) {np.sqrt(np.diag(covariance)).round(5).tolist()}"
+    )
     return 0
 
 

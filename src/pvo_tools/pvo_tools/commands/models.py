@@ -151,6 +151,9 @@ def _corpus_command(manifest: Any) -> str:
     colour += f" --supersample {data['supersample']}" if data.get("supersample", 1) != 1 else ""
     if data.get("lens_distortion"):
         colour += " --lens-distortion " + " ".join(f"{k:g}" for k in data["lens_distortion"])
+    for name in ("focal", "baseline"):
+        if data.get(f"calib_{name}_scale", 1.0) != 1.0:
+            colour += f" --calib-{name}-scale {data[f'calib_{name}_scale']:g}"
     if data.get("kitti_poses"):
         drives = {split: ",".join(data[f"kitti_{split}"]) for split in ("train", "validation", "test")}
         colour += (
@@ -205,6 +208,14 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
         parts = []
         for manifest in manifests:
             sequences = [s for s in manifest.split(split) if not args.presets_only or s.preset in args.presets_only]
+            off_rig = [s.name for s in sequences if set(s.conditions) & set(entry.off_rig)]
+            if off_rig:
+                print(
+                    f"{entry.name}: {len(off_rig)} {split} sequence(s) of {manifest.path.parent} left out, another rig's "
+                    f"({' or '.join(entry.off_rig)}): {', '.join(off_rig)}",
+                    file=sys.stderr,
+                )
+                sequences = [s for s in sequences if s.name not in off_rig]
             sequences = sequences[: args.max_sequences or None]
             if not sequences:
                 raise ValueError(f"{manifest.path}: no sequence in the {split} split")

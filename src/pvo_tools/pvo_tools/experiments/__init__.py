@@ -14,6 +14,7 @@ EXPERIMENTS: dict[str, str] = {
     "probe": "pvo_tools.experiments.probe",
     "hydranet-1d": "pvo_tools.experiments.hydranet_1d",
     "hydranet": "pvo_tools.experiments.hydranet",
+    "dpc-net": "pvo_tools.experiments.dpc_net",
 }
 
 

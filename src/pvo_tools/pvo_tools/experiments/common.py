@@ -8,6 +8,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 
 @dataclass
@@ -33,3 +34,20 @@ class ExperimentRun:
     @property
     def seconds(self) -> float:
         return time.perf_counter() - self.started
+
+
+def fusion_figures(truth: Any, estimate: Any) -> dict[str, float]:
+    """m-ATE (translation m, rotation deg; eqs. 6.31-6.32) and the thesis's mean segment errors (%, deg/m) of
+    camera-to-world poses ``estimate`` (N, 4, 4) against ``truth``."""
+    import numpy as np
+
+    from pvo_core import metrics
+
+    trajectory = metrics.mean_trajectory_errors(truth, estimate)
+    segments = metrics.thesis_segment_errors(truth, estimate)
+    return {
+        "m_ate_trans": trajectory.mean_translation,
+        "m_ate_rot_deg": float(np.degrees(trajectory.rotation.mean())),
+        "seg_trans_percent": segments.translation_percent,
+        "seg_rot_deg_per_m": segments.rotation_deg_per_m,
+    }

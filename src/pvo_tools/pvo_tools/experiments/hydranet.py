@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..paths import data_directory
-from .common import ExperimentRun
+from .common import ExperimentRun, fusion_figures
 
 TITLE = "HydraNet (ch. 7, Tables 7.2-7.3): rotation accuracy, consistency, out of distribution, fusion, real images"
 Array = NDArray[np.float64]
@@ -169,19 +169,6 @@ def rotation_measurements(predictions: Any, stamps: NDArray[np.int64]) -> list[A
             RelativeMeasurement(int(stamps[b]), int(stamps[a]), transform, pose_covariance(covariance), rotation_only=True)
         )
     return out
-
-
-def fusion_figures(truth: Array, estimate: Array) -> dict[str, float]:
-    from pvo_core import metrics
-
-    trajectory = metrics.mean_trajectory_errors(truth, estimate)
-    segments = metrics.thesis_segment_errors(truth, estimate)
-    return {
-        "m_ate_trans": trajectory.mean_translation,
-        "m_ate_rot_deg": float(np.degrees(trajectory.rotation.mean())),
-        "seg_trans_percent": segments.translation_percent,
-        "seg_rot_deg_per_m": segments.rotation_deg_per_m,
-    }
 
 
 def stage_kitti(data: Path, drive: str, frames: range, poses_file: Path, out: Path) -> Path:

@@ -1,0 +1,94 @@
+"""DPC-Net's corrections applied to this project's stereo VO on one sequence (no I/O beyond reading it).
+
+Two ways to apply them: ``fusion`` — the VO's frame-to-frame transforms and the corrected Δp-frame transforms
+as factors of the fixed-lag smoother (:class:`pvo_fusion.FusionGraph`), the pose-graph relaxation of thesis
+§6.4.5; ``overwrite`` — the authors' shipped code: every Δp-th pose overwritten by the corrected transform, the
+VO chained in between (:func:`pvo_pseudosensors.dpc_net.infer.overwrite_trajectory`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+FIRST_STAMP_NS = 1_000_000_000  # the fusion's stamps start at 1 s (a zero stamp reads as unset in ROS)
+METHODS = ("fusion", "overwrite")
+
+
+@dataclass
+class CorrectedSequence:
+    """vo: the VO's camera-to-odom poses (N, 4, 4); corrected: after the corrections, online (the newest state
+    as the fusion node publishes it; the overwrite is causal, so both are the same there) and smoothed (after
+    the fixed lag); corrections: what the model predicted; accepted: corrections the fusion took; warnings: the
+    model card's rig check (what could not be verified)."""
+
+    vo: Array
+    corrected: Array
+    corrected_online: Array
+    corrections: Any
+    accepted: int
+    warnings: list[str] = field(default_factory=list)
+
+
+def vo_run(root: Path, rate_hz: float = 10.0) -> Any:
+    """This project's stereo VO (default settings) over the KITTI-layout sequence at ``root``."""
+    from pvo_core.readers import KittiSequence
+    from pvo_frontend.offline import run_sequence
+    from pvo_frontend.vo import VOConfig
+
+    sequence = KittiSequence(root, rate_hz=None if (Path(root) / "times.txt").is_file() else rate_hz)
+    return run_sequence(sequence, VOConfig()), sequence
+
+
+def correct_sequence(
+    root: Path,
+    model: Any,
+    card: Any,
+    method: str = "fusion",
+    vo_calibration: Any = None,
+    run: Any = None,
+    rate_hz: float = 10.0,
+    allow_any_rig: bool = False,
+    cache_dir: Path | None = None,
+) -> CorrectedSequence:
+    """The VO of the sequence at ``root`` (``run``: a `run_sequence` result already made, else it is run) with
+    ``model``'s corrections applied by ``method``. ``vo_calibration``: per-axis scales of the VO's covariances
+    (:func:`pvo_fusion.calibrate_vo`), None for the VO's own. The model's rig is checked first
+    (:func:`pvo_pseudosensors.dpc_net.rig.check_rig`: ``ValueError`` on another rig unless ``allow_any_rig``)."""
+    from pvo_pseudosensors.dpc_net.infer import overwrite_trajectory, predict_corrections
+    from pvo_pseudosensors.dpc_net.rig import check_rig
+
+    from pvo_fusion import FusionGraph, RelativeMeasurement, ordered_events, run_offline, vo_measurements
+    from pvo_fusion.config import from_flat
+
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}: choose one of {', '.join(METHODS)}")
+    warnings = check_rig(card.input.get("rig"), root, allow_any_rig)
+    sequence = None
+    if run is None:
+        run, sequence = vo_run(root, rate_hz)
+    corrections = predict_corrections(model, card, root, run.poses, cache_dir)
+    if method == "overwrite":
+        poses = overwrite_trajectory(run.poses, corrections)
+        return CorrectedSequence(run.poses, poses, poses, corrections, len(corrections.first), warnings)
+    if sequence is None:
+        from pvo_core.readers import KittiSequence
+
+        sequence = KittiSequence(root, rate_hz=None if (Path(root) / "times.txt").is_file() else rate_hz)
+    stamps = FIRST_STAMP_NS + (np.asarray(sequence.stamps) * 1e9).round().astype(np.int64)
+    relative = run.relative()
+    vo = vo_measurements(stamps, relative["transforms"], relative["covariances"], vo_calibration)
+    others = [
+        ("correction", RelativeMeasurement(int(stamps[b]), int(stamps[a]), t, c))
+        for a, b, t, c in zip(corrections.first, corrections.last, corrections.transforms, corrections.covariances, strict=True)
+    ]
+    graph = FusionGraph(from_flat({"prior.source": "given"}))
+    graph.set_initial_pose(np.eye(4))
+    fused = run_offline(graph, stamps, ordered_events(vo, others))
+    accepted = int(fused.counts.get("correction.accepted", 0))
+    return CorrectedSequence(run.poses, fused.poses, fused.online_poses, corrections, accepted, warnings)

@@ -1,0 +1,393 @@
+"""`pvo experiment dpc-net`: DPC-Net's experiments (thesis ch. 6) on long rendered sequences.
+
+The sequences drive windows of KITTI's test drives (05, 06, 07: no training sequence drove them), rendered
+twice: through a clean lens and through the thesis's radial distortion. From them:
+
+1. Table 6.1: a systematic VO bias from a wrong calibration (calib.txt's focal length x1.03; the clean images,
+   so only the calibration differs) — S-VO against S-VO + DPC-Net, pose / rotation / yaw models.
+2. Table 6.2: the distorted images processed as if undistorted — S-VO against S-VO + DPC-Net (pose).
+3. No harm: a model trained on the clean rig, on the clean sequences where the VO is already good; and the
+   model card's rig check refusing a model on a rig it was not trained for.
+4. Applying the corrections: the fixed-lag smoother (§6.4.5's pose-graph relaxation; online and smoothed)
+   against the authors' every-Δp overwrite — in every table.
+5. Speed: one correction on one core at the model's input size; the training time from the cards.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..paths import data_directory
+from .common import ExperimentRun, fusion_figures
+
+TITLE = "DPC-Net (ch. 6, Tables 6.1-6.2): corrections for a miscalibrated and a distorted rig, no harm, fusion vs overwrite"
+Array = NDArray[np.float64]
+
+#: the long sequences: name, KITTI test drive, first pose (windows of one drive overlap by at most 140 frames)
+SEQUENCES: tuple[tuple[str, str, int], ...] = (
+    ("05a", "05", 0),
+    ("06", "06", 0),
+    ("07", "07", 0),
+    ("05b", "05", 900),
+    ("05c", "05", 1760),
+)
+#: the thesis's lens (Table 6.2) and this experiment's calibration error (Table 6.1)
+LENS = (-0.3, 0.2, 0.01)
+FOCAL_SCALE = 1.03
+_CALIBRATIONS: dict[Path, Any] = {}  # per corpus: the models of one rig share it
+METRICS = ("m_ate_trans", "m_ate_rot_deg", "seg_trans_percent", "seg_rot_deg_per_m")
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--calib-model", type=Path, help="pose model trained on the miscalibrated rig (Table 6.1)")
+    parser.add_argument("--calib-rotation", type=Path, help="rotation-variant model of that rig (Table 6.1)")
+    parser.add_argument("--calib-yaw", type=Path, help="yaw-variant model of that rig (Table 6.1)")
+    parser.add_argument("--lens-model", type=Path, help="pose model trained on the distorted rig (Table 6.2; default shipped)")
+    parser.add_argument("--clean-model", type=Path, help="pose model trained on the clean rig (no harm)")
+    parser.add_argument("--sequences", type=int, default=5, help=f"long sequences per rig (1-{len(SEQUENCES)}, default 5)")
+    parser.add_argument("--frames", type=int, default=1000, help="frames per sequence (default 1000)")
+    parser.add_argument("--sequence-dir", type=Path, help="where the sequences are rendered (default OUT/sequences)")
+    parser.add_argument("--jobs", "-j", type=int, default=2, help="sequences rendered in parallel (default 2)")
+    parser.add_argument("--data", type=Path, help="the shared data directory (default ../shared/data)")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
+    parser.add_argument("--out", "-o", type=Path, default=Path("runs/experiment-dpc-net"), help="output directory")
+    parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
+
+
+def render_sequences(data: Path, count: int, frames: int, out: Path, jobs: int, say: Any) -> dict[str, list[Path]]:
+    """The first ``count`` of :data:`SEQUENCES`, rendered clean and through :data:`LENS` into ``out/clean`` and
+    ``out/lens`` (urban, 1x, seeded; `pvo sim` in parallel processes, complete ones kept), and the clean ones
+    with a miscalibrated ``calib.txt`` in ``out/calib`` (:func:`miscalibrate`). Returns the folders per rig."""
+    commands, folders = [], {"clean": [], "lens": [], "calib": []}
+    for index, (name, drive, start) in enumerate(SEQUENCES[:count]):
+        for rig in ("clean", "lens"):
+            folder = out / rig / name
+            folders[rig].append(folder)
+            if (folder / "sim.yaml").is_file():
+                continue
+            command = [sys.executable, "-m", "pvo_tools.cli", "sim", str(folder), "--poses"]
+            command += [str((data / "kitti" / "poses" / f"{drive}.txt").resolve()), "--start", str(start)]
+            command += ["--frames", str(frames), "--supersample", "1", "--seed", str(900 + index), "-q", "--overwrite"]
+            command += ["--heading", str(37 * index % 360), "--start-time", "2011-09-30T10:30:00Z"]
+            if rig == "lens":
+                command += ["--distortion", *map(str, LENS)]
+            commands.append((f"{rig}/{name}", command))
+    if commands:
+        say(f"rendering {len(commands)} sequences of {frames} frames ({jobs} at a time) ...")
+
+    def render(item: tuple[str, list[str]]) -> None:
+        label, command = item
+        done = subprocess.run(command, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise RuntimeError(f"rendering {label} failed: {(done.stderr.strip().splitlines() or ['?'])[-1]}")
+        say(f"  {label} rendered")
+
+    with ThreadPoolExecutor(max(1, jobs)) as pool:
+        list(pool.map(render, commands))
+    for folder in folders["clean"]:
+        folders["calib"].append(miscalibrate(folder, out / "calib" / folder.name, FOCAL_SCALE))
+    return folders
+
+
+def miscalibrate(source: Path, out: Path, focal_scale: float) -> Path:
+    """``source``'s sequence (its images and poses linked) with ``calib.txt``'s focal length (and so the P1
+    baseline term, -f b) times ``focal_scale``, and its ``sim.yaml`` saying so: what `pvo sim --focal-scale`
+    writes for the same images."""
+    import yaml
+    from pvo_core.readers.kitti import read_kitti_calibration
+
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ("image_0", "image_1", "poses.txt", "times.txt"):
+        link = out / name
+        if not link.exists():
+            link.symlink_to((source / name).resolve())
+    lines = []
+    for key, matrix in read_kitti_calibration(source / "calib.txt").items():
+        scaled = matrix.copy()
+        scaled[0, 0] *= focal_scale
+        scaled[1, 1] *= focal_scale
+        scaled[0, 3] *= focal_scale
+        lines.append(f"{key}: " + " ".join(f"{v:.12e}" for v in scaled.reshape(-1)))
+    (out / "calib.txt").write_text("\n".join(lines) + "\n")
+    meta = yaml.safe_load((source / "sim.yaml").read_text())
+    meta["config"]["degradations"]["focal_scale"] = focal_scale
+    (out / "sim.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    return out
+
+
+def vo_calibration(card: Any, say: Any) -> Any:
+    """Per-axis scales of the VO's covariances learned on the validation split of the model's own corpus (its
+    rig; frame to frame), or None (the VO's own covariances) when that corpus is not here."""
+    from pvo_core.readers import read_corpus_manifest
+    from pvo_core.trajectory import read_kitti_poses
+
+    from pvo_fusion import CalibrationSequence, calibrate_vo
+
+    from ..dpc import vo_run
+
+    corpus = Path(card.corpus.get("path", "")) if card.corpus.get("path") else None
+    if corpus is None or not (corpus / "manifest.yaml").is_file():
+        say(f"  the model's corpus {corpus} is not here: the VO keeps its own covariances")
+        return None
+    if corpus in _CALIBRATIONS:
+        return _CALIBRATIONS[corpus]
+    manifest = read_corpus_manifest(corpus)
+    trained = set((card.corpus or {}).get("presets") or [])
+    sequences = []
+    for sequence in manifest.split("validation"):
+        if (trained and sequence.preset not in trained) or {"wrong calibration", "radial distortion"} & set(sequence.conditions):
+            continue
+        run, _ = vo_run(sequence.root)
+        relative = run.relative()
+        truth = read_kitti_poses(sequence.root / "poses.txt")
+        sequences.append(CalibrationSequence(sequence.name, truth, relative["transforms"], relative["covariances"]))
+    calibration = calibrate_vo(sequences, 1)
+    say(
+        f"  VO covariance scales (x y z rx ry rz) on {len(sequences)} validation sequences of {corpus}: "
+        f"{np.round(calibration.scale, 2)}"
+    )
+    _CALIBRATIONS[corpus] = calibration
+    return calibration
+
+
+def evaluate_rig(
+    label: str, folders: list[Path], models: dict[str, tuple[Any, Any]], say: Any, methods: dict[str, tuple[str, ...]]
+) -> tuple[dict[str, dict[str, dict[str, float]]], dict[str, dict[str, Array]]]:
+    """Per sequence: the VO's figures and, per model and method, the corrected trajectory's (``online`` and
+    ``smoothed`` for the fusion); and the trajectories themselves (camera-to-world, per sequence and row)."""
+    from pvo_core.trajectory import read_kitti_poses
+
+    from ..dpc import correct_sequence, vo_run
+
+    calibrations = {name: vo_calibration(card, say) for name, (_, card) in models.items()}
+    results: dict[str, dict[str, dict[str, float]]] = {}
+    trajectories: dict[str, dict[str, Array]] = {}
+    for folder in folders:
+        truth = read_kitti_poses(folder / "poses.txt")
+        say(f"{label} {folder.name}: VO ...")
+        run, _ = vo_run(folder)
+        estimates = {"S-VO": truth[0] @ run.poses}
+        for name, (model, card) in models.items():
+            for method in methods.get(name, ("fusion",)):
+                corrected = correct_sequence(folder, model, card, method, calibrations[name], run=run)
+                if method == "fusion":
+                    estimates[f"+ {name} fusion online"] = truth[0] @ corrected.corrected_online
+                    estimates[f"+ {name} fusion smoothed"] = truth[0] @ corrected.corrected
+                else:
+                    estimates[f"+ {name} {method}"] = truth[0] @ corrected.corrected
+        rows = {row: fusion_figures(truth, poses) for row, poses in estimates.items()}
+        results[folder.name], trajectories[folder.name] = rows, estimates
+        say("  " + ", ".join(f"{row}: {m['m_ate_trans']:.1f} m / {m['m_ate_rot_deg']:.2f} deg" for row, m in rows.items()))
+    return results, trajectories
+
+
+def table(results: dict[str, dict[str, dict[str, float]]], figures: dict[str, float], prefix: str) -> list[str]:
+    """Per sequence and estimate, then the mean relative change of each estimate against the S-VO."""
+    lines = [
+        "| sequence | estimate | m-ATE trans (m) | m-ATE rot (deg) | seg trans (%) | seg rot (deg/m) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, rows in results.items():
+        for label, m in rows.items():
+            lines.append(
+                f"| {name} | {label} | {m['m_ate_trans']:.2f} | {m['m_ate_rot_deg']:.3f} | {m['seg_trans_percent']:.3f} | "
+                f"{m['seg_rot_deg_per_m']:.5f} |"
+            )
+    names = list(results)
+    lines += ["", "Mean relative change against the S-VO (negative = better):", ""]
+    lines += ["| estimate | m-ATE trans | m-ATE rot | seg trans | seg rot |", "|---|---|---|---|---|"]
+    from pvo_core.metrics import mean_relative_change
+
+    for label in [row for row in results[names[0]] if row != "S-VO"]:
+        changes = {
+            key: mean_relative_change([results[n][label][key] for n in names], [results[n]["S-VO"][key] for n in names])
+            for key in METRICS
+        }
+        for key, value in changes.items():
+            figures[f"{prefix}.{label.removeprefix('+ ').replace(' ', '_')}.{key}_change"] = value
+        lines.append(
+            f"| {label} | {100 * changes['m_ate_trans']:+.1f} % | {100 * changes['m_ate_rot_deg']:+.1f} % | "
+            f"{100 * changes['seg_trans_percent']:+.1f} % | {100 * changes['seg_rot_deg_per_m']:+.1f} % |"
+        )
+    return [*lines, ""]
+
+
+def plot_rig(out: Path, name: str, folders: list[Path], trajectories: dict[str, dict[str, Array]]) -> str:
+    """Figs 6.5-6.8's kind: c-ATE against distance travelled (translation and rotation), per sequence; the
+    smoothed fusion rows are left out (they lie on the online ones at this scale). Returns the file name."""
+    from pvo_core.trajectory import read_kitti_poses
+
+    from pvo_core import metrics
+
+    from ..plots import pyplot
+
+    plt = pyplot()
+    fig, axes = plt.subplots(2, len(folders), figsize=(4 * len(folders), 6), squeeze=False)
+    for column, folder in enumerate(folders):
+        truth = read_kitti_poses(folder / "poses.txt")
+        distance = metrics.path_distances(truth)
+        for label, poses in trajectories.get(folder.name, {}).items():
+            if label.endswith("smoothed"):
+                continue
+            errors = metrics.mean_trajectory_errors(truth, poses)
+            axes[0, column].plot(distance, errors.cumulative_translation, label=label)
+            axes[1, column].plot(distance, np.degrees(errors.cumulative_rotation), label=label)
+        axes[0, column].set_title(folder.name)
+        axes[1, column].set_xlabel("distance travelled (m)")
+    axes[0, 0].set_ylabel("c-ATE translation (m)")
+    axes[1, 0].set_ylabel("c-ATE rotation (deg)")
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / f"c-ate-{name}.png", dpi=90)
+    plt.close(fig)
+    return f"c-ate-{name}.png"
+
+
+def speed(model_dir: Path, data: Path, figures: dict[str, float]) -> list[str]:
+    """One correction on one core: the four images resized from the camera's size (KITTI 06, 1226x370) and one
+    forward pass at the model's input size."""
+    import time
+
+    import cv2
+    import torch
+    from pvo_pseudosensors.dpc_net.config import DPCNetConfig
+    from pvo_pseudosensors.dpc_net.infer import load_dpc_net
+
+    torch.set_num_threads(1)
+    model, card = load_dpc_net(model_dir)
+    config = DPCNetConfig.from_card(card)
+    clip = data / "kitti" / "sequences" / "06"
+    images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in sorted((clip / "image_0").glob("*.png"))[:8]]
+    times = []
+    with torch.no_grad():
+        for repeat in range(30):
+            tic = time.perf_counter()
+            planes = [
+                cv2.resize(images[(repeat + i) % len(images)], (config.width, config.height), interpolation=cv2.INTER_AREA)
+                for i in range(4)
+            ]
+            first = torch.from_numpy(np.stack(planes[:2])[None].astype(np.float32) / 255.0)
+            last = torch.from_numpy(np.stack(planes[2:])[None].astype(np.float32) / 255.0)
+            model(first, last)
+            times.append(1e3 * (time.perf_counter() - tic))
+    times = np.asarray(times[5:])
+    figures["speed.correction_ms"], figures["speed.correction_p95_ms"] = float(np.median(times)), float(np.percentile(times, 95))
+    seconds = (card.training or {}).get("seconds_to_best")
+    lines = [
+        "## 5. Speed",
+        "",
+        f"One correction on one core ({config.height}x{config.width}, 4 images resized from 1226x370 and one forward pass): "
+        f"median **{figures['speed.correction_ms']:.2f} ms**, p95 {figures['speed.correction_p95_ms']:.2f} ms (budget 30 ms; one "
+        f"every {config.test_delta} frames at 10 Hz).",
+    ]
+    if seconds:
+        figures["speed.training_seconds_to_best"] = float(seconds)
+        lines.append(f"Training of {model_dir} until its best epoch: {seconds:.0f} s ({card.training.get('threads')} threads).")
+    return [*lines, ""]
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+    from pvo_core.results import RunResult
+    from pvo_core.trajectory import write_kitti_poses
+    from pvo_pseudosensors.dpc_net.estimator import resolve_model
+    from pvo_pseudosensors.dpc_net.infer import load_dpc_net
+    from pvo_pseudosensors.dpc_net.rig import rig_problems, sequence_rig
+
+    if not 1 <= args.sequences <= len(SEQUENCES):
+        raise ValueError(f"--sequences must be in [1, {len(SEQUENCES)}], got {args.sequences}")
+    if args.frames < 100:
+        raise ValueError(f"--frames must be >= 100 (segment errors need 100 m and more), got {args.frames}")
+    torch.set_num_threads(args.threads)
+    session = ExperimentRun.start(args)
+    say, out = session.say, session.out
+    data = args.data or data_directory()
+    lens_dir = args.lens_model or resolve_model("")
+    loaded = {"lens": load_dpc_net(lens_dir)}
+    for key, path in (("calib", args.calib_model), ("calib rotation", args.calib_rotation), ("calib yaw", args.calib_yaw)):
+        if path:
+            loaded[key] = load_dpc_net(path)
+    if args.clean_model:
+        loaded["clean"] = load_dpc_net(args.clean_model)
+    folders = render_sequences(data, args.sequences, args.frames, args.sequence_dir or out / "sequences", args.jobs, say)
+    report = ["# pvo experiment dpc-net", "", f"Command: `{session.command}`", ""]
+    report += [
+        f"{args.sequences} sequences of {args.frames} frames (620x188, KITTI geometry) driven along KITTI's test drives "
+        f"({', '.join(f'{d} from {s}' for _, d, s in SEQUENCES[: args.sequences])}); the VO is this project's stereo VO "
+        "with its defaults. VO covariances are scaled per axis on each model's own corpus's validation split (its rig). "
+        "The corrections' covariance is the training targets' (eq. 6.6). *fusion online*: the newest state as the fusion "
+        "node publishes it; *fusion smoothed*: after the fixed lag; *overwrite*: every Δp-th pose overwritten "
+        "(the authors' shipped code). m-ATE and segment errors as §6.5 (eqs. 6.31-6.32; segments of 100-800 m).",
+        "",
+    ]
+    figures: dict[str, float] = {}
+    tables: dict[str, Any] = {}
+    rigs = (
+        (
+            "table_6_1",
+            "calib",
+            "## 1. Table 6.1: a miscalibrated rig (calib.txt's focal length x1.03)",
+            ("calib", "calib rotation", "calib yaw"),
+        ),
+        (
+            "table_6_2",
+            "lens",
+            "## 2. Table 6.2: radially distorted images (k = -0.3, 0.2, 0.01) processed as undistorted",
+            ("lens",),
+        ),
+        ("no_harm", "clean", "## 3. No harm: the clean rig, where the VO is already good", ("clean",)),
+    )
+    for key, rig, heading, names in rigs:
+        models = {name: loaded[name] for name in names if name in loaded}
+        if not models:
+            report += [heading, "", "Not run: no model for this rig was given.", ""]
+            continue
+        methods = {name: ("fusion", "overwrite") for name in models if loaded[name][1].hyperparameters["variant"] == "pose"}
+        results, trajectories = evaluate_rig(key, folders[rig], models, say, methods)
+        tables[key] = results
+        for sequence, estimates in trajectories.items():
+            for row, poses in estimates.items():
+                file = out / "trajectories" / key / sequence / (row.removeprefix("+ ").replace(" ", "_") + ".txt")
+                file.parent.mkdir(parents=True, exist_ok=True)
+                write_kitti_poses(file, poses)
+        figure = plot_rig(out, key, folders[rig], trajectories)
+        report += [heading, "", *table(results, figures, key), f"![c-ATE]({figure})", ""]
+    if "clean" in loaded and "no_harm" in tables:
+        changes = [figures[f"no_harm.clean_fusion_online.{k}_change"] for k in METRICS]
+        figures["no_harm.worst_change"] = max(changes)
+        verdict = "holds" if max(changes) <= 0.05 else "does not hold"
+        report += [
+            f"No harm (every figure within +5 % of the S-VO's, fusion online): **{verdict}** "
+            f"(worst {100 * max(changes):+.1f} %).",
+            "",
+        ]
+    # the rig check: each model against each rig's first sequence
+    report += ["### The model card's rig check", "", "| model | sequence | verdict |", "|---|---|---|"]
+    for name, (_, card) in loaded.items():
+        for rig in ("clean", "calib", "lens"):
+            refusals, warnings = rig_problems(card.input.get("rig"), sequence_rig(folders[rig][0]))
+            verdict = (
+                "refused: " + "; ".join(refusals)
+                if refusals
+                else ("used" + (f" (flagged: {'; '.join(warnings)})" if warnings else ""))
+            )
+            report.append(f"| {name} | {rig}/{folders[rig][0].name} | {verdict} |")
+            figures[f"rig_check.{name.replace(' ', '_')}.{rig}.refused"] = float(bool(refusals))
+    report.append("")
+    report += speed(lens_dir, data, figures)
+    (out / "report.md").write_text("\n".join(report) + "\n")
+    inputs = {
+        name: str(path) for name, path in (("lens", lens_dir), ("calib", args.calib_model), ("clean", args.clean_model)) if path
+    }
+    RunResult("experiment", "dpc-net", figures=figures, tables=tables, inputs=inputs).write(out)
+    say(f"{out / 'report.md'} written in {session.seconds:.0f} s")
+    print((out / "report.md").read_text())
+    return 0
