@@ -89,3 +89,100 @@ def test_a_missing_pose_file_is_one_line(miscalibrated: Path, tmp_path: Path) ->
         DPCWindows([Source(copy, "copy")], TINY)
     with pytest.raises(ValueError, match="unknown variant 'scale'"):
         DPCNetConfig(variant="scale")
+
+
+def _copy_with(root: Path, out: Path, focal_scale: float = 1.0, sim: dict | None = None) -> Path:
+    """``root``'s sequence linked, calib.txt's focal length times ``focal_scale``, a sim.yaml if given."""
+    import yaml
+
+    shutil.copytree(root, out, symlinks=True)
+    lines = []
+    for line in (root / "calib.txt").read_text().splitlines():
+        key, values = line.split(":")
+        p = np.array(values.split(), float).reshape(3, 4)
+        p[0, 0], p[1, 1], p[0, 3] = p[0, 0] * focal_scale, p[1, 1] * focal_scale, p[0, 3] * focal_scale
+        lines.append(f"{key}: " + " ".join(f"{v:.12e}" for v in p.reshape(-1)))
+    (out / "calib.txt").write_text("\n".join(lines) + "\n")
+    if sim is not None:
+        (out / "sim.yaml").write_text(yaml.safe_dump({"config": {"degradations": sim}}))
+    return out
+
+
+def test_the_card_records_the_rig_and_a_model_is_refused_on_another(miscalibrated: Path, tmp_path: Path) -> None:
+    from pvo_pseudosensors.dpc_net.infer import load_dpc_net
+    from pvo_pseudosensors.dpc_net.rig import check_rig, sequence_rig, training_rig
+
+    data = DPCWindows([Source(miscalibrated, "06")], TINY, cache_dir=tmp_path)
+    rig = training_rig(data.rigs)
+    assert rig["size"] == [1226, 370] and rig["lens"] is None  # real images: the lens is unknown
+    fit(DPCTask(TINY, target_covariance(data.targets), rig), data, data, TrainConfig(epochs=1, threads=1), tmp_path / "m")
+    _, card = load_dpc_net(tmp_path / "m")
+    assert card.input["rig"] == rig
+    # the training camera itself: used, flagged for what cannot be known
+    warnings = check_rig(card.input["rig"], miscalibrated)
+    assert any("the lens cannot be checked" in w for w in warnings)
+    # another focal length: refused in one line naming both
+    longer = _copy_with(miscalibrated, tmp_path / "longer", focal_scale=1.2)
+    with pytest.raises(
+        ValueError, match=r"longer: not this DPC-Net model's rig: calib.txt's focal 890.9 px is outside the trained 742.4-742.4"
+    ):
+        check_rig(card.input["rig"], longer)
+    assert check_rig(card.input["rig"], longer, allow_any=True)  # forced: the refusal becomes a warning
+    # a known lens against a model of known clean images: refused; sequences of two lenses do not make one rig
+    clean = sequence_rig(_copy_with(miscalibrated, tmp_path / "clean", sim={"distortion": 0.0}))
+    lens = sequence_rig(_copy_with(miscalibrated, tmp_path / "lens", sim={"distortion": [-0.3, 0.2, 0.01]}))
+    assert lens.lens == (-0.3, 0.2, 0.01) and clean.lens == () and clean.focal_scale == 1.0
+    with pytest.raises(ValueError, match="the training sequences mix rigs: lens"):
+        training_rig([clean, lens])
+    with pytest.raises(
+        ValueError, match=r"not this DPC-Net model's rig: the images' lens \[-0.3, 0.2, 0.01\] is not the model's none"
+    ):
+        check_rig(training_rig([clean]), tmp_path / "lens")
+
+
+def test_perfect_corrections_overwrite_the_window_ends_with_the_truth(miscalibrated: Path, tmp_path: Path) -> None:
+    from pvo_core.trajectory import read_kitti_poses
+    from pvo_pseudosensors.dpc_net.infer import Corrections, overwrite_trajectory
+
+    truth = read_kitti_poses(miscalibrated / "poses.txt")
+    truth = np.linalg.inv(truth[0]) @ truth
+    vo = vo_poses(Source(miscalibrated, "06"), tmp_path)
+    last = np.arange(4, len(vo), 4)
+    first = last - 4
+    perfect = np.linalg.inv(truth[last]) @ truth[first]
+    corrected = overwrite_trajectory(vo, Corrections(first, last, perfect, np.zeros((len(last), 6, 6))))
+    np.testing.assert_allclose(corrected[last], truth[last], atol=1e-9)
+    # in between, the VO's own transforms from the window's corrected first pose
+    k = 6
+    np.testing.assert_allclose(corrected[k], truth[4] @ np.linalg.inv(vo[4]) @ vo[k], atol=1e-9)
+    assert np.abs(vo[last] - truth[last]).max() > 1e-3  # the miscalibrated VO itself is off
+    with pytest.raises(ValueError, match="not consecutive: one starts at frame 8, the last ends at 4"):
+        overwrite_trajectory(vo, Corrections(first[[0, 2]], last[[0, 2]], perfect[[0, 2]], np.zeros((2, 6, 6))))
+
+
+def test_every_variant_becomes_a_left_correction_with_unmeasured_axes() -> None:
+    from pvo_pseudosensors.dpc_net.infer import UNMEASURED, correction_vectors, measurement_covariance
+
+    covariance = np.diag([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    calibration = {"target_covariance": covariance}
+    pose, rotation, yaw = TINY, replace(TINY, variant="rotation"), replace(TINY, variant="yaw")
+    np.testing.assert_array_equal(correction_vectors(rotation, np.array([[0.1, 0.2, 0.3]])), [[0, 0, 0, 0.1, 0.2, 0.3]])
+    np.testing.assert_array_equal(correction_vectors(yaw, np.array([[0.4]])), [[0, 0, 0, 0, 0.4, 0]])
+    np.testing.assert_array_equal(measurement_covariance(pose, calibration), covariance)
+    assert np.diag(measurement_covariance(rotation, calibration)).tolist() == [UNMEASURED] * 3 + [4.0, 5.0, 6.0]
+    assert np.diag(measurement_covariance(yaw, calibration)).tolist() == [UNMEASURED] * 4 + [5.0, UNMEASURED]
+    residual = {"target_covariance": covariance, "residual_covariance": 0.5 * covariance}
+    np.testing.assert_array_equal(measurement_covariance(pose, residual), 0.5 * covariance)
+
+
+def test_the_residual_covariance_of_no_correction_is_the_targets_second_moment(miscalibrated: Path, tmp_path: Path) -> None:
+    from pvo_core.lie import se3_log
+    from pvo_pseudosensors.dpc_net.infer import residual_covariance
+
+    windows = DPCWindows([Source(miscalibrated, "06")], TINY, cache_dir=tmp_path, deltas=(3,))
+    card = DPCTask(TINY).card()
+    covariance, figures = residual_covariance(DPCNet(TINY).eval(), card, windows, batch_size=7)
+    logs = np.stack([se3_log(t) for t in windows.targets])
+    np.testing.assert_allclose(covariance, logs.T @ logs / len(logs), rtol=1e-5, atol=1e-10)
+    assert figures["windows"] == len(windows) == 24 - 3
+    assert figures["translation_error_m_after"] == pytest.approx(figures["translation_error_m_before"], rel=1e-5)

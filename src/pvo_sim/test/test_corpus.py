@@ -174,3 +174,15 @@ def test_one_lens_for_the_whole_corpus() -> None:
         assert plan.config.degradations.radial == (-0.3, 0.2, 0.01) and "lens distortion" in plan.conditions
         assert "radial distortion" not in plan.conditions
         assert plan.config.seed == before.config.seed and plan.split == before.split  # nothing else changes
+
+
+def test_one_calibration_error_for_the_whole_corpus() -> None:
+    wrong = CorpusConfig(sequences=30, frames=10, seed=5, calib_focal_scale=1.03, calib_baseline_scale=0.98)
+    plain = CorpusConfig(sequences=30, frames=10, seed=5)
+    for i in range(30):
+        plan, before = plan_sequence(wrong, i), plan_sequence(plain, i)
+        assert (plan.config.degradations.focal_scale, plan.config.degradations.baseline_scale) == (1.03, 0.98)
+        assert "rig calibration error" in plan.conditions and "wrong calibration" not in plan.conditions
+        assert plan.config.seed == before.config.seed and plan.config.focal == before.config.focal  # the same images
+    with pytest.raises(ValueError, match=r"--calib-focal-scale must be in \[0.5, 2\]"):
+        CorpusConfig(calib_focal_scale=0.0)

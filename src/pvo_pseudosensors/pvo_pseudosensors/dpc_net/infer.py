@@ -121,7 +121,7 @@ def overwrite_trajectory(vo: Array, corrections: Corrections) -> Array:
     for a, b, transform in zip(corrections.first, corrections.last, corrections.transforms, strict=True):
         if int(a) != anchored:
             raise ValueError(
-                f"the corrections' windows are not consecutive: one starts at frame {a}, the last ended at {anchored}"
+                f"the corrections' windows are not consecutive: one starts at frame {a}, the last ends at {anchored}"
             )
         poses[a : b + 1] = anchor @ vo[a : b + 1]
         poses[b] = poses[a] @ np.linalg.inv(transform)

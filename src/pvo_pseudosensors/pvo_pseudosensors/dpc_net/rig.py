@@ -102,19 +102,24 @@ def rig_problems(trained: Mapping[str, Any] | None, rig: Rig) -> tuple[list[str]
         if not low * (1 - RANGE_SLACK) <= value <= high * (1 + RANGE_SLACK):
             label = name.split("_")[0]
             refusals.append(f"calib.txt's {label} {value:.4g} {unit} is outside the trained {low:.4g}-{high:.4g} {unit}")
-    lens = tuple(trained.get("lens") or ())
-    if rig.lens is None:
-        described = "no lens distortion" if not lens else f"the lens k = {', '.join(f'{k:g}' for k in lens)}"
-        warnings.append(f"this camera's lens is unknown: the model corrects {described}; use it only on that camera")
-    elif not np.allclose(np.asarray(rig.lens or (0.0,) * 3), np.asarray(lens or (0.0,) * 3), atol=VALUE_TOLERANCE):
-        refusals.append(f"the images' lens {list(rig.lens) or 'none'} is not the model's {list(lens) or 'none'}")
+    if "lens" not in trained or trained["lens"] is None or rig.lens is None:
+        if trained.get("lens") is None:
+            described = "an unknown lens (its training images were not rendered)"
+        else:
+            described = (
+                "no lens distortion" if not trained["lens"] else f"the lens k = {', '.join(f'{k:g}' for k in trained['lens'])}"
+            )
+        warnings.append(f"the lens cannot be checked: the model corrects {described}; use it only on that camera")
+    elif not np.allclose(np.asarray(rig.lens or (0.0,) * 3), np.asarray(trained["lens"] or (0.0,) * 3), atol=VALUE_TOLERANCE):
+        refusals.append(f"the images' lens {list(rig.lens) or 'none'} is not the model's {list(trained['lens']) or 'none'}")
     for name in ("focal_scale", "baseline_scale"):
-        value, expected = getattr(rig, name), float(trained.get(name) or 1.0)
-        if value is None:
-            if expected != 1.0:
-                warnings.append(f"the model corrects a calib.txt {name.replace('_', ' ')} error of x{expected:g}; unknown here")
-        elif abs(value - expected) > VALUE_TOLERANCE:
-            refusals.append(f"calib.txt's {name.replace('_', ' ')} error is x{value:g}, the model's x{expected:g}")
+        value, expected = getattr(rig, name), trained.get(name)
+        what = f"calib.txt's {name.replace('_', ' ')} error"
+        if value is None or expected is None:
+            if value != expected:
+                warnings.append(f"{what} cannot be checked (known for {'the model' if value is None else 'this sequence'} only)")
+        elif abs(value - float(expected)) > VALUE_TOLERANCE:
+            refusals.append(f"{what} is x{value:g}, the model's x{float(expected):g}")
     return refusals, warnings
 
 
