@@ -1,5 +1,6 @@
 """The dpc_net node over DDS: stereo images and VO transforms in, a correction of every Δp-frame window out,
-exactly what the ROS-free sensor computes; a broken VO chain starts a new window; a bad stereo pair and a
+exactly what the ROS-free sensor computes; a VO gap, a lost VO frame and a size change inside a window give
+no correction and say why; a camera of another rig than the model card's is refused; a bad stereo pair and a
 missing model are reported and the node keeps running."""
 
 from __future__ import annotations
@@ -119,11 +120,27 @@ def test_a_broken_chain_starts_a_new_window_and_a_bad_pair_is_reported(ros_conte
     for k in range(1, 8):
         sensor.add_images(k * STEP, image, image)
     assert sensor.add_vo(1 * STEP, 2 * STEP, np.eye(4)) is None
-    assert sensor.add_vo(2 * STEP, 3 * STEP, np.eye(4)) is None
+    assert sensor.add_vo(2 * STEP, 3 * STEP, np.eye(4)) is None and sensor.dropped is None
     assert sensor.add_vo(4 * STEP, 5 * STEP, np.eye(4)) is None  # frame 3 -> 4 missing: a new window from 4
+    assert sensor.dropped is not None and "VO gap: the transform to 0.500 s starts at 0.400 s" in sensor.dropped
     assert sensor.add_vo(5 * STEP, 6 * STEP, np.eye(4)) is None
     correction = sensor.add_vo(6 * STEP, 7 * STEP, np.eye(4))
     assert correction is not None and correction.reference_stamp == 4 * STEP
+    # a lost VO frame inside the next window: no correction for it, and why
+    lost = np.eye(6) * 9999.0
+    for k in range(8, 12):
+        sensor.add_images(k * STEP, image, image)
+    assert sensor.add_vo(7 * STEP, 8 * STEP, np.eye(4)) is None
+    assert sensor.add_vo(8 * STEP, 9 * STEP, np.eye(4), lost) is None
+    assert sensor.add_vo(9 * STEP, 10 * STEP, np.eye(4)) is None
+    assert sensor.dropped == "the window 0.700-1.000 s is dropped: the VO was lost at 0.900 s (variance >= 1000)"
+    # the images change size inside the following one
+    sensor.add_images(13 * STEP, np.zeros((70, 230), np.uint8), np.zeros((70, 230), np.uint8))
+    for k in (11, 12, 13):
+        result = sensor.add_vo((k - 1) * STEP, k * STEP, np.eye(4))
+    assert (
+        result is None and sensor.dropped == "the window 1.000-1.300 s is dropped: the images changed size from 208x64 to 230x70"
+    )
     with pytest.raises(ValueError, match="left and right images differ in size"):
         sensor.add_images(9 * STEP, image, image[:, :100])
 
@@ -134,6 +151,45 @@ def test_a_broken_chain_starts_a_new_window_and_a_bad_pair_is_reported(ros_conte
 
     _, statuses = run_graph(ros_context, {"model": str(tiny_model)}, script)
     assert "left and right images differ in size" in statuses[-1].status[0].message
+
+
+def test_a_camera_of_another_rig_is_refused(ros_context, tmp_path: Path) -> None:
+    from pvo_pseudosensors.dpc_net.config import DPCNetConfig
+    from pvo_pseudosensors.dpc_net.model import DPCNet, DPCTask
+    from pvo_pseudosensors.learning.checkpoint import save_model
+    from sensor_msgs.msg import CameraInfo
+
+    config = DPCNetConfig(height=32, width=104, stem=(4, 4, 8), body=(8, 16), test_delta=3)
+    rig = {"size": [620, 188], "focal_px": [300.0, 400.0], "baseline_m": [0.54, 0.54], "lens": [], "focal_scale": 1.0}
+    model = save_model(
+        tmp_path / "model", DPCNet(config), DPCTask(config, np.eye(6) * 1e-3, rig | {"baseline_scale": 1.0}).card()
+    )
+
+    def info(width: int, focal: float) -> CameraInfo:
+        msg = CameraInfo()
+        fill_stamp(msg.header.stamp, STEP)
+        msg.width, msg.height = width, 188
+        msg.p = [focal, 0.0, width / 2, -focal * 0.54, 0.0, focal, 94.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+        return msg
+
+    def script(left, right, vo, received, statuses, node) -> None:
+        cameras = node.create_publisher(CameraInfo, "/stereo/right/camera_info", RELIABLE)
+        wait_for(lambda: cameras.get_subscription_count() > 0, 10)
+        cameras.publish(info(620, 350.0))  # the model's rig: only what cannot be checked is said
+        wait_for(lambda: node.camera is not None, 10)
+        cameras.publish(info(1226, 718.9))  # KITTI's own camera
+        wait_for(lambda: node.refusal is not None, 10)
+        vo.publish(vo_message(2 * STEP, STEP, np.eye(4)))
+        wait_for(lambda: node.rejected >= 1, 10)
+        wait_for(lambda: len(statuses) >= 3, 10)
+
+    received, statuses = run_graph(ros_context, {"model": str(model)}, script)
+    messages = [s.status[0].message for s in statuses]
+    assert received == []
+    assert messages[0].startswith("rig check: the lens cannot be checked: the model corrects no lens distortion")
+    refused = "not this DPC-Net model's rig: images are 1226x188, the model's rig 620x188; calib.txt's focal 718.9 px"
+    assert messages[1].startswith(refused) and statuses[1].status[0].level == DiagnosticStatus.ERROR
+    assert messages[-1].startswith(refused)  # and the VO of that camera gets no correction
 
 
 def test_a_missing_model_is_reported_and_the_node_keeps_running(ros_context, tmp_path: Path) -> None:

@@ -1,17 +1,21 @@
 """dpc_net: stereo images + /pvo/vo/relative -> /pvo/dpc/correction, DPC-Net's correction of the VO over Δp
 frames (thesis ch. 6), fused by the fusion node's correction factor (the smoother relaxes the pose graph).
 
-Parameters mirror :class:`~pvo_pseudosensors.dpc_net.estimator.DPCNetSensorConfig` (``model``, ``threads``);
-defaults in ``config/dpc_net.yaml``. A model that cannot be loaded, a stereo pair it cannot take and a VO
-chain it cannot follow are reported on ``/pvo/dpc_net/status``; the node keeps running.
+Parameters mirror :class:`~pvo_pseudosensors.dpc_net.estimator.DPCNetSensorConfig` (``model``, ``threads``,
+``lost_variance``, ``any_rig``); defaults in ``config/dpc_net.yaml``. The right camera_info is checked against
+the model card's rig (image size, focal length, baseline): another rig's camera gets no correction (unless
+``any_rig``). A model that cannot be loaded, a stereo pair it cannot take, a window it cannot correct (a VO gap
+or lost frame inside it, a missing pair, a size change) are reported on ``/pvo/dpc_net/status``; the node keeps
+running.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from pvo_core.msgconv import fill_pose, image_to_array, pose_to_matrix
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CameraInfo, Image
 
 from pvo_msgs.msg import RelativePose
 from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, reliable, run_node, stamp_to_nanoseconds
@@ -31,6 +35,30 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
         self.create_subscription(Image, "/stereo/right/image_rect", lambda m: self._on_image(m, "right"), reliable(10))
         self.create_subscription(RelativePose, "/pvo/vo/relative", self._on_vo, reliable(100))
         self.rights: dict[int, Image] = {}
+        self.camera: tuple[int, int, float, float] | None = None
+        self.refusal: str | None = None  # the rig check's verdict on this camera, when it refuses
+        self.create_subscription(CameraInfo, "/stereo/right/camera_info", self._on_camera_info, reliable(10))
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        """The rig check, once per distinct camera (size, focal length, baseline from the right P: P[3] = -f b)."""
+        focal = float(msg.p[0])
+        if self.sensor is None or focal <= 0.0:
+            return
+        camera = (int(msg.width), int(msg.height), focal, -float(msg.p[3]) / focal)
+        if camera == self.camera:
+            return
+        self.camera = camera
+        refusals, warnings = self.sensor.check_camera(*camera)
+        stamp = stamp_to_nanoseconds(msg.header.stamp)
+        self.refusal = None
+        if refusals:
+            text = f"not this DPC-Net model's rig: {'; '.join(refusals)}"
+            self.problem(f"camera at {stamp * 1e-9:.3f} s: {text}" + (" (any_rig: used anyway)" if self.config.any_rig else ""))
+            if not self.config.any_rig:
+                self.refusal = text
+            self._status(stamp, WARN if self.config.any_rig else ERROR, text)
+        elif warnings:
+            self._status(stamp, OK, "rig check: " + "; ".join(warnings))
 
     def _on_image(self, msg: Image, side: str) -> None:
         stamp = stamp_to_nanoseconds(msg.header.stamp)
@@ -53,14 +81,22 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
         if self.sensor is None:
             self._status(stamp, ERROR, f"no model: {self.model_error}")
             return
+        if self.refusal is not None:
+            self.rejected += 1
+            self._status(stamp, ERROR, self.refusal)
+            return
         try:
             transform = pose_to_matrix(msg.pose.pose)
         except ValueError as exc:
             self.rejected += 1
             self._status(stamp, WARN, f"VO transform rejected: {exc}")
             return
-        correction = self.sensor.add_vo(stamp_to_nanoseconds(msg.reference_stamp), stamp, transform)
+        covariance = np.reshape(np.asarray(msg.pose.covariance, dtype=float), (6, 6))
+        correction = self.sensor.add_vo(stamp_to_nanoseconds(msg.reference_stamp), stamp, transform, covariance)
         if correction is None:
+            if self.sensor.dropped is not None:
+                self.rejected += 1
+                self._status(stamp, WARN, self.sensor.dropped)
             return
         out = RelativePose()
         out.header = msg.header

@@ -14,7 +14,8 @@ from pvo_core.lie import se3_exp
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import DPCNetConfig
-from .infer import load_dpc_net
+from .infer import load_dpc_net, measurement_covariance
+from .rig import Rig, rig_problems
 
 Array = NDArray[np.float64]
 SHIPPED = ("dpc_net",)
@@ -27,15 +28,21 @@ def resolve_model(model: str) -> Path:
 
 @dataclass(frozen=True)
 class DPCNetSensorConfig:
-    """model: the model directory ("" = the shipped one); threads: torch threads. The span Δp is the model's
-    (its card's ``test_delta``): one correction every Δp VO frames, from frame k - Δp to frame k."""
+    """model: the model directory ("" = the shipped one); threads: torch threads; lost_variance: a VO transform
+    with a variance at least this (m², rad²) is a lost frame (the fusion's ``inputs.vo.lost_variance``); any_rig:
+    use the model even on a camera its card's rig check refuses. The span Δp is the model's (its card's
+    ``test_delta``): one correction every Δp VO frames, from frame k - Δp to frame k."""
 
     model: str = ""
     threads: int = 1
+    lost_variance: float = 1000.0
+    any_rig: bool = False
 
     def __post_init__(self) -> None:
         if self.threads < 1:
             raise ValueError(f"threads must be >= 1, got {self.threads}")
+        if not self.lost_variance > 0.0:
+            raise ValueError(f"lost_variance must be positive, got {self.lost_variance}")
 
 
 @dataclass
@@ -50,21 +57,33 @@ class Correction:
 
 
 class DPCNetSensor:
-    """Keeps the last Δp + 1 frames' stereo images (resized) and the VO transforms between them; each VO
-    transform that completes a window of Δp frames since the last correction gives one. A VO transform that
-    does not continue the chain (its reference is not the last frame) starts a new window."""
+    """Keeps the last frames' stereo images (resized) and the VO transforms since the window's first frame; each
+    VO transform that completes a window of Δp frames gives one correction. A window the model cannot correct
+    gives none, and :attr:`dropped` says why: a VO transform that does not continue the chain (a gap: a new
+    window starts at its reference), a lost VO frame inside the window, a stereo pair missing at either end,
+    or the images changing size between the ends."""
 
     def __init__(self, config: DPCNetSensorConfig) -> None:
         torch.set_num_threads(config.threads)
+        self.config = config
         self.model, self.card = load_dpc_net(resolve_model(config.model))
         self.settings = DPCNetConfig.from_card(self.card)
         if self.settings.variant != "pose":
             raise ValueError(f"the dpc_net sensor needs a pose model; this one is {self.settings.variant!r}")
         self.delta = self.settings.test_delta
-        self.covariance = np.asarray(self.card.calibration["target_covariance"], dtype=float)
+        self.covariance = measurement_covariance(self.settings, self.card.calibration)
         self.images: dict[int, NDArray[np.uint8]] = {}
+        self.sizes: dict[int, tuple[int, ...]] = {}
         self.chain: deque[tuple[int, Array]] = deque()  # (stamp, T_k,k-1) since the window's first frame
         self.first: int | None = None
+        self.lost_at: int | None = None  # a lost VO frame inside the current window
+        self.dropped: str | None = None  # why the last window gave no correction
+
+    def check_camera(self, width: int, height: int, focal_px: float, baseline_m: float) -> tuple[list[str], list[str]]:
+        """(refusals, warnings) of the model's rig check for a camera of this size and calibration (what its
+        camera_info states; the lens and a calibration error cannot be seen there)."""
+        rig = Rig((int(width), int(height)), float(focal_px), float(baseline_m), None, None, None)
+        return rig_problems(self.card.input.get("rig"), rig)
 
     def add_images(self, stamp: int, left: NDArray[np.uint8], right: NDArray[np.uint8]) -> None:
         """A stereo pair (8-bit grey or RGB, equal sizes); ``ValueError`` naming what is wrong."""
@@ -79,20 +98,46 @@ class DPCNetSensor:
             grey = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
             planes.append(cv2.resize(grey, (self.settings.width, self.settings.height), interpolation=cv2.INTER_AREA))
         self.images[stamp] = np.stack(planes)
+        self.sizes[stamp] = left.shape[:2]
         while len(self.images) > 4 * (self.delta + 1):  # older than any window can need
-            del self.images[min(self.images)]
+            oldest = min(self.images)
+            del self.images[oldest], self.sizes[oldest]
 
-    def add_vo(self, reference_stamp: int, stamp: int, transform: Array) -> Correction | None:
-        """The VO's T_k,k-1; the correction when it completes a window, else None."""
+    def add_vo(self, reference_stamp: int, stamp: int, transform: Array, covariance: Array | None = None) -> Correction | None:
+        """The VO's T_k,k-1 (and its covariance (6, 6), if known); the correction when it completes a window, else
+        None — with :attr:`dropped` saying why when a window was given up."""
+        self.dropped = None
         last = self.chain[-1][0] if self.chain else self.first
         if last is None or reference_stamp != last:  # the first transform, or a broken chain: a new window
-            self.first, self.chain = reference_stamp, deque()
+            if self.chain:
+                self.dropped = (
+                    f"VO gap: the transform to {stamp * 1e-9:.3f} s starts at {reference_stamp * 1e-9:.3f} s, not at the "
+                    f"window's last frame {last * 1e-9:.3f} s; the window from {self.first * 1e-9:.3f} s is dropped"
+                )
+            self.first, self.chain, self.lost_at = reference_stamp, deque(), None
+        variances = np.diag(np.asarray(covariance, dtype=float)) if covariance is not None else np.zeros(6)
+        if self.lost_at is None and (not np.all(np.isfinite(variances)) or variances.max() >= self.config.lost_variance):
+            self.lost_at = stamp
         self.chain.append((stamp, np.asarray(transform, dtype=float)))
         if len(self.chain) < self.delta:
             return None
-        first, chain = self.first, list(self.chain)
-        self.first, self.chain = stamp, deque()
-        if first not in self.images or stamp not in self.images:
+        first, chain, lost_at = self.first, list(self.chain), self.lost_at
+        self.first, self.chain, self.lost_at = stamp, deque(), None
+        span = f"the window {first * 1e-9:.3f}-{stamp * 1e-9:.3f} s"
+        if lost_at is not None:
+            self.dropped = (
+                f"{span} is dropped: the VO was lost at {lost_at * 1e-9:.3f} s (variance >= {self.config.lost_variance:g})"
+            )
+            return None
+        missing = [s for s in (first, stamp) if s not in self.images]
+        if missing:
+            self.dropped = f"{span} is dropped: no stereo pair at {', '.join(f'{s * 1e-9:.3f} s' for s in missing)}"
+            return None
+        if self.sizes[first] != self.sizes[stamp]:
+            self.dropped = (
+                f"{span} is dropped: the images changed size from {self.sizes[first][1]}x{self.sizes[first][0]} to "
+                f"{self.sizes[stamp][1]}x{self.sizes[stamp][0]}"
+            )
             return None
         estimate = np.eye(4)
         for _, step in chain:
