@@ -37,8 +37,9 @@ def test_demo_on_the_kitti_sample_matches_the_ros_free_objects(sample_bag: Path,
 
 
 def test_demo_runs_sun_bcnn_where_the_bag_has_gps(tmp_path: Path, ros_env) -> None:
-    """The synthetic sample (it has /gps/fix) goes through stereo_vo -> sun_bcnn and hydranet (the shipped
-    models) -> fusion, the reference from the ephemeris; the graph equals the same objects run without ROS."""
+    """The synthetic sample (it has /gps/fix) goes through stereo_vo -> sun_bcnn, hydranet and dpc_net (the
+    shipped models; DPC-Net's for the clean rig) -> fusion, the reference from the ephemeris; the graph equals the
+    same objects run without ROS."""
     from conftest import REPO_ROOT
 
     out = tmp_path / "demo"
@@ -47,15 +48,17 @@ def test_demo_runs_sun_bcnn_where_the_bag_has_gps(tmp_path: Path, ros_env) -> No
     assert result.returncode == 0, result.stderr[-2000:]
     sample = out / "sim_urban_sample"
     params = (sample / "params.yaml").read_text()
-    assert "sun_bcnn:" in params and "hydranet:" in params and "simulated_sun" not in params
+    assert "sun_bcnn:" in params and "hydranet:" in params and "dpc_net:" in params and "simulated_sun" not in params
     record = json.loads((sample / "metrics.json").read_text())
     for key in ("vo", "fused_smoothed", "fused_online"):
         assert record["figures"][f"agreement_with_ros_free.{key}_max_position_difference_m"] < 1e-6
     assert record["figures"]["agreement_with_ros_free.hydranet_max_rotation_difference"] < 1e-6
+    assert record["figures"]["agreement_with_ros_free.dpc_net_max_position_difference_m"] < 1e-6
     bag_info = subprocess.run(["pvo", "bag", "info", str(sample / "recorded")], capture_output=True, text=True, timeout=60)
     assert "Topic: /pvo/sun/direction" in bag_info.stdout and "Count: 30 " in bag_info.stdout  # every 10th of 300
     assert "Topic: /pvo/hydranet/rotation" in bag_info.stdout and "Count: 299 " in bag_info.stdout  # every pair
-    assert "stereo_vo -> sun_bcnn + hydranet -> fusion" in (sample / "report.md").read_text()
+    assert "Topic: /pvo/dpc/correction" in bag_info.stdout and "Count: 74 " in bag_info.stdout  # every 4 of 299 pairs
+    assert "stereo_vo -> sun_bcnn + hydranet + dpc_net -> fusion" in (sample / "report.md").read_text()
 
 
 def test_demo_on_a_missing_bag_is_one_clear_line(tmp_path: Path, ros_env) -> None:

@@ -17,6 +17,7 @@ setup(
         ("share/" + package_name + "/models/hydranet", glob("models/hydranet/*")),
         ("share/" + package_name + "/models/hydranet_kitti", glob("models/hydranet_kitti/*")),
         ("share/" + package_name + "/models/dpc_net", glob("models/dpc_net/*")),
+        ("share/" + package_name + "/models/dpc_net_clean", glob("models/dpc_net_clean/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

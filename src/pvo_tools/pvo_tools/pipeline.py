@@ -1,5 +1,5 @@
 """The node graph's algorithms as plain objects over a recorded bag: what ``stereo_vo`` → ``simulated_sun`` or
-``sun_bcnn`` (and ``hydranet``) → ``fusion`` compute, without ROS. The demo runs it beside the real graph to check
+``sun_bcnn`` (and ``hydranet``, ``dpc_net``) → ``fusion`` compute, without ROS. The demo runs it beside the real graph to check
 that both agree."""
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ class PipelineResult:
     sun: list[SunMeasurement]
     fused: OfflineResult
     rotations: list[RelativeMeasurement] = field(default_factory=list)
+    corrections: list[RelativeMeasurement] = field(default_factory=list)
 
 
 def run_pipeline(
@@ -54,6 +55,8 @@ def run_pipeline(
     sun_stamps: list[int] | None = None,
     rotation_config: Any = None,
     arrivals: dict[int, list[str]] | None = None,
+    correction_config: Any = None,
+    correction_stamps: list[int] | None = None,
 ) -> PipelineResult:
     """Every stereo pair through :class:`StereoVO`; the sun from every ground-truth sun vector through the
     simulated sun sensor (``sun_config``: a :class:`SimulatedSunConfig`) or from every left image through
@@ -62,7 +65,10 @@ def run_pipeline(
     frame); ``sun_stamps``: the frames a ``sun_bcnn`` node estimated at (it counts the images it receives: one it
     never got shifts its choice); ``rotation_config``: a
     :class:`~pvo_pseudosensors.hydranet.estimator.HydraNetSensorConfig` adds HydraNet's rotations between
-    consecutive left images, each reaching the fusion before the VO of its frame (HydraNet is the faster).
+    consecutive left images, each reaching the fusion before the VO of its frame (HydraNet is the faster);
+    ``correction_config``: a :class:`~pvo_pseudosensors.dpc_net.estimator.DPCNetSensorConfig` adds DPC-Net's
+    corrections of the VO over Δp frames (``correction_stamps``: only those ending at these frames, the ones a
+    ``dpc_net`` node published).
     ``arrivals`` (VO frame stamp -> the kinds of the measurements the fusion node took since the frame before,
     in order: its status's ``arrivals``): every measurement is taken in the order the node took it instead (the
     sensors race the VO for each image; load decides who wins)."""
@@ -85,15 +91,20 @@ def run_pipeline(
     else:
         sun = learned_sun(sample, sun_config, sun_stamps)
     rotations = learned_rotations(sample, rotation_config) if rotation_config is not None else []
+    corrections = []
+    if correction_config is not None:
+        corrections = learned_corrections(sample, correction_config, measurements)
+        if correction_stamps is not None:
+            corrections = [m for m in corrections if m.stamp in set(correction_stamps)]
     graph = FusionGraph(fusion_config, sun_reference)
     graph.set_initial_pose(initial_pose)
-    others = [*sun_events(sun), *(("rotation", m) for m in rotations)]
+    others = [*sun_events(sun), *(("rotation", m) for m in rotations), *(("correction", m) for m in corrections)]
     if arrivals is None:
         events = ordered_events(measurements, others, before={"rotation"})
     else:
         events = in_node_order(measurements, others, arrivals)
     fused = run_offline(graph, stamps, events, covariance_every=1)
-    return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused, rotations)
+    return PipelineResult(stamps, np.array(poses), np.array(covariances), measurements, sun, fused, rotations, corrections)
 
 
 def in_node_order(vo: list[RelativeMeasurement], others: list[Any], arrivals: dict[int, list[str]]) -> list[Any]:
@@ -129,6 +140,28 @@ def learned_rotations(sample: StereoSample, config: Any) -> list[RelativeMeasure
             transform[:3, :3] = quaternion_to_rotation(q / np.linalg.norm(q))  # as the fusion node reads the message
             rotations.append(RelativeMeasurement(int(stamp), estimate.earlier_stamp, transform, estimate.pose_covariance, True))
     return rotations
+
+
+def learned_corrections(sample: StereoSample, config: Any, vo: list[RelativeMeasurement]) -> list[RelativeMeasurement]:
+    """What ``dpc_net`` publishes for the sample's stereo pairs and the VO's transforms ``vo`` (each frame's pair
+    before the VO that ends there, as on the robot), as the fusion reads it."""
+    from pvo_pseudosensors.dpc_net.estimator import DPCNetSensor
+
+    sensor = DPCNetSensor(config)
+    by_stamp = {int(m.stamp): m for m in vo}
+    corrections = []
+    for stamp in sample.frame_stamps:
+        left, right = sample.pairs[int(stamp)]
+        sensor.add_images(int(stamp), image_to_array(left), image_to_array(right))
+        m = by_stamp.get(int(stamp))
+        if m is None:
+            continue
+        correction = sensor.add_vo(m.reference_stamp, m.stamp, m.transform, m.covariance)
+        if correction is not None:
+            corrections.append(
+                RelativeMeasurement(correction.stamp, correction.reference_stamp, correction.transform, correction.covariance)
+            )
+    return corrections
 
 
 def simulated_sun(sample: StereoSample, config: SimulatedSunConfig) -> list[SunMeasurement]:

@@ -18,11 +18,11 @@ from .infer import load_dpc_net, measurement_covariance
 from .rig import Rig, rig_problems
 
 Array = NDArray[np.float64]
-SHIPPED = ("dpc_net",)
+SHIPPED = ("dpc_net", "dpc_net_clean")  # the lens rig (Table 6.2), the clean rig (the demo's sample)
 
 
 def resolve_model(model: str) -> Path:
-    """ "" is the shipped model (``dpc_net``), anything else a path."""
+    """ "" is the shipped model (``dpc_net``), ``dpc_net_clean`` the shipped clean-rig one, anything else a path."""
     return resolve_shipped(model, SHIPPED)
 
 

@@ -7,7 +7,8 @@ The sun sensor: ``sun_bcnn`` (Sun-BCNN on the left images, the shipped model) wh
 with the fusion's sun reference from the ephemeris at the first fix; elsewhere (the KITTI sample: no GPS)
 ``simulated_sun`` (GT-Sun-10) with the reference from the ground truth. With the learned sun comes
 ``hydranet`` (HydraNet's rotation between consecutive left images, the shipped model), fused by the
-rotation factor."""
+rotation factor, and ``dpc_net`` (DPC-Net's corrections of the VO over Δp frames, the shipped clean-rig model
+``dpc_net_clean``: the sample's lens is not distorted), fused by the correction factor."""
 
 from __future__ import annotations
 
@@ -66,6 +67,17 @@ def register(sub: Any) -> None:
         help="run hydranet beside the learned sun (default: yes)",
     )
     demo.add_argument("--hydranet-model", default="", help="HydraNet model directory (default: the shipped model)")
+    demo.add_argument(
+        "--dpc-net",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="run dpc_net beside the learned sun (default: yes)",
+    )
+    demo.add_argument(
+        "--dpc-net-model",
+        default="dpc_net_clean",
+        help="DPC-Net model directory or shipped name (default dpc_net_clean: the sample's rig, no lens distortion)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,7 +85,17 @@ def run(args: argparse.Namespace) -> int:
 
     root = repository_root()
     bags = args.bags or [(root or Path.cwd()) / s for s in SAMPLES]
-    settings = DemoSettings(args.rate, args.sun_error, args.timeout, args.sun, args.sun_model, args.hydranet, args.hydranet_model)
+    settings = DemoSettings(
+        args.rate,
+        args.sun_error,
+        args.timeout,
+        args.sun,
+        args.sun_model,
+        args.hydranet,
+        args.hydranet_model,
+        args.dpc_net,
+        args.dpc_net_model,
+    )
     domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
     start = time.perf_counter()
     results = []
@@ -114,6 +136,8 @@ class DemoSettings:
     sun_model: str = ""  # Sun-BCNN model directory; "" = the shipped one
     hydranet: bool = True  # hydranet beside the learned sun
     hydranet_model: str = ""  # HydraNet model directory; "" = the shipped one
+    dpc_net: bool = True  # dpc_net beside the learned sun
+    dpc_net_model: str = "dpc_net_clean"  # DPC-Net model directory or shipped name
 
 
 @dataclass
@@ -197,16 +221,23 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         from pvo_pseudosensors.hydranet.estimator import HydraNetSensorConfig
 
         rotation_config = HydraNetSensorConfig(model=settings.hydranet_model)
+    correction_config = None
+    if learned and settings.dpc_net:
+        from pvo_pseudosensors.dpc_net.estimator import DPCNetSensorConfig
+
+        correction_config = DPCNetSensorConfig(model=settings.dpc_net_model)
     parameters = {
         "stereo_vo": {},
         sun_node: sun_parameters,
         **({"hydranet": {"model": settings.hydranet_model}} if rotation_config else {}),
+        **({"dpc_net": {"model": settings.dpc_net_model}} if correction_config else {}),
         "fusion": {**fusion_overrides, "initial_pose": initial_pose, "path_period": 0.0, "path_max_poses": 0},
     }
     params_file = write_params(out / "params.yaml", parameters)
     recorded_bag = out / "recorded"
     hydranet = rotation_config is not None
-    run_graph(bag, params_file, recorded_bag, out / "logs", settings, domain_id, len(stamps), sun_node, hydranet)
+    dpc_net = correction_config is not None
+    run_graph(bag, params_file, recorded_bag, out / "logs", settings, domain_id, len(stamps), sun_node, hydranet, dpc_net)
     graph_seconds = time.perf_counter() - start
 
     from pvo_frontend.vo import VOConfig
@@ -229,6 +260,8 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         # the sensors race the VO for each image (load decides who wins): the objects take every measurement in
         # the order the fusion node did (its status lists what it took before each frame)
         arrivals=read_arrivals(recorded_bag),
+        correction_config=correction_config,
+        correction_stamps=read_header_stamps(recorded_bag, "/pvo/dpc/correction") if dpc_net else None,
     )
     result = evaluate_sample(bag.name, recorded_bag, stamps, ground_truth, ros_free, out, sun_node)
     result.seconds = time.perf_counter() - start
@@ -246,9 +279,10 @@ def run_graph(
     frames: int,
     sun_node: str = "simulated_sun",
     hydranet: bool = False,
+    dpc_net: bool = False,
 ) -> None:
-    """stereo_vo, the sun node (simulated_sun or sun_bcnn), hydranet (when asked) and fusion as processes; the
-    bag played and the outputs recorded in this process."""
+    """stereo_vo, the sun node (simulated_sun or sun_bcnn), hydranet and dpc_net (when asked) and fusion as
+    processes; the bag played and the outputs recorded in this process."""
     import rclpy
     from rclpy.context import Context
     from rclpy.node import Node
@@ -266,26 +300,34 @@ def run_graph(
         executables = [("pvo_frontend", "stereo_vo"), ("pvo_pseudosensors", sun_node), ("pvo_fusion", "fusion")]
         if hydranet:
             executables.insert(2, ("pvo_pseudosensors", "hydranet"))
+        if dpc_net:
+            executables.insert(2, ("pvo_pseudosensors", "dpc_net"))
         for package, executable in executables:
             nodes.start(package, executable, params_file, log_dir, env)
         recorder_node = Node("pvo_demo_recorder", context=context)
         player_node = Node("pvo_demo_player", context=context)
-        outputs = [*OUTPUT_TOPICS, *(["/pvo/hydranet/rotation"] if hydranet else [])]
+        outputs = [
+            *OUTPUT_TOPICS,
+            *(["/pvo/hydranet/rotation"] if hydranet else []),
+            *(["/pvo/dpc/correction"] if dpc_net else []),
+        ]
         recorder = BagRecorder(recorder_node, recorded_bag, RecordOptions(topics=outputs, stamp="header"))
         player = BagPlayer(player_node, bag, PlayOptions(rate=settings.rate, topics=INPUT_TOPICS, wait_for_subscribers=0))
         try:
             with Spinner(context, recorder_node):
                 # Every edge of the graph, publishers and subscribers, as this process sees them.
-                image_readers = 1 + (sun_node == "sun_bcnn") + hydranet
+                image_readers = 1 + (sun_node == "sun_bcnn") + hydranet + dpc_net
                 sun_input = {} if sun_node == "sun_bcnn" else {"/ground_truth/sun_direction": (0, 1)}
                 rotation = {"/pvo/hydranet/rotation": (1, 2)} if hydranet else {}
+                correction = {"/pvo/dpc/correction": (1, 2), "/stereo/right/image_rect": (0, 1 + dpc_net)} if dpc_net else {}
                 wait_for_graph(
                     player_node,
                     {
                         "/stereo/left/image_rect": (0, image_readers),
                         **sun_input,
                         **rotation,
-                        "/pvo/vo/relative": (1, 2),
+                        **correction,
+                        "/pvo/vo/relative": (1, 2 + dpc_net),
                         "/pvo/sun/direction": (1, 2),
                         "/pvo/fusion/odometry": (1, 1),
                         "/pvo/fusion/path": (1, 1),
@@ -328,6 +370,7 @@ def run_graph(
         "/pvo/sun/direction",
         "/pvo/fusion/odometry",
         *(["/pvo/hydranet/rotation"] if hydranet else []),
+        *(["/pvo/dpc/correction"] if dpc_net else []),
     ]
     empty = [topic for topic in expected if counts[topic] == 0]
     if empty:
@@ -400,6 +443,14 @@ def evaluate_sample(
             raise PvoError(f"{recorded_bag}: hydranet published {len(rotations.stamps)} of {len(expected)} rotations")
         # the rotation matrices element by element (an angle through arccos would stop at 1e-8 near identity)
         agreement["hydranet_max_rotation_difference"] = float(np.max(np.abs(published[:, :3, :3] - expected[:, :3, :3])))
+    if ros_free.corrections:
+        corrections = read_recorded(recorded_bag, ["/pvo/dpc/correction"]).get("/pvo/dpc/correction")
+        if corrections is None:
+            raise PvoError(f"{recorded_bag}: nothing recorded on /pvo/dpc/correction")
+        expected = np.array([m.transform for m in ros_free.corrections])
+        published, _ = corrections.at(np.array([m.stamp for m in ros_free.corrections]))
+        agreement["dpc_net_max_position_difference_m"] = metrics.max_position_difference(published, expected)
+        agreement["dpc_net_max_rotation_difference"] = float(np.max(np.abs(published[:, :3, :3] - expected[:, :3, :3])))
     worst = max(v for k, v in agreement.items() if k.endswith(("_m", "_difference")))
     figures["agreement_with_ros_free"] = agreement
     table = format_demo_table(name, figures)
@@ -419,7 +470,7 @@ def evaluate_sample(
     plot_demo(out, name, ground_truth, {label: estimates[key][0] for label, key in ESTIMATES})
     (out / "report.md").write_text(
         f"# pvo demo: {name}\n\nThe sample replayed through stereo_vo -> {sun_node}"
-        f"{' + hydranet' if ros_free.rotations else ''} -> fusion over DDS "
+        f"{' + hydranet' if ros_free.rotations else ''}{' + dpc_net' if ros_free.corrections else ''} -> fusion over DDS "
         "and recorded (`recorded/`), evaluated against its ground truth.\n\n```\n"
         + table
         + "\n```\n\n![trajectory](trajectory.png)\n\n![errors](errors.png)\n"
@@ -450,6 +501,11 @@ def format_demo_table(name: str, figures: dict[str, dict[str, Any]]) -> str:
     if "hydranet_max_rotation_difference" in a:
         lines.append(
             f"hydranet node vs HydraNet object, max rotation-matrix difference: {a['hydranet_max_rotation_difference']:.1e}"
+        )
+    if "dpc_net_max_position_difference_m" in a:
+        lines.append(
+            f"dpc_net node vs DPC-Net object, max difference: position {a['dpc_net_max_position_difference_m']:.1e} m, "
+            f"rotation matrix {a['dpc_net_max_rotation_difference']:.1e}"
         )
     return "\n".join(lines)
 
