@@ -21,7 +21,7 @@ from .vo import add_sequence_arguments, open_sequence
 
 
 def register(sub: Any) -> None:
-    bench = sub.add_parser("bench", help="benchmarks: vo | probe | hydranet | sim | realism | fusion | soak | faults")
+    bench = sub.add_parser("bench", help="benchmarks: vo | probe | hydranet | dpc-net | sim | realism | fusion | soak | faults")
     kinds = bench.add_subparsers(dest="bench", required=True, metavar="WHAT")
     bvo = kinds.add_parser("vo", help="stereo VO per-stage timings and accuracy on a KITTI clip")
     bvo.set_defaults(handler=bench_vo)
@@ -46,6 +46,12 @@ def register(sub: Any) -> None:
     bh.add_argument("--model", default="", help="HydraNet model (default: the shipped one)")
     bh.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
     bh.add_argument("--repeat", type=int, default=3, help="passes over the KITTI 06 clip; the fastest is reported (default 3)")
+
+    bd = kinds.add_parser("dpc-net", help="DPC-Net: the stereo pair resized per frame and one correction per window on one core")
+    bd.set_defaults(handler=bench_dpc_net)
+    bd.add_argument("--model", default="", help="DPC-Net model (default: the shipped one)")
+    bd.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
+    bd.add_argument("--repeat", type=int, default=3, help="passes over the KITTI 06 clip; the fastest is reported (default 3)")
 
     bs = kinds.add_parser("sim", help="synthetic world: stereo frames/s at 620x188 and 1241x376, world generation vs length")
     bs.set_defaults(handler=bench_sim)
@@ -205,6 +211,59 @@ def bench_hydranet(args: argparse.Namespace) -> int:
                 times.append(1e3 * (time.perf_counter() - tic))
             best = times if not best or np.median(times) < np.median(best) else best
         print(f"  {name:<28} median {np.median(best):6.2f} ms, p95 {np.percentile(best, 95):6.2f} ms")
+    return 0
+
+
+def bench_dpc_net(args: argparse.Namespace) -> int:
+    """Issue 16's budget: one correction <= 30 ms on one core; what the node does per frame (both images resized)
+    and per window (the network over its two ends), over the KITTI 06 clip's full-size stereo pairs."""
+    import time
+
+    import cv2
+    import numpy as np
+    import torch
+    from pvo_core.imageio import read_image
+    from pvo_pseudosensors.dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
+
+    from ..paths import data_directory
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+    sensor = DPCNetSensor(DPCNetSensorConfig(model=args.model, threads=1))
+    clip = data_directory(args.data) / "kitti" / "sequences" / "06"
+    pairs = [
+        (read_image(a), read_image(b))
+        for a, b in zip(sorted((clip / "image_0").glob("*.png")), sorted((clip / "image_1").glob("*.png")), strict=True)
+    ]
+    step = np.eye(4)
+    step[2, 3] = 0.8
+    print(
+        f"pvo bench dpc-net: {sensor.settings.height}x{sensor.settings.width} input from {pairs[0][0].shape[1]}x"
+        f"{pairs[0][0].shape[0]} stereo pairs, Δp = {sensor.delta}, {len(pairs)} frames of the KITTI 06 clip, one core"
+    )
+    best: dict[str, list[float]] = {}
+    for _ in range(args.repeat):
+        sensor.images.clear()
+        sensor.sizes.clear()
+        sensor.first, sensor.chain = None, type(sensor.chain)()
+        times: dict[str, list[float]] = {"stereo pair resized (every frame)": [], "correction (every window)": []}
+        for k, (left, right) in enumerate(pairs):
+            tic = time.perf_counter()
+            sensor.add_images((k + 1) * 100_000_000, left, right)
+            times["stereo pair resized (every frame)"].append(1e3 * (time.perf_counter() - tic))
+            if k == 0:
+                continue
+            tic = time.perf_counter()
+            correction = sensor.add_vo(k * 100_000_000, (k + 1) * 100_000_000, step)
+            if correction is not None:
+                times["correction (every window)"].append(1e3 * (time.perf_counter() - tic))
+        for name, values in times.items():
+            if name not in best or np.median(values) < np.median(best[name]):
+                best[name] = values
+    for name, values in best.items():
+        print(f"  {name:<36} median {np.median(values):6.2f} ms, p95 {np.percentile(values, 95):6.2f} ms ({len(values)} timed)")
+    per_frame = np.median(best["stereo pair resized (every frame)"]) + np.median(best["correction (every window)"]) / sensor.delta
+    print(f"  {'per frame on average':<36} {per_frame:6.2f} ms (100 ms between frames at 10 Hz)")
     return 0
 
 
