@@ -1,5 +1,6 @@
-"""`pvo dpc-net train|predict|correct|eval` on a tiny corpus cut from the real KITTI 06 clip with a 5 % wrong
-focal length in calib.txt: the commands compose; the corrected trajectory is the fused VO + corrections."""
+"""`pvo dpc-net train|calibrate|predict|correct|eval` on a tiny corpus cut from the real KITTI 06 clip with a 5 %
+wrong focal length in calib.txt: the commands compose; the corrected trajectory is the fused VO + corrections or
+the overwritten VO; another rig's sequence is left out of training and refused at use; the experiment's pieces."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from pvo_tools.cli import main
 TINY = ["--height", "32", "--width", "104", "--stem", "4,4,8", "--body", "8,16", "--deltas", "2,3", "--test-delta", "3"]
 
 
-def write_clip(clip: Path, root: Path, frames: range) -> None:
+def write_clip(clip: Path, root: Path, frames: range, focal_scale: float = 1.05) -> None:
     for side in ("image_0", "image_1"):
         (root / side).mkdir(parents=True)
         images = sorted((clip / side).glob("*.png"))
@@ -23,9 +24,9 @@ def write_clip(clip: Path, root: Path, frames: range) -> None:
     rows = []
     for name, line in zip(("P0", "P1"), (clip / "calib_P0_P1_unlabelled.txt").read_text().splitlines(), strict=True):
         p = np.array(line.split()[-12:], float).reshape(3, 4)
-        p[0, 0] *= 1.05
-        p[1, 1] *= 1.05
-        p[0, 3] *= 1.05
+        p[0, 0] *= focal_scale
+        p[1, 1] *= focal_scale
+        p[0, 3] *= focal_scale
         rows.append(f"{name}: " + " ".join(f"{v:.12e}" for v in p.reshape(-1)))
     (root / "calib.txt").write_text("\n".join(rows) + "\n")
     poses = np.array([np.array(line.split(), float) for line in (clip / "poses_frames000-050.txt").read_text().splitlines()])
@@ -45,6 +46,18 @@ def corpus(pvo_data: Path, tmp_path_factory) -> Path:
         entries.append(
             {"name": name, "split": split, "preset": "urban", "sha256": hashlib.sha256(name.encode()).hexdigest(), "config": {}}
         )
+    # a sequence of another rig (a drawn calibration error): DPC-Net's training leaves it out
+    write_clip(clip, root / "0003", range(0, 20), focal_scale=1.3)
+    entries.append(
+        {
+            "name": "0003",
+            "split": "train",
+            "preset": "urban",
+            "sha256": "0" * 64,
+            "config": {},
+            "conditions": ["wrong calibration"],
+        }
+    )
     corpus = {"sequences": 3, "frames": 17, "width": 1226, "height": 370, "presets": ["urban"], "seed": 0, "colour": False}
     (root / "manifest.yaml").write_text(yaml.safe_dump({"corpus": corpus, "sequences": entries}))
     return root
@@ -54,10 +67,18 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     model = tmp_path / "model"
     train = ["dpc-net", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "2", "--batch-size", "8", "-q"]
     assert main([*train, "--threads", "1", *TINY]) == 0
-    assert "35 training and 11 validation samples" in capsys.readouterr().err  # spans 2, 3 of 20 frames; span 3 of 14
+    err = capsys.readouterr().err
+    assert "35 training and 11 validation samples" in err  # spans 2, 3 of 20 frames; span 3 of 14
+    assert "1 train sequence(s) of" in err and "left out, another rig's (wrong calibration or radial distortion): 0003" in err
     card = yaml.safe_load((model / "model.yaml").read_text())
     covariance = np.array(card["calibration"]["target_covariance"])
     assert card["architecture"] == "dpc-net" and covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(covariance) > 0)
+    assert card["input"]["rig"]["size"] == [1226, 370] and card["input"]["rig"]["lens"] is None
+
+    assert main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus)]) == 0
+    assert "11 validation windows of 1 sequences" in capsys.readouterr().out
+    residual = np.array(yaml.safe_load((model / "model.yaml").read_text())["calibration"]["residual_covariance"])
+    assert residual.shape == (6, 6) and np.all(np.linalg.eigvalsh(residual) > 0)
 
     out = tmp_path / "corrected.txt"
     assert main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(model), "-o", str(out)]) == 0
@@ -70,6 +91,22 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     assert main(["dpc-net", "predict", str(corpus / "0002"), "--vo", str(vo), "--model", str(model), "-o", str(corrections)]) == 0
     lines = corrections.read_text().splitlines()
     assert lines[0].startswith("frame_first,frame_last,t00") and len(lines) == 6 and lines[1].startswith("0,3,")
+
+    overwritten = tmp_path / "overwritten.txt"
+    assert (
+        main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(model), "-o", str(overwritten), "--method", "overwrite"])
+        == 0
+    )
+    assert "5 poses overwritten" in capsys.readouterr().out
+    np.testing.assert_allclose(np.loadtxt(overwritten)[:3], np.loadtxt(vo)[:3], atol=1e-9)  # the VO inside the first window
+    assert not np.allclose(np.loadtxt(overwritten)[3], np.loadtxt(vo)[3])
+
+    # the model's rig is 5 % off KITTI's focal length; the training clip of another rig is refused, or flagged when forced
+    other = ["dpc-net", "correct", str(corpus / "0003"), "--model", str(model), "-o", str(tmp_path / "other.txt")]
+    assert main(other) == 2
+    assert "0003: not this DPC-Net model's rig: calib.txt's focal" in capsys.readouterr().err
+    assert main([*other, "--any-rig"]) == 0
+    assert "warning:" in capsys.readouterr().err
 
     capsys.readouterr()
     evaluate = ["dpc-net", "eval", "--gt", str(corpus / "0002" / "poses.txt"), "--est", str(out), "--vo", str(vo)]
@@ -86,3 +123,32 @@ def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     assert "model directory not found" in capsys.readouterr().err
     assert main(["dpc-net", "train", "--corpus", str(corpus), "-o", str(tmp_path / "m"), *TINY, "--variant", "scale"]) == 2
     assert "unknown variant 'scale'" in capsys.readouterr().err
+
+
+def test_the_experiment_miscalibrates_a_copy_and_tabulates_changes(corpus: Path, tmp_path: Path) -> None:
+    from pvo_core.readers.kitti import read_kitti_calibration
+    from pvo_pseudosensors.dpc_net.rig import sequence_rig
+    from pvo_tools.experiments.dpc_net import miscalibrate, table
+
+    source = tmp_path / "source"
+    source.mkdir()
+    for name in ("image_0", "image_1", "poses.txt", "calib.txt"):
+        (source / name).symlink_to((corpus / "0002" / name).resolve())
+    (source / "times.txt").write_text("".join(f"{0.1 * k:.1f}\n" for k in range(17)))
+    (source / "sim.yaml").write_text(yaml.safe_dump({"config": {"degradations": {"distortion": 0.0, "focal_scale": 1.0}}}))
+    copy = miscalibrate(source, tmp_path / "copy", 1.03)
+    before, after = read_kitti_calibration(source / "calib.txt"), read_kitti_calibration(copy / "calib.txt")
+    np.testing.assert_allclose(after["P1"][0, [0, 3]], 1.03 * before["P1"][0, [0, 3]])
+    assert after["P0"][1, 1] == pytest.approx(1.03 * before["P0"][1, 1]) and after["P0"][0, 2] == before["P0"][0, 2]
+    rig = sequence_rig(copy)
+    assert rig.focal_scale == 1.03 and rig.lens == () and (copy / "image_0").resolve() == (corpus / "0002" / "image_0").resolve()
+
+    row = {"m_ate_trans": 10.0, "m_ate_rot_deg": 2.0, "seg_trans_percent": 5.0, "seg_rot_deg_per_m": 0.01}
+    results = {
+        "a": {"S-VO": row, "+ lens fusion online": {k: v / 2 for k, v in row.items()}},
+        "b": {"S-VO": row, "+ lens fusion online": {k: v * 1.5 for k, v in row.items()}},
+    }
+    figures: dict[str, float] = {}
+    lines = table(results, figures, "t")
+    assert figures["t.lens_fusion_online.m_ate_trans_change"] == pytest.approx(0.0)  # -50 % and +50 %: mean 0
+    assert "| + lens fusion online | +0.0 % |" in "\n".join(lines)
