@@ -43,10 +43,18 @@ def test_cli_runs_one_sequence_and_writes_the_run_record(pvo_data: Path, tmp_pat
 def test_experiments_are_listed_and_unknown_kinds_are_errors() -> None:
     listing = subprocess.run(["pvo", "experiment", "list"], capture_output=True, text=True, timeout=60)
     rows = [line.split(None, 1) for line in listing.stdout.splitlines()]
-    assert listing.returncode == 0 and [name for name, _ in rows] == ["sun-sim", "sun-bcnn", "probe", "hydranet-1d", "hydranet"]
+    assert listing.returncode == 0 and [name for name, _ in rows] == [
+        "sun-sim",
+        "sun-bcnn",
+        "probe",
+        "hydranet-1d",
+        "hydranet",
+        "dpc-net",
+    ]
     titles = dict(rows)
     assert titles["sun-sim"].startswith("Table 5.2") and titles["sun-bcnn"].startswith("Sun-BCNN (ch. 5)")
     assert titles["probe"].startswith("PROBE (ch. 4") and titles["hydranet-1d"].startswith("HydraNet 1-D")
+    assert titles["dpc-net"].startswith("DPC-Net (ch. 6, Tables 6.1-6.2)")
     assert len({len(line) - len(line.split(None, 1)[1]) for line in listing.stdout.splitlines()}) == 1  # one column
     for command in (["pvo", "experiment", "sun-real"], ["pvo", "bench", "gpu"]):
         bad = subprocess.run(command, capture_output=True, text=True, timeout=60)
