@@ -110,7 +110,7 @@ def _copy_with(root: Path, out: Path, focal_scale: float = 1.0, sim: dict | None
 
 def test_the_card_records_the_rig_and_a_model_is_refused_on_another(miscalibrated: Path, tmp_path: Path) -> None:
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net
-    from pvo_pseudosensors.dpc_net.rig import check_rig, sequence_rig, training_rig
+    from pvo_pseudosensors.dpc_net.rig import check_rig, rig_problems, sequence_rig, training_rig
 
     data = DPCWindows([Source(miscalibrated, "06")], TINY, cache_dir=tmp_path)
     rig = training_rig(data.rigs)
@@ -128,6 +128,9 @@ def test_the_card_records_the_rig_and_a_model_is_refused_on_another(miscalibrate
     ):
         check_rig(card.input["rig"], longer)
     assert check_rig(card.input["rig"], longer, allow_any=True)  # forced: the refusal becomes a warning
+    # a model of another VO's errors is flagged
+    _, flagged = rig_problems(rig | {"vo": "0123"}, sequence_rig(miscalibrated), "4567")
+    assert "the model learned the errors of VO 0123, this VO is 4567" in flagged[0]
     # a known lens against a model of known clean images: refused; sequences of two lenses do not make one rig
     clean = sequence_rig(_copy_with(miscalibrated, tmp_path / "clean", sim={"distortion": 0.0}))
     lens = sequence_rig(_copy_with(miscalibrated, tmp_path / "lens", sim={"distortion": [-0.3, 0.2, 0.01]}))
@@ -186,3 +189,34 @@ def test_the_residual_covariance_of_no_correction_is_the_targets_second_moment(m
     np.testing.assert_allclose(covariance, logs.T @ logs / len(logs), rtol=1e-5, atol=1e-10)
     assert figures["windows"] == len(windows) == 24 - 3
     assert figures["translation_error_m_after"] == pytest.approx(figures["translation_error_m_before"], rel=1e-5)
+
+
+class ConstantCorrection(torch.utils.data.Dataset):
+    """Random stereo frames, every window's target the same T* = exp(ξ*^): a rig whose VO is always off the same way."""
+
+    def __init__(self, xi: np.ndarray, count: int = 64) -> None:
+        from pvo_core.lie import se3_exp
+
+        generator = torch.Generator().manual_seed(1)
+        self.frames = torch.rand(count, 2, 2, 32, 104, generator=generator)
+        self.target = torch.from_numpy(se3_exp(xi).astype(np.float32))
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, item: int) -> dict[str, torch.Tensor]:
+        return {"first": self.frames[item, 0], "last": self.frames[item, 1], "target": self.target}
+
+
+def test_a_tiny_model_learns_a_constant_correction(tmp_path: Path) -> None:
+    from pvo_pseudosensors.dpc_net.infer import load_dpc_net
+
+    xi = np.array([0.02, -0.01, -0.12, 0.002, -0.004, 0.001])  # the lens's kind: forward motion overestimated
+    data = ConstantCorrection(xi)
+    covariance = np.diag([0.01, 0.01, 0.01, 1e-4, 1e-4, 1e-4])
+    config = TrainConfig(epochs=60, batch_size=16, learning_rate=3e-3, patience=0, threads=1)
+    fit(DPCTask(replace(TINY, dropout=0.0), covariance), data, data, config, tmp_path / "m", say=lambda _: None)
+    model, _ = load_dpc_net(tmp_path / "m")
+    with torch.no_grad():
+        predicted = model(data.frames[:8, 0], data.frames[:8, 1]).double().numpy()
+    np.testing.assert_allclose(predicted, np.broadcast_to(xi, (8, 6)), atol=0.1 * np.abs(xi).max())

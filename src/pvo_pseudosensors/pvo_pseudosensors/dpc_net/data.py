@@ -25,6 +25,14 @@ from .rig import Rig, sequence_rig
 Array = NDArray[np.float64]
 
 
+def vo_signature() -> str:
+    """Which VO a correction is for: a digest of this project's stereo VO settings (its defaults, as `pvo vo`
+    and the training run it). A model card records it; another VO's errors are not the ones it learned."""
+    from pvo_frontend.vo import VOConfig
+
+    return hashlib.sha256(repr(VOConfig()).encode()).hexdigest()[:16]
+
+
 def vo_poses(source: Source, cache_dir: Path | None) -> Array:
     """The stereo VO's camera poses T_odom,k (N, 4, 4) over ``source`` (default VO settings), cached."""
     from pvo_core.readers import KittiSequence

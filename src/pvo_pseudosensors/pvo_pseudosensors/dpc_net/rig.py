@@ -88,13 +88,16 @@ def training_rig(rigs: Iterable[Rig]) -> dict[str, Any]:
     return record
 
 
-def rig_problems(trained: Mapping[str, Any] | None, rig: Rig) -> tuple[list[str], list[str]]:
+def rig_problems(trained: Mapping[str, Any] | None, rig: Rig, vo: str | None = None) -> tuple[list[str], list[str]]:
     """(refusals, warnings) for using a model trained on the rig ``trained`` (a card's record) on a sequence of
     ``rig``: a different image size, focal length or baseline outside the trained range, or a known different
-    lens or calibration error is refused; what cannot be known (a real camera's lens) is a warning."""
+    lens or calibration error is refused; what cannot be known (a real camera's lens) is a warning, and so is
+    a VO other than the one the model learned (``vo``: the VO's signature now, :func:`.data.vo_signature`)."""
     if not trained:
         return [], ["the model card records no rig (a model trained before rig checks): its lens and calibration are unknown"]
     refusals, warnings = [], []
+    if vo is not None and trained.get("vo") not in (None, vo):
+        warnings.append(f"the model learned the errors of VO {trained['vo']}, this VO is {vo}: its settings changed since")
     if tuple(trained["size"]) != rig.size:
         refusals.append(f"images are {rig.size[0]}x{rig.size[1]}, the model's rig {trained['size'][0]}x{trained['size'][1]}")
     for name, value, unit in (("focal_px", rig.focal_px, "px"), ("baseline_m", rig.baseline_m, "m")):
@@ -126,7 +129,9 @@ def rig_problems(trained: Mapping[str, Any] | None, rig: Rig) -> tuple[list[str]
 def check_rig(trained: Mapping[str, Any] | None, root: Path, allow_any: bool = False) -> list[str]:
     """The warnings for using the model on the sequence at ``root``; ``ValueError`` (one line naming the model's
     rig and the sequence's) when it is another rig's, unless ``allow_any``."""
-    refusals, warnings = rig_problems(trained, sequence_rig(root))
+    from .data import vo_signature
+
+    refusals, warnings = rig_problems(trained, sequence_rig(root), vo_signature())
     if refusals and not allow_any:
         raise ValueError(f"{root}: not this DPC-Net model's rig: {'; '.join(refusals)} (--any-rig to use it anyway)")
     return [*refusals, *warnings]

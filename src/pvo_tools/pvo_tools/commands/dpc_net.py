@@ -87,7 +87,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     import numpy as np
     from pvo_core.readers import read_corpus_manifest
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
-    from pvo_pseudosensors.dpc_net.data import DPCWindows
+    from pvo_pseudosensors.dpc_net.data import DPCWindows, vo_signature
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net, residual_covariance
     from pvo_pseudosensors.learning.checkpoint import write_card
     from pvo_pseudosensors.learning.data import Source
@@ -107,6 +107,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         raise ValueError(f"{manifest.path}: no validation sequence of the model's rig")
     windows = DPCWindows(sources, config, args.cache or manifest.path.parent / ".cache", (config.test_delta,))
     covariance, figures = residual_covariance(model, card, windows)
+    if card.input.get("rig"):  # calibrated for this VO
+        card.input["rig"]["vo"] = vo_signature()
     card.calibration["residual_covariance"] = covariance.tolist()
     card.calibration["residual"] = figures | {"corpus": str(args.corpus), "sequences": len(sources)}
     write_card(args.model, card)

@@ -298,6 +298,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from pvo_core.results import RunResult
     from pvo_core.trajectory import write_kitti_poses
+    from pvo_pseudosensors.dpc_net.data import vo_signature
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net
     from pvo_pseudosensors.dpc_net.rig import rig_problems, sequence_rig
@@ -373,7 +374,7 @@ def run(args: argparse.Namespace) -> int:
     report += ["### The model card's rig check", "", "| model | sequence | verdict |", "|---|---|---|"]
     for name, (_, card) in loaded.items():
         for rig in ("clean", "calib", "lens"):
-            refusals, warnings = rig_problems(card.input.get("rig"), sequence_rig(folders[rig][0]))
+            refusals, warnings = rig_problems(card.input.get("rig"), sequence_rig(folders[rig][0]), vo_signature())
             verdict = (
                 "refused: " + "; ".join(refusals)
                 if refusals
