@@ -96,8 +96,14 @@ def _rounded_rectangle(s: Array, width: float, height: float, radius: float) -> 
 
 
 def kitti_path(poses_file: Path, frames: int | None, start: int, camera_height: float, heading_deg: float = 0.0) -> Array:
-    """A real KITTI ground-truth trajectory placed in the world: the first camera level at
-    ``camera_height`` facing ``heading_deg`` (from north); KITTI's own poses (first camera frame) after it."""
+    """A real KITTI ground-truth trajectory placed on the world's flat ground, facing ``heading_deg`` (from
+    north) at the start: KITTI's poses relative to the first camera, tilted so that the cameras' mean up
+    direction over the window is the world's up, and every camera at ``camera_height`` above the ground.
+
+    The world is flat; KITTI's drives are not, and their first camera is not level: replayed as they are, a
+    1000-frame window climbed 12 m above the ground or sank 4 m under it, where the cameras see the inside of
+    the ground plane. The frame-to-frame rotations (turns, pitch and roll as the car's) are KITTI's exactly;
+    each step keeps its horizontal motion and loses its climb."""
     try:
         poses = read_kitti_poses(poses_file)
     except Exception as exc:  # noqa: BLE001 - the reader raises DataFormatError naming the line
@@ -106,7 +112,22 @@ def kitti_path(poses_file: Path, frames: int | None, start: int, camera_height: 
         raise ValueError(f"{poses_file}: start frame {start} outside its {len(poses)} poses")
     end = len(poses) if frames is None else min(len(poses), start + frames)
     relative = np.linalg.inv(poses[start]) @ poses[start:end]
+    level = np.eye(4)
+    level[:3, :3] = _rotation_between(-relative[:, :3, 1].mean(axis=0), np.array([0.0, -1.0, 0.0]))
     anchor = np.eye(4)
     anchor[:3, :3] = heading_rotation(heading_deg) @ ENU_FROM_LEVEL_CAMERA
-    anchor[2, 3] = camera_height
-    return anchor @ relative
+    placed = anchor @ level @ relative
+    placed[:, 2, 3] = camera_height
+    return placed
+
+
+def _rotation_between(a: Array, b: Array) -> Array:
+    """The smallest rotation turning direction ``a`` onto direction ``b`` (3-vectors)."""
+    a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    sine, cosine = float(np.linalg.norm(axis)), float(np.dot(a, b))
+    if sine < 1e-12:
+        if cosine > 0:
+            return np.eye(3)
+        raise ValueError("the cameras' mean up direction points down")
+    return so3_exp(axis / sine * np.arctan2(sine, cosine))

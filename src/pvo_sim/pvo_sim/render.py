@@ -31,7 +31,7 @@ Array = NDArray[np.float64]
 GRAVITY_ENU = np.array([0.0, 0.0, -9.80665])
 #: Bumped whenever the same configuration renders different images (worlds, lighting, camera): a corpus keeps a
 #: sequence only if it was rendered by the same revision.
-RENDERER_REVISION = 6
+RENDERER_REVISION = 7  # 7: KITTI drives levelled onto the flat ground (kitti_path)
 KITTI_FOCAL_PER_PIXEL_WIDTH = 718.856 / 1241.0  # KITTI's focal length scales with the image width
 
 

@@ -277,9 +277,25 @@ def test_kitti_ground_truth_replay(pvo_data: Path, tmp_path: Path) -> None:
     poses_file = pvo_data / "kitti" / "poses" / "06.txt"
     config = render(tmp_path / "kitti", frames=4, poses_file=str(poses_file), start_frame=100)
     written = read_kitti_poses(tmp_path / "kitti" / "poses.txt")
-    kitti = read_kitti_poses(poses_file)
-    np.testing.assert_allclose(written, np.linalg.inv(kitti[100]) @ kitti[100:104], atol=1e-9)
+    kitti = read_kitti_poses(poses_file)[100:104]
+    # KITTI's turns exactly; each step's horizontal motion kept, its climb lost (the world is flat)
+    steps, true_steps = np.linalg.inv(written[:-1]) @ written[1:], np.linalg.inv(kitti[:-1]) @ kitti[1:]
+    np.testing.assert_allclose(steps[:, :3, :3], true_steps[:, :3, :3], atol=1e-9)
+    lengths, true_lengths = np.linalg.norm(steps[:, :3, 3], axis=1), np.linalg.norm(true_steps[:, :3, 3], axis=1)
+    np.testing.assert_allclose(lengths, true_lengths, rtol=0.01)
     assert config.frames == 4
+
+
+def test_a_long_kitti_drive_stays_on_the_ground(pvo_data: Path) -> None:
+    from pvo_sim.paths import kitti_path
+
+    poses = kitti_path(pvo_data / "kitti" / "poses" / "05.txt", 1000, 0, 1.65, heading_deg=30.0)
+    np.testing.assert_allclose(poses[:, 2, 3], 1.65)  # replayed as recorded, this window climbs 12 m
+    up = -poses[:, :3, 1]  # the cameras' up (optical y is down) in ENU
+    assert np.degrees(np.arccos(up[:, 2])).max() < 5.0  # a car's pitch and roll, not a tilted world
+    true = read_kitti_poses(pvo_data / "kitti" / "poses" / "05.txt")[:1000]
+    true_steps = np.linalg.inv(true[:-1]) @ true[1:]
+    np.testing.assert_allclose((np.linalg.inv(poses[:-1]) @ poses[1:])[:, :3, :3], true_steps[:, :3, :3], atol=1e-9)
 
 
 def test_a_failed_render_keeps_the_previous_output(tmp_path: Path, monkeypatch) -> None:

@@ -51,3 +51,13 @@ def fusion_figures(truth: Any, estimate: Any) -> dict[str, float]:
         "seg_trans_percent": segments.translation_percent,
         "seg_rot_deg_per_m": segments.rotation_deg_per_m,
     }
+
+
+def rendered_by_this_revision(folder: Path) -> bool:
+    """Whether ``folder`` holds a complete `pvo sim` sequence of this renderer's revision (an experiment renders
+    an older one anew: the same configuration renders different images)."""
+    import yaml
+    from pvo_sim.render import RENDERER_REVISION
+
+    meta = folder / "sim.yaml"
+    return meta.is_file() and (yaml.safe_load(meta.read_text()) or {}).get("renderer_revision") == RENDERER_REVISION

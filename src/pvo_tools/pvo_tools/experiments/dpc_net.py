@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..paths import data_directory
-from .common import ExperimentRun, fusion_figures
+from .common import ExperimentRun, fusion_figures, rendered_by_this_revision
 
 TITLE = "DPC-Net (ch. 6, Tables 6.1-6.2): corrections for a miscalibrated and a distorted rig, no harm, fusion vs overwrite"
 Array = NDArray[np.float64]
@@ -64,14 +64,15 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def render_sequences(data: Path, count: int, frames: int, out: Path, jobs: int, say: Any) -> dict[str, list[Path]]:
     """The first ``count`` of :data:`SEQUENCES`, rendered clean and through :data:`LENS` into ``out/clean`` and
-    ``out/lens`` (urban, 1x, seeded; `pvo sim` in parallel processes, complete ones kept), and the clean ones
+    ``out/lens`` (urban, 1x, seeded; `pvo sim` in parallel processes; complete ones of this renderer revision
+    kept), and the clean ones
     with a miscalibrated ``calib.txt`` in ``out/calib`` (:func:`miscalibrate`). Returns the folders per rig."""
     commands, folders = [], {"clean": [], "lens": [], "calib": []}
     for index, (name, drive, start) in enumerate(SEQUENCES[:count]):
         for rig in ("clean", "lens"):
             folder = out / rig / name
             folders[rig].append(folder)
-            if (folder / "sim.yaml").is_file():
+            if rendered_by_this_revision(folder):
                 continue
             command = [sys.executable, "-m", "pvo_tools.cli", "sim", str(folder), "--poses"]
             command += [str((data / "kitti" / "poses" / f"{drive}.txt").resolve()), "--start", str(start)]

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..paths import data_directory
-from .common import ExperimentRun, fusion_figures
+from .common import ExperimentRun, fusion_figures, rendered_by_this_revision
 
 TITLE = "HydraNet (ch. 7, Tables 7.2-7.3): rotation accuracy, consistency, out of distribution, fusion, real images"
 Array = NDArray[np.float64]
@@ -126,7 +126,7 @@ def format_table(rows: list[Evaluated], extra: dict[str, float] | None = None, e
 
 def render_fusion_sequences(data: Path, count: int, frames: int, out: Path, say: Any) -> list[Path]:
     """The first ``count`` of :data:`FUSION_SEQUENCES` rendered (urban, 1x, seeded) into ``out``; complete ones
-    are kept (pvo sim moves a sequence into place only when whole)."""
+    of this renderer revision are kept (pvo sim moves a sequence into place only when whole)."""
     from pvo_sim.degrade import Degradations
     from pvo_sim.render import SimConfig, simulate
 
@@ -134,7 +134,7 @@ def render_fusion_sequences(data: Path, count: int, frames: int, out: Path, say:
     for index, (name, drive, start, degradations) in enumerate(FUSION_SEQUENCES[:count]):
         folder = out / name
         folders.append(folder)
-        if (folder / "sim.yaml").is_file():
+        if rendered_by_this_revision(folder):
             continue
         say(f"rendering fusion sequence {name} (KITTI {drive} from frame {start}, {frames} frames) ...")
         config = SimConfig(
@@ -148,7 +148,7 @@ def render_fusion_sequences(data: Path, count: int, frames: int, out: Path, say:
             start_time="2011-09-30T10:30:00Z",
             degradations=Degradations(**degradations),  # type: ignore[arg-type]
         )
-        simulate(config, folder)
+        simulate(config, folder, overwrite=True)  # an older revision's, or none
     return folders
 
 
