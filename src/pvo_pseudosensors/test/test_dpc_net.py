@@ -176,6 +176,12 @@ def test_every_variant_becomes_a_left_correction_with_unmeasured_axes() -> None:
     assert np.diag(measurement_covariance(yaw, calibration)).tolist() == [UNMEASURED] * 4 + [5.0, UNMEASURED]
     residual = {"target_covariance": covariance, "residual_covariance": 0.5 * covariance}
     np.testing.assert_array_equal(measurement_covariance(pose, residual), 0.5 * covariance)
+    # the axes the correction made worse on validation are not fused
+    worse = residual | {
+        "residual": {"corrected_x": 1.0, "corrected_y": 1.0, "corrected_z": 1.0}
+        | dict.fromkeys(("corrected_rx", "corrected_ry", "corrected_rz"), 0.0)
+    }
+    assert np.diag(measurement_covariance(pose, worse)).tolist() == [0.5, 1.0, 1.5] + [UNMEASURED] * 3
 
 
 def test_the_residual_covariance_of_no_correction_is_the_targets_second_moment(miscalibrated: Path, tmp_path: Path) -> None:
@@ -189,6 +195,7 @@ def test_the_residual_covariance_of_no_correction_is_the_targets_second_moment(m
     np.testing.assert_allclose(covariance, logs.T @ logs / len(logs), rtol=1e-5, atol=1e-10)
     assert figures["windows"] == len(windows) == 24 - 3
     assert figures["translation_error_m_after"] == pytest.approx(figures["translation_error_m_before"], rel=1e-5)
+    assert figures["corrected_z"] == 0.0  # no correction lowers no error
 
 
 class ConstantCorrection(torch.utils.data.Dataset):

@@ -54,6 +54,7 @@ class Corrections:
         return path
 
 
+AXES = ("x", "y", "z", "rx", "ry", "rz")  # ROS order
 #: the variance of an axis a variant does not correct (rad², m²): the fusion then takes the VO's alone there
 UNMEASURED = 9999.0
 
@@ -76,9 +77,13 @@ def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
     """The corrected transform's covariance (6, 6), ROS order, on the axes the variant corrects (:data:`UNMEASURED`
     on the others, uncorrelated): the corrected transforms' own residual covariance on the validation split when
     the card has it (`pvo dpc-net calibrate`), else the training targets' (eq. 6.6, the thesis's; an upper bound:
-    the error of the VO the model corrects)."""
+    the error of the VO the model corrects). An axis whose error the correction raised on validation (the
+    calibration records which) is left unmeasured too."""
     covariance = np.asarray(calibration.get("residual_covariance", calibration["target_covariance"]), dtype=float)
     axes = {"pose": range(6), "rotation": range(3, 6), "yaw": [4]}[config.variant]
+    residual = calibration.get("residual") or {}
+    # an axis the correction made worse on validation is not measured (the VO alone there)
+    axes = [a for a in axes if residual.get(f"corrected_{AXES[a]}", 1.0)]
     kept = np.zeros((6, 6), dtype=bool)
     kept[np.ix_(list(axes), list(axes))] = True
     return np.where(kept, covariance, np.diag(np.full(6, UNMEASURED)))
@@ -134,7 +139,8 @@ def residual_covariance(model: DPCNet, card: ModelCard, windows: Any, batch_size
     """The covariance (6, 6), ROS order, of the corrected transforms' left errors g = log(T_gt (exp(ξ^) T̂)^-1)
     = log(T* exp(-ξ^)) over ``windows`` (a :class:`.data.DPCWindows` of validation sequences at the test span),
     eq. 6.6's estimator applied to what is left after the correction; and figures: the windows, the mean
-    translation and rotation error (m, deg) before and after the correction."""
+    translation and rotation error (m, deg) before and after the correction, and per axis whether the correction
+    lowered its mean squared error (``corrected_x`` ... ``corrected_rz``: 1 or 0)."""
     from pvo_core.lie import se3_log
 
     config = DPCNetConfig.from_card(card)
@@ -151,11 +157,14 @@ def residual_covariance(model: DPCNet, card: ModelCard, windows: Any, batch_size
         raise ValueError("no validation window to calibrate on")
     g, b = np.asarray(residuals), np.asarray(before)
     covariance = g.T @ g / len(g)
+    # the axes the correction leaves with a smaller mean squared error than the VO had: only those are fused
+    corrected = (g**2).mean(axis=0) < (b**2).mean(axis=0)
     figures = {
         "windows": float(len(g)),
         "translation_error_m_before": float(np.linalg.norm(b[:, :3], axis=1).mean()),
         "translation_error_m_after": float(np.linalg.norm(g[:, :3], axis=1).mean()),
         "rotation_error_deg_before": float(np.degrees(np.linalg.norm(b[:, 3:], axis=1)).mean()),
         "rotation_error_deg_after": float(np.degrees(np.linalg.norm(g[:, 3:], axis=1)).mean()),
+        **{f"corrected_{axis}": float(c) for axis, c in zip(AXES, corrected, strict=True)},
     }
     return covariance, figures

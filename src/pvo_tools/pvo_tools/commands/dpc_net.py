@@ -88,7 +88,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from pvo_core.readers import read_corpus_manifest
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
     from pvo_pseudosensors.dpc_net.data import DPCWindows, vo_signature
-    from pvo_pseudosensors.dpc_net.infer import load_dpc_net, residual_covariance
+    from pvo_pseudosensors.dpc_net.infer import AXES, load_dpc_net, residual_covariance
     from pvo_pseudosensors.learning.checkpoint import write_card
     from pvo_pseudosensors.learning.data import Source
     from pvo_pseudosensors.registry import models
@@ -116,7 +116,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         f"{args.model}: {int(figures['windows'])} validation windows of {len(sources)} sequences; mean error translation "
         f"{figures['translation_error_m_before']:.4f} -> {figures['translation_error_m_after']:.4f} m, rotation "
         f"{figures['rotation_error_deg_before']:.4f} -> {figures['rotation_error_deg_after']:.4f} deg; residual "
-        f"standard deviations (x y z rx ry rz) {np.sqrt(np.diag(covariance)).round(5).tolist()}"
+        f"standard deviations (x y z rx ry rz) {np.sqrt(np.diag(covariance)).round(5).tolist()}; corrected axes (fused): "
+        + (" ".join(axis for axis in AXES if figures[f"corrected_{axis}"]) or "none")
     )
     return 0
 
