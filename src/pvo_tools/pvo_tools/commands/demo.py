@@ -434,21 +434,11 @@ def evaluate_sample(
         "fused_online_max_position_difference_m": metrics.max_position_difference(online[1:], ros_free.fused.online_poses[1:]),
     }
     if ros_free.rotations:
-        rotations = read_recorded(recorded_bag, ["/pvo/hydranet/rotation"]).get("/pvo/hydranet/rotation")
-        if rotations is None:
-            raise PvoError(f"{recorded_bag}: nothing recorded on /pvo/hydranet/rotation")
-        expected = np.array([m.transform for m in ros_free.rotations])
-        published, _ = rotations.at(np.array([m.stamp for m in ros_free.rotations]))
-        if metrics.count_finite_poses(published) != len(expected):
-            raise PvoError(f"{recorded_bag}: hydranet published {len(rotations.stamps)} of {len(expected)} rotations")
+        published, expected = published_and_expected(recorded_bag, "/pvo/hydranet/rotation", ros_free.rotations, "hydranet")
         # the rotation matrices element by element (an angle through arccos would stop at 1e-8 near identity)
         agreement["hydranet_max_rotation_difference"] = float(np.max(np.abs(published[:, :3, :3] - expected[:, :3, :3])))
     if ros_free.corrections:
-        corrections = read_recorded(recorded_bag, ["/pvo/dpc/correction"]).get("/pvo/dpc/correction")
-        if corrections is None:
-            raise PvoError(f"{recorded_bag}: nothing recorded on /pvo/dpc/correction")
-        expected = np.array([m.transform for m in ros_free.corrections])
-        published, _ = corrections.at(np.array([m.stamp for m in ros_free.corrections]))
+        published, expected = published_and_expected(recorded_bag, "/pvo/dpc/correction", ros_free.corrections, "dpc_net")
         agreement["dpc_net_max_position_difference_m"] = metrics.max_position_difference(published, expected)
         agreement["dpc_net_max_rotation_difference"] = float(np.max(np.abs(published[:, :3, :3] - expected[:, :3, :3])))
     worst = max(v for k, v in agreement.items() if k.endswith(("_m", "_difference")))
@@ -476,6 +466,25 @@ def evaluate_sample(
         + "\n```\n\n![trajectory](trajectory.png)\n\n![errors](errors.png)\n"
     )
     return SampleResult(name, table, 0.0, worst, worst <= AGREEMENT_M, figures)
+
+
+def published_and_expected(recorded_bag: Path, topic: str, measurements: list[Any], node: str) -> tuple[Any, Any]:
+    """The transforms a node published on ``topic`` (recorded) at the stamps of the ROS-free ``measurements``,
+    and theirs: (N, 4, 4) each; a clear error when the node published fewer."""
+    import numpy as np
+
+    from pvo_core import metrics
+
+    from ..recorded import read_recorded
+
+    recorded = read_recorded(recorded_bag, [topic]).get(topic)
+    if recorded is None:
+        raise PvoError(f"{recorded_bag}: nothing recorded on {topic}")
+    expected = np.array([m.transform for m in measurements])
+    published, _ = recorded.at(np.array([m.stamp for m in measurements]))
+    if metrics.count_finite_poses(published) != len(expected):
+        raise PvoError(f"{recorded_bag}: {node} published {len(recorded.stamps)} of the {len(expected)} expected on {topic}")
+    return published, expected
 
 
 def format_demo_table(name: str, figures: dict[str, dict[str, Any]]) -> str:

@@ -61,3 +61,45 @@ def rendered_by_this_revision(folder: Path) -> bool:
 
     meta = folder / "sim.yaml"
     return meta.is_file() and (yaml.safe_load(meta.read_text()) or {}).get("renderer_revision") == RENDERER_REVISION
+
+
+TRAJECTORY_METRICS = ("m_ate_trans", "m_ate_rot_deg", "seg_trans_percent", "seg_rot_deg_per_m")
+
+
+def trajectory_tables(
+    results: dict[str, dict[str, dict[str, float]]],
+    baseline: str,
+    labels: list[str],
+    figures: dict[str, float],
+    figure_name: Any,
+) -> list[str]:
+    """Markdown: per sequence and estimate the :func:`fusion_figures`, then each of ``labels``' mean relative
+    change against ``baseline`` (negative = better), also stored in ``figures`` under
+    ``figure_name(label)`` + ``.<metric>_change``."""
+    from pvo_core.metrics import mean_relative_change
+
+    lines = [
+        "| sequence | estimate | m-ATE trans (m) | m-ATE rot (deg) | seg trans (%) | seg rot (deg/m) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, rows in results.items():
+        for label, m in rows.items():
+            lines.append(
+                f"| {name} | {label} | {m['m_ate_trans']:.3f} | {m['m_ate_rot_deg']:.3f} | {m['seg_trans_percent']:.3f} | "
+                f"{m['seg_rot_deg_per_m']:.5f} |"
+            )
+    names = list(results)
+    lines += ["", f"Mean relative change against the {baseline} (negative = better):", ""]
+    lines += ["| estimate | m-ATE trans | m-ATE rot | seg trans | seg rot |", "|---|---|---|---|---|"]
+    for label in labels:
+        changes = {
+            key: mean_relative_change([results[n][label][key] for n in names], [results[n][baseline][key] for n in names])
+            for key in TRAJECTORY_METRICS
+        }
+        for key, value in changes.items():
+            figures[f"{figure_name(label)}.{key}_change"] = value
+        lines.append(
+            f"| {label} | {100 * changes['m_ate_trans']:+.1f} % | {100 * changes['m_ate_rot_deg']:+.1f} % | "
+            f"{100 * changes['seg_trans_percent']:+.1f} % | {100 * changes['seg_rot_deg_per_m']:+.1f} % |"
+        )
+    return [*lines, ""]

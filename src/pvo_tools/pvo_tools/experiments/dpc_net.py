@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..paths import data_directory
-from .common import ExperimentRun, fusion_figures, rendered_by_this_revision
+from .common import TRAJECTORY_METRICS, ExperimentRun, fusion_figures, rendered_by_this_revision, trajectory_tables
 
 TITLE = "DPC-Net (ch. 6, Tables 6.1-6.2): corrections for a miscalibrated and a distorted rig, no harm, fusion vs overwrite"
 Array = NDArray[np.float64]
@@ -43,7 +43,6 @@ SEQUENCES: tuple[tuple[str, str, int], ...] = (
 LENS = (-0.3, 0.2, 0.01)
 FOCAL_SCALE = 1.03
 _VALIDATION_RUNS: dict[Path, list[Any]] = {}  # per corpus: the VO over its validation split, run once
-METRICS = ("m_ate_trans", "m_ate_rot_deg", "seg_trans_percent", "seg_rot_deg_per_m")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -197,33 +196,10 @@ def evaluate_rig(
 
 def table(results: dict[str, dict[str, dict[str, float]]], figures: dict[str, float], prefix: str) -> list[str]:
     """Per sequence and estimate, then the mean relative change of each estimate against the S-VO."""
-    lines = [
-        "| sequence | estimate | m-ATE trans (m) | m-ATE rot (deg) | seg trans (%) | seg rot (deg/m) |",
-        "|---|---|---|---|---|---|",
-    ]
-    for name, rows in results.items():
-        for label, m in rows.items():
-            lines.append(
-                f"| {name} | {label} | {m['m_ate_trans']:.2f} | {m['m_ate_rot_deg']:.3f} | {m['seg_trans_percent']:.3f} | "
-                f"{m['seg_rot_deg_per_m']:.5f} |"
-            )
-    names = list(results)
-    lines += ["", "Mean relative change against the S-VO (negative = better):", ""]
-    lines += ["| estimate | m-ATE trans | m-ATE rot | seg trans | seg rot |", "|---|---|---|---|---|"]
-    from pvo_core.metrics import mean_relative_change
-
-    for label in [row for row in results[names[0]] if row != "S-VO"]:
-        changes = {
-            key: mean_relative_change([results[n][label][key] for n in names], [results[n]["S-VO"][key] for n in names])
-            for key in METRICS
-        }
-        for key, value in changes.items():
-            figures[f"{prefix}.{label.removeprefix('+ ').replace(' ', '_')}.{key}_change"] = value
-        lines.append(
-            f"| {label} | {100 * changes['m_ate_trans']:+.1f} % | {100 * changes['m_ate_rot_deg']:+.1f} % | "
-            f"{100 * changes['seg_trans_percent']:+.1f} % | {100 * changes['seg_rot_deg_per_m']:+.1f} % |"
-        )
-    return [*lines, ""]
+    labels = [row for row in next(iter(results.values())) if row != "S-VO"]
+    return trajectory_tables(
+        results, "S-VO", labels, figures, lambda label: f"{prefix}.{label.removeprefix('+ ').replace(' ', '_')}"
+    )
 
 
 def plot_rig(out: Path, name: str, folders: list[Path], trajectories: dict[str, dict[str, Array]]) -> str:
@@ -369,7 +345,7 @@ def run(args: argparse.Namespace) -> int:
         figure = plot_rig(out, key, folders[rig], trajectories)
         report += [heading, "", *table(results, figures, key), f"![c-ATE]({figure})", ""]
     if "clean" in loaded and "no_harm" in tables:
-        changes = [figures[f"no_harm.clean_fusion_online.{k}_change"] for k in METRICS]
+        changes = [figures[f"no_harm.clean_fusion_online.{k}_change"] for k in TRAJECTORY_METRICS]
         figures["no_harm.worst_change"] = max(changes)
         verdict = "holds" if max(changes) <= 0.05 else "does not hold"
         report += [

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..paths import data_directory
-from .common import ExperimentRun, fusion_figures, rendered_by_this_revision
+from .common import ExperimentRun, fusion_figures, rendered_by_this_revision, trajectory_tables
 
 TITLE = "HydraNet (ch. 7, Tables 7.2-7.3): rotation accuracy, consistency, out of distribution, fusion, real images"
 Array = NDArray[np.float64]
@@ -310,7 +310,6 @@ def run(args: argparse.Namespace) -> int:
 def fusion_section(
     args: Any, model: Any, card: Any, manifest: Any, data: Path, out: Path, say: Any, figures: dict, tables: dict
 ) -> list[str]:
-    from pvo_core.metrics import mean_relative_change
     from pvo_core.readers import KittiSequence
     from pvo_core.trajectory import read_kitti_poses
     from pvo_frontend.offline import run_sequence
@@ -379,29 +378,9 @@ def fusion_section(
         "validation split. *online*: the newest state as the fusion node publishes it; *smoothed*: after the",
         "fixed lag. The thesis fused each frame pair alone (Appendix), so its numbers compare with the online column.",
         "",
-        "| sequence | estimate | m-ATE trans (m) | m-ATE rot (deg) | seg trans (%) | seg rot (deg/m) |",
-        "|---|---|---|---|---|---|",
     ]
-    for name, rows in results.items():
-        for label, m in rows.items():
-            lines.append(
-                f"| {name} | {label} | {m['m_ate_trans']:.3f} | {m['m_ate_rot_deg']:.3f} | {m['seg_trans_percent']:.3f} | "
-                f"{m['seg_rot_deg_per_m']:.5f} |"
-            )
-    lines += ["", "Mean relative change against the VO (negative = better):", ""]
-    lines += ["| estimate | m-ATE trans | m-ATE rot | seg trans | seg rot |", "|---|---|---|---|---|"]
-    for label in ("VO + HydraNet online", "VO + HydraNet smoothed", "VO fused alone online"):
-        changes = {
-            key: mean_relative_change([results[n][label][key] for n in names], [results[n]["VO"][key] for n in names])
-            for key in ("m_ate_trans", "m_ate_rot_deg", "seg_trans_percent", "seg_rot_deg_per_m")
-        }
-        for key, value in changes.items():
-            figures[f"fusion.{label.replace(' ', '_')}.{key}_change"] = value
-        lines.append(
-            f"| {label} | {100 * changes['m_ate_trans']:+.1f} % | {100 * changes['m_ate_rot_deg']:+.1f} % | "
-            f"{100 * changes['seg_trans_percent']:+.1f} % | {100 * changes['seg_rot_deg_per_m']:+.1f} % |"
-        )
-    return [*lines, ""]
+    labels = ["VO + HydraNet online", "VO + HydraNet smoothed", "VO fused alone online"]
+    return lines + trajectory_tables(results, "VO", labels, figures, lambda label: f"fusion.{label.replace(' ', '_')}")
 
 
 def real_images_section(
