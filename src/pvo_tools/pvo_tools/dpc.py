@@ -35,6 +35,16 @@ class CorrectedSequence:
     warnings: list[str] = field(default_factory=list)
 
 
+def rig_sequences(manifest: Any, card: Any, split: str = "validation") -> list[Any]:
+    """The sequences of ``split`` of a corpus manifest that are the model's rig: its presets (the card's), none of
+    another camera (the conditions DPC-Net's training leaves out, ``ModelEntry.off_rig``)."""
+    from pvo_pseudosensors.registry import models
+
+    off_rig = set(models()["dpc-net"].off_rig)
+    presets = set((card.corpus or {}).get("presets") or [])
+    return [s for s in manifest.split(split) if not set(s.conditions) & off_rig and (not presets or s.preset in presets)]
+
+
 def vo_run(root: Path, rate_hz: float = 10.0) -> Any:
     """This project's stereo VO (default settings) over the KITTI-layout sequence at ``root``."""
     from pvo_core.readers import KittiSequence

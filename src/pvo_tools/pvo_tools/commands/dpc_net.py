@@ -91,20 +91,21 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.dpc_net.infer import AXES, load_dpc_net, residual_covariance
     from pvo_pseudosensors.learning.checkpoint import write_card
     from pvo_pseudosensors.learning.data import Source
-    from pvo_pseudosensors.registry import models
+
+    from ..dpc import rig_sequences
 
     model, card = load_dpc_net(args.model)
     config = DPCNetConfig.from_card(card)
     manifest = read_corpus_manifest(args.corpus)
-    off_rig = set(models()["dpc-net"].off_rig)
-    presets = set((card.corpus or {}).get("presets") or [])
-    sources = [
-        Source(s.root, s.name, "validation")
-        for s in manifest.split("validation")
-        if not set(s.conditions) & off_rig and (not presets or s.preset in presets)
-    ]
+    sources = [Source(s.root, s.name, "validation") for s in rig_sequences(manifest, card)]
     if not sources:
         raise ValueError(f"{manifest.path}: no validation sequence of the model's rig")
+    print(
+        f"pvo dpc-net calibrate: {len(sources)} validation sequences of the model's rig (the VO runs once per sequence, "
+        "then is cached) ...",
+        file=sys.stderr,
+        flush=True,
+    )
     windows = DPCWindows(sources, config, args.cache or manifest.path.parent / ".cache", (config.test_delta,))
     covariance, figures = residual_covariance(model, card, windows)
     if card.input.get("rig"):  # calibrated for this VO

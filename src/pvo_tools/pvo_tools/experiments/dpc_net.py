@@ -133,21 +133,15 @@ def vo_calibration(card: Any, say: Any) -> Any:
 
     from pvo_fusion import CalibrationSequence, calibrate_vo
 
-    from ..dpc import vo_run
+    from ..dpc import rig_sequences, vo_run
 
     corpus = Path(card.corpus.get("path", "")) if card.corpus.get("path") else None
     if corpus is None or not (corpus / "manifest.yaml").is_file():
         say(f"  the model's corpus {corpus} is not here: the VO keeps its own covariances")
         return None
     if corpus not in _VALIDATION_RUNS:
-        manifest = read_corpus_manifest(corpus)
-        trained = set((card.corpus or {}).get("presets") or [])
         sequences = []
-        for sequence in manifest.split("validation"):
-            if (trained and sequence.preset not in trained) or {"wrong calibration", "radial distortion"} & set(
-                sequence.conditions
-            ):
-                continue
+        for sequence in rig_sequences(read_corpus_manifest(corpus), card):
             run, _ = vo_run(sequence.root)
             relative = run.relative()
             truth = read_kitti_poses(sequence.root / "poses.txt")
