@@ -152,3 +152,21 @@ def test_imu_readings_nearest_the_frames() -> None:
     np.testing.assert_array_equal(picked[:, 0], [0.0, 1.0, 2.0, 9.0])
     with pytest.raises(ValueError, match="no IMU reading within 0.05 s of the frame at 1.200 s"):
         imu_at_stamps(rows, np.array([0.0, 1.2]))
+
+
+def test_comparison_averages_each_vo_over_the_ransac_seeds(kitti06: KittiSequence) -> None:
+    from pvo_frontend.probe.evaluation import compare_on_sequences
+
+    clip = KittiSequence(kitti06.root, poses_file=kitti06.poses_file, rate_hz=10.0, count=12)
+    model = small_model("gk")
+    (result,) = compare_on_sequences([("06", clip, None)], VOConfig(), model, seeds=(0, 3))
+    independent = []
+    for seed in (0, 3):
+        config = replace(VOConfig(), ransac=replace(VOConfig().ransac, seed=seed))
+        independent.append(metrics.armse(clip.poses, run_sequence(clip, config).poses)["trans"])
+    np.testing.assert_allclose(result.default_runs, independent, rtol=1e-12)
+    assert result.default["trans"] == pytest.approx(np.mean(independent))
+    assert result.default_spread == pytest.approx((max(independent) - min(independent)) / np.mean(independent))
+    assert result.change == pytest.approx(np.mean(result.probe_runs) / np.mean(independent) - 1.0)
+    with pytest.raises(ValueError, match="at least one RANSAC seed"):
+        compare_on_sequences([("06", clip, None)], VOConfig(), model, seeds=())

@@ -4,7 +4,7 @@ from their motions, translational and rotational ARMSE against the truth."""
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -210,16 +210,26 @@ def tracks_experiment(
 
 @dataclass
 class SequenceComparison:
-    """One test sequence through the default VO and the VO with PROBE: ARMSE {'trans': m, 'rot': rad} each."""
+    """One test sequence through the default VO and the VO with PROBE: ARMSE {'trans': m, 'rot': rad} each, the
+    mean over the RANSAC seeds run; ``default_runs`` / ``probe_runs`` hold each seed's translational ARMSE (m)."""
 
     name: str
     default: dict[str, float]
     probe: dict[str, float]
+    default_runs: list[float] = field(default_factory=list)
+    probe_runs: list[float] = field(default_factory=list)
 
     @property
     def change(self) -> float:
         """Relative change of the translational ARMSE with PROBE (negative = better)."""
         return self.probe["trans"] / self.default["trans"] - 1.0
+
+    @property
+    def default_spread(self) -> float:
+        """(max - min) / mean of the default VO's translational ARMSE over the seeds: how much the RANSAC draws
+        alone move it (0 with one seed)."""
+        runs = self.default_runs
+        return (max(runs) - min(runs)) / (sum(runs) / len(runs)) if len(runs) > 1 else 0.0
 
 
 def compare_on_sequences(
@@ -227,19 +237,33 @@ def compare_on_sequences(
     vo_config: VOConfig,
     model: ProbeModel,
     say: Callable[[str], None] | None = None,
+    seeds: Sequence[int] = (0,),
 ) -> list[SequenceComparison]:
     """Each (name, sequence with poses, its IMU per frame or None) through the default VO and the VO with
-    ``model``'s noise."""
+    ``model``'s noise, once per RANSAC seed (``ransac.seed``); the ARMSE of each is the mean over the seeds, so
+    that a change smaller than what the random draws alone cause is not read as PROBE's."""
     from ..offline import run_sequence
 
+    if not seeds:
+        raise ValueError("compare_on_sequences needs at least one RANSAC seed")
     out = []
     for name, sequence, imu in sequences:
         assert sequence.poses is not None
-        default = metrics.armse(sequence.poses, run_sequence(sequence, vo_config).poses)
-        with_probe = run_sequence(sequence, vo_config, feature_noise=model.feature_noise(), imu=imu)
-        probe = metrics.armse(sequence.poses, with_probe.poses)
-        result = SequenceComparison(name, {k: default[k] for k in ("trans", "rot")}, {k: probe[k] for k in ("trans", "rot")})
+        runs: dict[str, list[dict[str, float]]] = {"default": [], "probe": []}
+        for seed in seeds:
+            config = replace(vo_config, ransac=replace(vo_config.ransac, seed=int(seed)))
+            runs["default"].append(metrics.armse(sequence.poses, run_sequence(sequence, config).poses))
+            with_probe = run_sequence(sequence, config, feature_noise=model.feature_noise(), imu=imu)
+            runs["probe"].append(metrics.armse(sequence.poses, with_probe.poses))
+        mean = {kind: {k: float(np.mean([r[k] for r in rs])) for k in ("trans", "rot")} for kind, rs in runs.items()}
+        result = SequenceComparison(
+            name, mean["default"], mean["probe"], [r["trans"] for r in runs["default"]], [r["trans"] for r in runs["probe"]]
+        )
         out.append(result)
         if say:
-            say(f"{name}: ARMSE default {default['trans']:.3f} m, PROBE {probe['trans']:.3f} m ({100 * result.change:+.1f} %)")
+            spread = f", default spread over {len(seeds)} seeds {100 * result.default_spread:.0f} %" if len(seeds) > 1 else ""
+            say(
+                f"{name}: ARMSE default {result.default['trans']:.3f} m, PROBE {result.probe['trans']:.3f} m "
+                f"({100 * result.change:+.1f} %{spread})"
+            )
     return out
