@@ -86,7 +86,9 @@ def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     assert "frame 40 is beyond the 12 poses" in capsys.readouterr().err
 
 
-def test_experiment_reports_every_section(corpus: Path, pvo_data: Path, tmp_path: Path) -> None:
+def test_experiment_reports_every_section(
+    corpus: Path, pvo_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """`pvo experiment hydranet` on a tiny model (no fusion sequences: they take minutes to render): the
     accuracy, out-of-distribution, covariance-form, real-image and speed sections, and the record."""
     import json
@@ -94,11 +96,19 @@ def test_experiment_reports_every_section(corpus: Path, pvo_data: Path, tmp_path
     model = tmp_path / "model"
     train = ["hydranet", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "--presets-only", "urban"]
     assert main([*train, "-q", *TINY]) == 0
+    diagonal = tmp_path / "diagonal"
+    train[train.index(str(model))] = str(diagonal)
+    assert main([*train, "--covariance", "diagonal", "-q", *TINY]) == 0
     out = tmp_path / "experiment"
-    args = ["experiment", "hydranet", "--corpus", str(corpus), "--model", str(model), "--diagonal", str(model)]
-    options = ["--fusion-sequences", "0", "--finetune-epochs", "1", "--data", str(pvo_data)]
-    assert main([*args, *options, "--threads", "1", "-o", str(out), "-q"]) == 0
+    options = ["--fusion-sequences", "0", "--finetune-epochs", "1", "--data", str(pvo_data), "--threads", "1", "-q"]
+    same = ["experiment", "hydranet", "--corpus", str(corpus), "--model", str(model), "--other-form", str(model)]
+    assert main([*same, *options, "-o", str(tmp_path / "same")]) == 2
+    assert "its covariance form is 'cholesky', the same as --model's" in capsys.readouterr().err
+    # the validation-selected form may be either: --model is the one evaluated, --other-form the comparison
+    args = ["experiment", "hydranet", "--corpus", str(corpus), "--model", str(diagonal), "--other-form", str(model)]
+    assert main([*args, *options, "-o", str(out)]) == 0
     report = (out / "report.md").read_text()
+    assert "| cholesky (validation loss" in report and "| diagonal (validation loss" in report
     for heading in ("## 1. Accuracy", "## 2. Out of distribution", "## 3. Aleatoric covariance", "## 5. Real images", "## Speed"):
         assert heading in report, heading
     assert "fine-tuned on 07, KITTI 06 clip" in report

@@ -40,7 +40,13 @@ FUSION_SEQUENCES: tuple[tuple[str, str, int, dict[str, float]], ...] = (
 def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--corpus", type=Path, required=True, help="corpus (its test split is held out)")
     parser.add_argument("--model", type=Path, required=True, help="the HydraNet model to evaluate")
-    parser.add_argument("--diagonal", type=Path, help="the same model trained with --covariance diagonal (section 3)")
+    parser.add_argument(
+        "--other-form",
+        "--diagonal",
+        dest="other_form",
+        type=Path,
+        help="the same model trained with the other --covariance form (cholesky / diagonal; section 3)",
+    )
     parser.add_argument("--fusion-sequences", type=int, default=5, help="long fusion sequences (0-5; 0 skips section 4)")
     parser.add_argument("--fusion-frames", type=int, default=1000, help="frames per fusion sequence (default 1000)")
     parser.add_argument("--fusion-dir", type=Path, help="where the fusion sequences are rendered (default OUT/fusion-sequences)")
@@ -267,10 +273,17 @@ def run(args: argparse.Namespace) -> int:
         ]
 
     # 3. the aleatoric head's form
-    if args.diagonal:
-        diagonal, diagonal_card = load_hydranet(args.diagonal)
+    if args.other_form:
+        other, other_card = load_hydranet(args.other_form)
+        if other_card.hyperparameters.get("covariance") == card.hyperparameters.get("covariance"):
+            raise ValueError(
+                f"{args.other_form}: its covariance form is {other_card.hyperparameters.get('covariance')!r}, the "
+                "same as --model's; section 3 compares the two forms"
+            )
         forms = []
-        for label, (m, c) in (("cholesky", (model, card)), ("diagonal", (diagonal, diagonal_card))):
+        pair = sorted([(model, card), (other, other_card)], key=lambda mc: str(mc[1].hyperparameters.get("covariance")))
+        for m, c in pair:
+            label = str(c.hyperparameters.get("covariance", "cholesky"))
             form_parts = [evaluate_sequence(m, c, s.root, s.name, cache)[1] for s in test]
             evaluated = pooled(f"{label} (validation loss {c.validation.get('loss', float('nan')):.3f})", form_parts)
             evaluated.figures["validation_loss"] = float(c.validation.get("loss", float("nan")))
