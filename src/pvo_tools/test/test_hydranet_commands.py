@@ -109,6 +109,7 @@ def test_experiment_reports_every_section(
     assert main([*args, *options, "-o", str(out)]) == 0
     report = (out / "report.md").read_text()
     assert "| cholesky (validation loss" in report and "| diagonal (validation loss" in report
+    assert "No stereo validation sequence of the model's presets: the fusion criterion is not measured." in report
     for heading in ("## 1. Accuracy", "## 2. Out of distribution", "## 3. Aleatoric covariance", "## 5. Real images", "## Speed"):
         assert heading in report, heading
     assert "fine-tuned on 07, KITTI 06 clip" in report
