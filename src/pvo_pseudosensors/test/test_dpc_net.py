@@ -227,3 +227,19 @@ def test_a_tiny_model_learns_a_constant_correction(tmp_path: Path) -> None:
     with torch.no_grad():
         predicted = model(data.frames[:8, 0], data.frames[:8, 1]).double().numpy()
     np.testing.assert_allclose(predicted, np.broadcast_to(xi, (8, 6)), atol=0.1 * np.abs(xi).max())
+
+
+def test_an_axis_is_fused_when_the_correction_lowers_the_drift_not_the_window_error() -> None:
+    from pvo_pseudosensors.dpc_net.infer import lowers_drift
+
+    rng = np.random.default_rng(0)
+    noise = rng.normal(size=(5000, 6))
+    before = 1e-3 * noise + 2e-4  # a bias a tenth of the noise on every axis
+    after = before.copy()
+    after[:, 4] = 1.03e-3 * noise[:, 4] + 0.2e-4  # the bias mostly removed, 3 % more noise
+    after[:, 5] = 1.10e-3 * noise[:, 5] + 2e-4  # noisier, the bias left
+    per_window = lowers_drift(before, after, windows=1)
+    over_a_drive = lowers_drift(before, after, windows=100)
+    assert not per_window[4] and over_a_drive[4]  # per window it looks useless; over 100 windows it is not
+    assert not per_window[5] and not over_a_drive[5]
+    assert not over_a_drive[:4].any()  # unchanged axes are not "lowered"

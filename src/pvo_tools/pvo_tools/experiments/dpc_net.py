@@ -57,6 +57,11 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", "-j", type=int, default=2, help="sequences rendered in parallel (default 2)")
     parser.add_argument("--data", type=Path, help="the shared data directory (default ../shared/data)")
     parser.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
+    parser.add_argument(
+        "--vo-span",
+        type=int,
+        help="frames over which the VO's covariances are made consistent on validation (default: each model's Δp)",
+    )
     parser.add_argument("--out", "-o", type=Path, default=Path("runs/experiment-dpc-net"), help="output directory")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
 
@@ -123,11 +128,12 @@ def miscalibrate(source: Path, out: Path, focal_scale: float) -> Path:
     return out
 
 
-def vo_calibration(card: Any, say: Any) -> Any:
-    """Per-axis scales of the VO's covariances learned on the validation split of the model's own corpus (its
-    rig) over the model's span Δp — the motions the corrections are weighed against: a VO bias adds up over
-    the window faster than independent frame errors do — or None (the VO's own covariances) when that corpus
-    is not here."""
+def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
+    """Per-axis scales of the VO's covariances learned on the validation split the corrections were calibrated on
+    (`pvo dpc-net calibrate --corpus`, recorded in the card; else the model's own corpus: its rig) over the model's
+    span Δp — the motions the corrections are weighed against: a VO bias adds up over the window faster than
+    independent frame errors do, and both sides of the weighing are measured on the same windows — or None (the
+    VO's own covariances) when that corpus is not here."""
     from pvo_core.readers import read_corpus_manifest
     from pvo_core.trajectory import read_kitti_poses
 
@@ -135,7 +141,9 @@ def vo_calibration(card: Any, say: Any) -> Any:
 
     from ..dpc import rig_sequences, vo_run
 
-    corpus = Path(card.corpus.get("path", "")) if card.corpus.get("path") else None
+    calibrated_on = ((card.calibration or {}).get("residual") or {}).get("corpus")
+    path = calibrated_on or card.corpus.get("path")
+    corpus = Path(path) if path else None
     if corpus is None or not (corpus / "manifest.yaml").is_file():
         say(f"  the model's corpus {corpus} is not here: the VO keeps its own covariances")
         return None
@@ -148,7 +156,7 @@ def vo_calibration(card: Any, say: Any) -> Any:
             sequences.append(CalibrationSequence(sequence.name, truth, relative["transforms"], relative["covariances"]))
         _VALIDATION_RUNS[corpus] = sequences
     sequences = _VALIDATION_RUNS[corpus]
-    span = int(card.hyperparameters["test_delta"])
+    span = span or int(card.hyperparameters["test_delta"])
     calibration = calibrate_vo(sequences, span)
     say(
         f"  VO covariance scales (x y z rx ry rz) over {span}-frame motions of {len(sequences)} validation sequences "
@@ -158,7 +166,12 @@ def vo_calibration(card: Any, say: Any) -> Any:
 
 
 def evaluate_rig(
-    label: str, folders: list[Path], models: dict[str, tuple[Any, Any]], say: Any, methods: dict[str, tuple[str, ...]]
+    label: str,
+    folders: list[Path],
+    models: dict[str, tuple[Any, Any]],
+    say: Any,
+    methods: dict[str, tuple[str, ...]],
+    vo_span: int | None = None,
 ) -> tuple[dict[str, dict[str, dict[str, float]]], dict[str, dict[str, Array]]]:
     """Per sequence: the VO's figures and, per model and method, the corrected trajectory's (``online`` and
     ``smoothed`` for the fusion); and the trajectories themselves (camera-to-world, per sequence and row)."""
@@ -166,7 +179,7 @@ def evaluate_rig(
 
     from ..dpc import correct_sequence, vo_run
 
-    calibrations = {name: vo_calibration(card, say) for name, (_, card) in models.items()}
+    calibrations = {name: vo_calibration(card, say, vo_span) for name, (_, card) in models.items()}
     results: dict[str, dict[str, dict[str, float]]] = {}
     trajectories: dict[str, dict[str, Array]] = {}
     for folder in folders:
@@ -299,8 +312,11 @@ def run(args: argparse.Namespace) -> int:
     report += [
         f"{args.sequences} sequences of {args.frames} frames (620x188, KITTI geometry) driven along KITTI's test drives "
         f"({', '.join(f'{d} from {s}' for _, d, s in SEQUENCES[: args.sequences])}); the VO is this project's stereo VO "
-        "with its defaults. VO covariances are scaled per axis on each model's own corpus's validation split (its rig) "
-        "over the model's span Δp. The corrections' covariance is their residual covariance on that split "
+        "with its defaults. VO covariances are scaled per axis on the validation split the model's corrections were "
+        "calibrated on (its rig) over "
+        + (f"{args.vo_span} frames" if args.vo_span else "the model's span Δp")
+        + ". The corrections' covariance is their residual covariance on that split, fused on the axes whose error "
+        "over 100 windows the correction lowers there "
         "(`pvo dpc-net calibrate`; the training targets' of eq. 6.6 without it). *fusion online*: the newest state as the fusion "
         "node publishes it; *fusion smoothed*: after the fixed lag; *overwrite*: every Δp-th pose overwritten "
         "(the authors' shipped code). m-ATE and segment errors as §6.5 (eqs. 6.31-6.32; segments of 100-800 m).",
@@ -329,7 +345,7 @@ def run(args: argparse.Namespace) -> int:
             report += [heading, "", "Not run: no model for this rig was given.", ""]
             continue
         methods = {name: ("fusion", "overwrite") for name in models if loaded[name][1].hyperparameters["variant"] == "pose"}
-        results, trajectories = evaluate_rig(key, folders[rig], models, say, methods)
+        results, trajectories = evaluate_rig(key, folders[rig], models, say, methods, args.vo_span)
         tables[key] = results
         for sequence, estimates in trajectories.items():
             for row, poses in estimates.items():
