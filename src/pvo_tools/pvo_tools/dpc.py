@@ -102,3 +102,60 @@ def correct_sequence(
     fused = run_offline(graph, stamps, ordered_events(vo, others))
     accepted = int(fused.counts.get("correction.accepted", 0))
     return CorrectedSequence(run.poses, fused.poses, fused.online_poses, corrections, accepted, warnings)
+
+
+@dataclass
+class SpanChoice:
+    """The VO calibration span chosen for the fusion: ``span`` (frames), and per candidate span the mean relative
+    change of the fused m-ATE (translation, rotation) against the VO alone on the held-out validation sequences;
+    ``folds``: 2 (scales learned on one half, measured on the other) or 1 (one sequence: in sample)."""
+
+    span: int
+    changes: dict[int, tuple[float, float]]
+    sequences: int
+    folds: int
+
+
+def choose_vo_span(model: Any, card: Any, sequences: list[Any], spans: list[int]) -> SpanChoice:
+    """The span over which the VO's covariances are made consistent (:func:`pvo_fusion.calibrate_vo`) that lets
+    the fusion with ``model``'s corrections lower the m-ATE most on validation ``sequences`` (corpus entries with
+    poses): a VO bias grows with the span faster than its frame-to-frame noise, so the span sets how far the
+    fusion trusts the VO against the corrections. Two-fold: the scales are learned on every other sequence and
+    the fusion measured on the rest, and the other way round. The criterion is the mean of the translation and
+    rotation changes."""
+    from pvo_core.trajectory import read_kitti_poses
+
+    from pvo_fusion import CalibrationSequence, calibrate_vo
+
+    from .experiments.common import fusion_figures
+
+    if not sequences:
+        raise ValueError("choosing the VO span needs at least one validation sequence")
+    if not spans or min(spans) < 1:
+        raise ValueError(f"VO spans must be positive frame counts, got {spans}")
+    prepared = {}
+    for sequence in sequences:
+        run, _ = vo_run(sequence.root)
+        truth = read_kitti_poses(sequence.root / "poses.txt")
+        relative = run.relative()
+        calibration = CalibrationSequence(sequence.name, truth, relative["transforms"], relative["covariances"])
+        prepared[sequence.name] = (sequence, run, truth, calibration)
+    names = sorted(prepared)
+    folds = [(names[1::2], names[0::2]), (names[0::2], names[1::2])] if len(names) > 1 else [(names, names)]
+    changes: dict[int, tuple[float, float]] = {}
+    for span in spans:
+        trans, rot = [], []
+        for train, held in folds:
+            calibration = calibrate_vo([prepared[n][3] for n in train], span)
+            for name in held:
+                sequence, run, truth, _ = prepared[name]
+                fused = correct_sequence(sequence.root, model, card, "fusion", calibration, run=run)
+                alone, corrected = (
+                    fusion_figures(truth, truth[0] @ run.poses),
+                    fusion_figures(truth, truth[0] @ fused.corrected_online),
+                )
+                trans.append(corrected["m_ate_trans"] / max(alone["m_ate_trans"], 1e-12) - 1.0)
+                rot.append(corrected["m_ate_rot_deg"] / max(alone["m_ate_rot_deg"], 1e-12) - 1.0)
+        changes[span] = (float(np.mean(trans)), float(np.mean(rot)))
+    best = min(spans, key=lambda s: sum(changes[s]))
+    return SpanChoice(best, changes, len(names), len(folds) if len(names) > 1 else 1)

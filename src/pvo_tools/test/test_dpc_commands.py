@@ -75,10 +75,18 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     assert card["architecture"] == "dpc-net" and covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(covariance) > 0)
     assert card["input"]["rig"]["size"] == [1226, 370] and card["input"]["rig"]["lens"] is None
 
-    assert main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus)]) == 0
-    assert "11 validation windows of 1 sequences" in capsys.readouterr().out
-    residual = np.array(yaml.safe_load((model / "model.yaml").read_text())["calibration"]["residual_covariance"])
+    assert main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", "3,6"]) == 0
+    out = capsys.readouterr().out
+    assert "11 validation windows of 1 sequences" in out
+    calibration = yaml.safe_load((model / "model.yaml").read_text())["calibration"]
+    residual = np.array(calibration["residual_covariance"])
     assert residual.shape == (6, 6) and np.all(np.linalg.eigvalsh(residual) > 0)
+    # the span whose fusion lowered the m-ATE most on validation, each candidate's figures kept in the card
+    changes = {int(k): v for k, v in calibration["vo_span_changes"].items()}
+    assert set(changes) == {3, 6} and calibration["vo_span"] == min(changes, key=lambda s: sum(changes[s]))
+    assert f"VO span {calibration['vo_span']} frames (1 validation sequences, in sample: one sequence)" in out
+    assert main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", "0,3"]) == 2
+    assert "VO spans must be positive frame counts, got [0, 3]" in capsys.readouterr().err
 
     out = tmp_path / "corrected.txt"
     assert main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(model), "-o", str(out)]) == 0

@@ -38,6 +38,12 @@ def register_actions(actions: Any, entry: Any) -> None:
     calibrate.add_argument("--model", type=Path, required=True, help="model directory; its model.yaml gets the result")
     calibrate.add_argument("--corpus", type=Path, required=True, help="the corpus whose validation split to use (the model's)")
     calibrate.add_argument("--cache", type=Path, help="decoded-image cache (default CORPUS/.cache)")
+    calibrate.add_argument(
+        "--vo-spans",
+        type=lambda text: [int(v) for v in text.split(",")],
+        help="candidate spans (frames, comma-separated) over which the VO's covariances are made consistent for the "
+        "fusion; the one whose fusion lowers the m-ATE most on the validation split (two-fold) goes into the card",
+    )
     evaluate = actions.add_parser("eval", help="m-ATE and mean segment errors, corrected vs uncorrected")
     evaluate.set_defaults(handler=run_eval)
     evaluate.add_argument("--gt", type=Path, required=True, help="true poses (KITTI)")
@@ -120,6 +126,23 @@ def run_calibrate(args: argparse.Namespace) -> int:
         f"standard deviations (x y z rx ry rz) {np.sqrt(np.diag(covariance)).round(5).tolist()}; corrected axes (fused): "
         + (" ".join(axis for axis in AXES if figures[f"corrected_{axis}"]) or "none")
     )
+    if args.vo_spans:
+        from ..dpc import choose_vo_span
+
+        validation = rig_sequences(manifest, card)
+        print(
+            f"choosing the VO span among {args.vo_spans} on {len(validation)} validation sequences ...",
+            file=sys.stderr,
+            flush=True,
+        )
+        choice = choose_vo_span(model, card, validation, args.vo_spans)
+        card.calibration["vo_span"] = choice.span
+        card.calibration["vo_span_changes"] = {str(s): [round(t, 4), round(r, 4)] for s, (t, r) in choice.changes.items()}
+        write_card(args.model, card)
+        for span, (trans, rot) in choice.changes.items():
+            print(f"  VO span {span:3d} frames: fused m-ATE {100 * trans:+.1f} % translation, {100 * rot:+.1f} % rotation")
+        how = "two-fold" if choice.folds == 2 else "in sample: one sequence"
+        print(f"{args.model}: VO span {choice.span} frames ({choice.sequences} validation sequences, {how})")
     return 0
 
 

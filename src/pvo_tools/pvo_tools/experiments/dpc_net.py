@@ -60,7 +60,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--vo-span",
         type=int,
-        help="frames over which the VO's covariances are made consistent on validation (default: each model's Δp)",
+        help="frames over which the VO's covariances are made consistent on validation (default: each model's card's "
+        "vo_span from `pvo dpc-net calibrate --vo-spans`, else its Δp)",
     )
     parser.add_argument("--out", "-o", type=Path, default=Path("runs/experiment-dpc-net"), help="output directory")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
@@ -156,7 +157,7 @@ def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
             sequences.append(CalibrationSequence(sequence.name, truth, relative["transforms"], relative["covariances"]))
         _VALIDATION_RUNS[corpus] = sequences
     sequences = _VALIDATION_RUNS[corpus]
-    span = span or int(card.hyperparameters["test_delta"])
+    span = span or int((card.calibration or {}).get("vo_span") or card.hyperparameters["test_delta"])
     calibration = calibrate_vo(sequences, span)
     say(
         f"  VO covariance scales (x y z rx ry rz) over {span}-frame motions of {len(sequences)} validation sequences "
@@ -314,7 +315,7 @@ def run(args: argparse.Namespace) -> int:
         f"({', '.join(f'{d} from {s}' for _, d, s in SEQUENCES[: args.sequences])}); the VO is this project's stereo VO "
         "with its defaults. VO covariances are scaled per axis on the validation split the model's corrections were "
         "calibrated on (its rig) over "
-        + (f"{args.vo_span} frames" if args.vo_span else "the model's span Δp")
+        + (f"{args.vo_span} frames" if args.vo_span else "the span its card chose on that split (else Δp)")
         + ". The corrections' covariance is their residual covariance on that split, fused on the axes whose error "
         "over 100 windows the correction lowers there "
         "(`pvo dpc-net calibrate`; the training targets' of eq. 6.6 without it). *fusion online*: the newest state as the fusion "
