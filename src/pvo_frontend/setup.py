@@ -13,6 +13,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/models/probe_kitti", glob("models/probe_kitti/*")),
+        ("share/" + package_name + "/models/probe_sim", glob("models/probe_sim/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -28,6 +28,7 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
         super().__init__("dpc_net", DPCNetSensorConfig(), status_topic="/pvo/dpc_net/status", **kwargs)
         self.sensor, self.model_error = self.load(lambda: DPCNetSensor(self.config), "DPC-Net model")
         self.lefts: dict[int, Image] = {}
+        self.vo_frame_id = ""
         self.published = 0
         self.rejected = 0
         self.publisher = self.create_publisher(RelativePose, "/pvo/dpc/correction", reliable(100))
@@ -70,14 +71,18 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
             return
         left, right = self.lefts.pop(stamp), self.rights.pop(stamp)
         try:
-            self.sensor.add_images(stamp, image_to_array(left), image_to_array(right))
+            waited = self.sensor.add_images(stamp, image_to_array(left), image_to_array(right))
         except ValueError as exc:
             self.rejected += 1
             self.problem(f"stereo pair at {stamp * 1e-9:.3f} s: {exc}")
             self._status(stamp, WARN, f"stereo pair rejected: {exc}")
+            return
+        if waited is not None:  # the VO had completed this window before its images came
+            self._publish(waited, self.vo_frame_id)
 
     def _on_vo(self, msg: RelativePose) -> None:
         stamp = stamp_to_nanoseconds(msg.header.stamp)
+        self.vo_frame_id = msg.header.frame_id  # the corrections' frame: the VO transforms' own
         if self.sensor is None:
             self._status(stamp, ERROR, f"no model: {self.model_error}")
             return
@@ -98,15 +103,20 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
                 self.rejected += 1
                 self._status(stamp, WARN, self.sensor.dropped)
             return
+        self._publish(correction, self.vo_frame_id)
+
+    def _publish(self, correction: Any, frame_id: str) -> None:
+        """The corrected transform over its window, stamped at the window's last frame."""
         out = RelativePose()
-        out.header = msg.header
+        fill_stamp(out.header.stamp, correction.stamp)
+        out.header.frame_id = frame_id
         fill_stamp(out.reference_stamp, correction.reference_stamp)
         fill_pose(out.pose.pose, correction.transform)
         out.pose.covariance = [float(v) for v in correction.covariance.reshape(-1)]
         out.rotation_only = False
         self.publisher.publish(out)
         self.published += 1
-        self._status(stamp, OK, "published")
+        self._status(correction.stamp, OK, "published")
 
     def _status(self, stamp: int, level: int, message: str) -> None:
         values = {"published": self.published, "rejected": self.rejected}

@@ -22,7 +22,7 @@ Array = NDArray[np.float64]
 FORMAT = 1
 KINDS = ("gk", "knn")
 #: Models installed with the package (share/pvo_frontend/models/NAME), by name: ``probe.model: probe_kitti``.
-SHIPPED = ("probe_kitti",)
+SHIPPED = ("probe_kitti", "probe_sim")
 
 
 def shipped_model(name: str) -> Path:

@@ -61,7 +61,9 @@ class DPCNetSensor:
     VO transform that completes a window of Δp frames gives one correction. A window the model cannot correct
     gives none, and :attr:`dropped` says why: a VO transform that does not continue the chain (a gap: a new
     window starts at its reference), a lost VO frame inside the window, a stereo pair missing at either end,
-    or the images changing size between the ends."""
+    or the images changing size between the ends. A window whose stereo pair has not arrived yet when its last
+    VO transform does (in a node graph the VO can answer before this sensor has the images) waits for it:
+    :meth:`add_images` gives its correction then; the next completed window gives the waiting one up."""
 
     def __init__(self, config: DPCNetSensorConfig) -> None:
         torch.set_num_threads(config.threads)
@@ -78,6 +80,7 @@ class DPCNetSensor:
         self.first: int | None = None
         self.lost_at: int | None = None  # a lost VO frame inside the current window
         self.dropped: str | None = None  # why the last window gave no correction
+        self.pending: tuple[int, int, Array] | None = None  # (first, last, VO estimate): a window awaiting images
 
     def check_camera(self, width: int, height: int, focal_px: float, baseline_m: float) -> tuple[list[str], list[str]]:
         """(refusals, warnings) of the model's rig check for a camera of this size and calibration (what its
@@ -85,8 +88,9 @@ class DPCNetSensor:
         rig = Rig((int(width), int(height)), float(focal_px), float(baseline_m), None, None, None)
         return rig_problems(self.card.input.get("rig"), rig)
 
-    def add_images(self, stamp: int, left: NDArray[np.uint8], right: NDArray[np.uint8]) -> None:
-        """A stereo pair (8-bit grey or RGB, equal sizes); ``ValueError`` naming what is wrong."""
+    def add_images(self, stamp: int, left: NDArray[np.uint8], right: NDArray[np.uint8]) -> Correction | None:
+        """A stereo pair (8-bit grey or RGB, equal sizes); ``ValueError`` naming what is wrong. The correction of a
+        window that was waiting for this pair, else None."""
         import cv2
 
         if left.shape != right.shape:
@@ -102,6 +106,11 @@ class DPCNetSensor:
         while len(self.images) > 4 * (self.delta + 1):  # older than any window can need
             oldest = min(self.images)
             del self.images[oldest], self.sizes[oldest]
+        if self.pending is not None and all(s in self.images for s in self.pending[:2]):
+            first, last, estimate = self.pending
+            self.pending = None
+            return self._correct(first, last, estimate)
+        return None
 
     def add_vo(self, reference_stamp: int, stamp: int, transform: Array, covariance: Array | None = None) -> Correction | None:
         """The VO's T_k,k-1 (and its covariance (6, 6), if known); the correction when it completes a window, else
@@ -129,20 +138,30 @@ class DPCNetSensor:
                 f"{span} is dropped: the VO was lost at {lost_at * 1e-9:.3f} s (variance >= {self.config.lost_variance:g})"
             )
             return None
-        missing = [s for s in (first, stamp) if s not in self.images]
-        if missing:
-            self.dropped = f"{span} is dropped: no stereo pair at {', '.join(f'{s * 1e-9:.3f} s' for s in missing)}"
-            return None
-        if self.sizes[first] != self.sizes[stamp]:
+        if self.pending is not None:  # its images never came; this window is newer
+            waited = self.pending
             self.dropped = (
-                f"{span} is dropped: the images changed size from {self.sizes[first][1]}x{self.sizes[first][0]} to "
-                f"{self.sizes[stamp][1]}x{self.sizes[stamp][0]}"
+                f"the window {waited[0] * 1e-9:.3f}-{waited[1] * 1e-9:.3f} s is dropped: no stereo pair at "
+                + ", ".join(f"{s * 1e-9:.3f} s" for s in waited[:2] if s not in self.images)
             )
-            return None
+            self.pending = None
         estimate = np.eye(4)
         for _, step in chain:
             estimate = step @ estimate
-        frames = [torch.from_numpy(self.images[s].astype(np.float32)[None] / 255.0) for s in (first, stamp)]
+        if first not in self.images or stamp not in self.images:
+            self.pending = (first, stamp, estimate)
+            return None
+        return self._correct(first, stamp, estimate)
+
+    def _correct(self, first: int, last: int, estimate: Array) -> Correction | None:
+        """The corrected window ``first``-``last`` (both pairs here) from the VO's composed ``estimate``."""
+        if self.sizes[first] != self.sizes[last]:
+            self.dropped = (
+                f"the window {first * 1e-9:.3f}-{last * 1e-9:.3f} s is dropped: the images changed size from "
+                f"{self.sizes[first][1]}x{self.sizes[first][0]} to {self.sizes[last][1]}x{self.sizes[last][0]}"
+            )
+            return None
+        frames = [torch.from_numpy(self.images[s].astype(np.float32)[None] / 255.0) for s in (first, last)]
         with torch.no_grad():
             xi = self.model(frames[0], frames[1]).double().numpy()[0]
-        return Correction(first, stamp, se3_exp(xi) @ estimate, self.covariance.copy())
+        return Correction(first, last, se3_exp(xi) @ estimate, self.covariance.copy())

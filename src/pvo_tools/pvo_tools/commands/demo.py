@@ -78,6 +78,12 @@ def register(sub: Any) -> None:
         default="dpc_net_clean",
         help="DPC-Net model directory or shipped name (default dpc_net_clean: the sample's rig, no lens distortion)",
     )
+    demo.add_argument(
+        "--probe-model",
+        default="probe_sim",
+        help="PROBE model of stereo_vo (probe.model) beside the learned sun: a directory or shipped name (default "
+        "probe_sim: the synthetic sample's rig); '' for the VO's default noise",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -95,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         args.hydranet_model,
         args.dpc_net,
         args.dpc_net_model,
+        args.probe_model,
     )
     domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
     start = time.perf_counter()
@@ -138,6 +145,7 @@ class DemoSettings:
     hydranet_model: str = ""  # HydraNet model directory; "" = the shipped one
     dpc_net: bool = True  # dpc_net beside the learned sun
     dpc_net_model: str = "dpc_net_clean"  # DPC-Net model directory or shipped name
+    probe_model: str = "probe_sim"  # stereo_vo's probe.model beside the learned sun; "" = the default noise
 
 
 @dataclass
@@ -226,8 +234,9 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         from pvo_pseudosensors.dpc_net.estimator import DPCNetSensorConfig
 
         correction_config = DPCNetSensorConfig(model=settings.dpc_net_model)
+    vo_parameters = {"probe.model": settings.probe_model} if learned and settings.probe_model else {}
     parameters = {
-        "stereo_vo": {},
+        "stereo_vo": vo_parameters,
         sun_node: sun_parameters,
         **({"hydranet": {"model": settings.hydranet_model}} if rotation_config else {}),
         **({"dpc_net": {"model": settings.dpc_net_model}} if correction_config else {}),
@@ -240,7 +249,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     run_graph(bag, params_file, recorded_bag, out / "logs", settings, domain_id, len(stamps), sun_node, hydranet, dpc_net)
     graph_seconds = time.perf_counter() - start
 
-    from pvo_frontend.vo import VOConfig
+    from pvo_frontend.vo import VOConfig, from_flat
 
     from ..pipeline import run_pipeline
     from ..recorded import read_arrivals, read_header_stamps
@@ -248,9 +257,10 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     fusion_config: FusionConfig = fusion_from_flat(fusion_overrides)
     sun_stamps = read_header_stamps(recorded_bag, "/pvo/sun/direction")
     # the objects estimate the sun at the frames the sun node chose (it counts the images it received)
+    vo_config: VOConfig = from_flat(vo_parameters)  # the node's parameters, so the objects run the same VO
     ros_free = run_pipeline(
         sample,
-        VOConfig(),
+        vo_config,
         sun_config,
         fusion_config,
         TabulatedSunReference.read(reference_table),
