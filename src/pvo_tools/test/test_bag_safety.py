@@ -86,6 +86,6 @@ def test_sigterm_during_a_conversion_leaves_nothing_and_a_later_run_removes_stal
     assert list(tmp_path.glob(f".bag.partial-{proc.pid}-*")), "the conversion never started writing"
     os.kill(proc.pid, signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130 and "pvo: interrupted" in err
+    assert proc.returncode == 130 and "pvo: interrupted" in err, err[-3000:]
     assert f"removed {stale}" in err  # the earlier run's leftover, reported
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no bag, no partial, nothing stale
