@@ -114,6 +114,7 @@ class SpanChoice:
     changes: dict[int, tuple[float, float]]
     sequences: int
     folds: int
+    vo_calibration: Any = None  # pvo_fusion.VOCalibration at ``span`` learned on every validation sequence
 
 
 def choose_vo_span(model: Any, card: Any, sequences: list[Any], spans: list[int]) -> SpanChoice:
@@ -158,4 +159,20 @@ def choose_vo_span(model: Any, card: Any, sequences: list[Any], spans: list[int]
                 rot.append(corrected["m_ate_rot_deg"] / max(alone["m_ate_rot_deg"], 1e-12) - 1.0)
         changes[span] = (float(np.mean(trans)), float(np.mean(rot)))
     best = min(spans, key=lambda s: sum(changes[s]))
-    return SpanChoice(best, changes, len(names), len(folds) if len(names) > 1 else 1)
+    calibration = calibrate_vo([prepared[n][3] for n in names], best)
+    return SpanChoice(best, changes, len(names), len(folds) if len(names) > 1 else 1, calibration)
+
+
+def card_vo_calibration(card: Any) -> Any:
+    """The VO calibration a card carries (`pvo dpc-net calibrate --vo-spans`: per-axis scales at its VO span, learned
+    on its validation split), as a :class:`pvo_fusion.VOCalibration`; None when it has none."""
+    from pvo_fusion.calibration import VOCalibration
+
+    calibration = card.calibration or {}
+    if "vo_scale" not in calibration:
+        return None
+    scale = np.asarray(calibration["vo_scale"], dtype=float)
+    static = np.asarray(calibration.get("vo_static_covariance", np.diag(np.ones(6))), dtype=float)
+    if scale.shape != (6,) or not np.all(np.isfinite(scale)) or np.any(scale <= 0.0) or static.shape != (6, 6):
+        raise ValueError(f"the model card's vo_scale must be 6 positive numbers (x y z rx ry rz), got {calibration['vo_scale']}")
+    return VOCalibration(scale, static, ("model card",))

@@ -5,6 +5,7 @@ the overwritten VO; another rig's sequence is left out of training and refused a
 from __future__ import annotations
 
 import hashlib
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -85,12 +86,22 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     changes = {int(k): v for k, v in calibration["vo_span_changes"].items()}
     assert set(changes) == {3, 6} and calibration["vo_span"] == min(changes, key=lambda s: sum(changes[s]))
     assert f"VO span {calibration['vo_span']} frames (1 validation sequences, in sample: one sequence)" in out
+    assert len(calibration["vo_scale"]) == 6 and min(calibration["vo_scale"]) > 0.0  # the VO's scales at that span
     assert main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", "0,3"]) == 2
     assert "VO spans must be positive frame counts, got [0, 3]" in capsys.readouterr().err
 
     out = tmp_path / "corrected.txt"
     assert main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(model), "-o", str(out)]) == 0
-    assert "of 5 corrections fused" in capsys.readouterr().out  # windows 0-3, 3-6, ..., 12-15 of 17 frames
+    printed = capsys.readouterr().out
+    assert "of 5 corrections fused" in printed  # windows 0-3, 3-6, ..., 12-15 of 17 frames
+    assert f"VO covariances scaled by the card's calibration over {calibration['vo_span']} frames" in printed
+    broken = tmp_path / "broken"
+    shutil.copytree(model, broken)
+    card = yaml.safe_load((broken / "model.yaml").read_text())
+    card["calibration"]["vo_scale"] = [1.0, -2.0]
+    (broken / "model.yaml").write_text(yaml.safe_dump(card))
+    assert main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(broken), "-o", str(tmp_path / "b.txt")]) == 2
+    assert "the model card's vo_scale must be 6 positive numbers (x y z rx ry rz), got [1.0, -2.0]" in capsys.readouterr().err
     corrected = np.loadtxt(out)
     assert corrected.shape == (17, 12) and np.all(np.isfinite(corrected))
 

@@ -14,13 +14,13 @@ def register_actions(actions: Any, entry: Any) -> None:
     predict.set_defaults(handler=run_predict)
     predict.add_argument("sequence", type=Path, help="KITTI-layout sequence directory (stereo)")
     predict.add_argument("--vo", type=Path, required=True, help="the VO trajectory of that sequence (`pvo vo`, KITTI poses)")
-    predict.add_argument("--model", type=Path, required=True, help="model directory")
+    predict.add_argument("--model", type=Path, required=True, help="model directory or a shipped name (dpc_net, dpc_net_clean)")
     predict.add_argument("--out", "-o", type=Path, required=True, help="corrections file (CSV)")
     predict.add_argument("--any-rig", action="store_true", help="use the model even on a sequence of another rig")
     correct = actions.add_parser("correct", help="run the VO, predict the corrections and fuse both (FusionGraph)")
     correct.set_defaults(handler=run_correct)
     correct.add_argument("sequence", type=Path, help="KITTI-layout sequence directory (stereo)")
-    correct.add_argument("--model", type=Path, required=True, help="model directory")
+    correct.add_argument("--model", type=Path, required=True, help="model directory or a shipped name (dpc_net, dpc_net_clean)")
     correct.add_argument("--out", "-o", type=Path, required=True, help="corrected trajectory (KITTI poses; the VO's beside it)")
     correct.add_argument("--rate", type=float, default=10.0, help="frame rate without times.txt (default 10 Hz)")
     correct.add_argument(
@@ -59,10 +59,11 @@ def _warn(lines: list[str], model: Path) -> None:
 
 def run_predict(args: argparse.Namespace) -> int:
     from pvo_core.trajectory import read_kitti_poses
+    from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net, predict_corrections
     from pvo_pseudosensors.dpc_net.rig import check_rig
 
-    model, card = load_dpc_net(args.model)
+    model, card = load_dpc_net(resolve_model(str(args.model)))  # a directory or a shipped name
     _warn(check_rig(card.input.get("rig"), args.sequence, args.any_rig), args.model)
     corrections = predict_corrections(model, card, args.sequence, read_kitti_poses(args.vo))
     path = corrections.write_csv(args.out)
@@ -72,12 +73,16 @@ def run_predict(args: argparse.Namespace) -> int:
 
 def run_correct(args: argparse.Namespace) -> int:
     from pvo_core.trajectory import write_kitti_poses
+    from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net
 
-    from ..dpc import correct_sequence
+    from ..dpc import card_vo_calibration, correct_sequence
 
-    model, card = load_dpc_net(args.model)
-    result = correct_sequence(args.sequence, model, card, args.method, rate_hz=args.rate, allow_any_rig=args.any_rig)
+    model, card = load_dpc_net(resolve_model(str(args.model)))  # a directory or a shipped name
+    vo_calibration = card_vo_calibration(card)
+    result = correct_sequence(
+        args.sequence, model, card, args.method, vo_calibration, rate_hz=args.rate, allow_any_rig=args.any_rig
+    )
     _warn(result.warnings, args.model)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_kitti_poses(args.out, result.corrected)
@@ -85,7 +90,12 @@ def run_correct(args: argparse.Namespace) -> int:
     write_kitti_poses(vo_file, result.vo)
     count = len(result.corrections.first)
     how = f"{result.accepted} of {count} corrections fused" if args.method == "fusion" else f"{count} poses overwritten"
-    print(f"{args.out}: {len(result.vo)} poses, {how}; the VO alone in {vo_file}")
+    weighed = (
+        f"; VO covariances scaled by the card's calibration over {card.calibration.get('vo_span')} frames"
+        if vo_calibration is not None and args.method == "fusion"
+        else ""
+    )
+    print(f"{args.out}: {len(result.vo)} poses, {how}{weighed}; the VO alone in {vo_file}")
     return 0
 
 
@@ -137,6 +147,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         )
         choice = choose_vo_span(model, card, validation, args.vo_spans)
         card.calibration["vo_span"] = choice.span
+        card.calibration["vo_scale"] = [float(v) for v in choice.vo_calibration.scale]
+        card.calibration["vo_static_covariance"] = np.asarray(choice.vo_calibration.static_covariance).tolist()
         card.calibration["vo_span_changes"] = {str(s): [round(t, 4), round(r, 4)] for s, (t, r) in choice.changes.items()}
         write_card(args.model, card)
         for span, (trans, rot) in choice.changes.items():
