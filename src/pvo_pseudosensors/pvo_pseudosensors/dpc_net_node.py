@@ -98,12 +98,11 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
             return
         covariance = np.reshape(np.asarray(msg.pose.covariance, dtype=float), (6, 6))
         correction = self.sensor.add_vo(stamp_to_nanoseconds(msg.reference_stamp), stamp, transform, covariance)
-        if correction is None:
-            if self.sensor.dropped is not None:
-                self.rejected += 1
-                self._status(stamp, WARN, self.sensor.dropped)
-            return
-        self._publish(correction, self.vo_frame_id)
+        if self.sensor.dropped is not None:  # this window, or an older one that waited for images in vain
+            self.rejected += 1
+            self._status(stamp, WARN, self.sensor.dropped)
+        if correction is not None:
+            self._publish(correction, self.vo_frame_id)
 
     def _publish(self, correction: Any, frame_id: str) -> None:
         """The corrected transform over its window, stamped at the window's last frame."""

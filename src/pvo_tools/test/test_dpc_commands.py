@@ -87,8 +87,13 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     assert set(changes) == {3, 6} and calibration["vo_span"] == min(changes, key=lambda s: sum(changes[s]))
     assert f"VO span {calibration['vo_span']} frames (1 validation sequences, in sample: one sequence)" in out
     assert len(calibration["vo_scale"]) == 6 and min(calibration["vo_scale"]) > 0.0  # the VO's scales at that span
-    assert main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", "0,3"]) == 2
-    assert "VO spans must be positive frame counts, got [0, 3]" in capsys.readouterr().err
+    for bad, message in (
+        ("0,3", "VO spans must be positive frame counts, got '0,3'"),
+        ("3,x", "expected frame counts separated by commas (e.g. 3,9,30), got '3,x'"),
+    ):
+        with pytest.raises(SystemExit) as exit_status:
+            main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", bad])
+        assert exit_status.value.code == 2 and f"argument --vo-spans: {message}" in capsys.readouterr().err
 
     out = tmp_path / "corrected.txt"
     assert main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(model), "-o", str(out)]) == 0

@@ -40,7 +40,7 @@ def register_actions(actions: Any, entry: Any) -> None:
     calibrate.add_argument("--cache", type=Path, help="decoded-image cache (default CORPUS/.cache)")
     calibrate.add_argument(
         "--vo-spans",
-        type=lambda text: [int(v) for v in text.split(",")],
+        type=span_list,
         help="candidate spans (frames, comma-separated) over which the VO's covariances are made consistent for the "
         "fusion; the one whose fusion lowers the m-ATE most on the validation split (two-fold) goes into the card",
     )
@@ -50,6 +50,17 @@ def register_actions(actions: Any, entry: Any) -> None:
     evaluate.add_argument("--est", type=Path, required=True, help="corrected trajectory (KITTI)")
     evaluate.add_argument("--vo", type=Path, help="the uncorrected VO trajectory, for the comparison")
     evaluate.add_argument("--json", type=Path, help="also write the figures as a run-result record here")
+
+
+def span_list(text: str) -> list[int]:
+    """``--vo-spans 3,9,15``: positive frame counts, comma-separated."""
+    try:
+        spans = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected frame counts separated by commas (e.g. 3,9,30), got {text!r}") from None
+    if min(spans) < 1:
+        raise argparse.ArgumentTypeError(f"VO spans must be positive frame counts, got {text!r}")
+    return spans
 
 
 def _warn(lines: list[str], model: Path) -> None:

@@ -130,18 +130,26 @@ def miscalibrate(source: Path, out: Path, focal_scale: float) -> Path:
 
 
 def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
-    """Per-axis scales of the VO's covariances learned on the validation split the corrections were calibrated on
-    (`pvo dpc-net calibrate --corpus`, recorded in the card; else the model's own corpus: its rig) over the model's
-    span Δp — the motions the corrections are weighed against: a VO bias adds up over the window faster than
-    independent frame errors do, and both sides of the weighing are measured on the same windows — or None (the
-    VO's own covariances) when that corpus is not here."""
+    """Per-axis scales of the VO's covariances over ``span`` frames — the motions the corrections are weighed
+    against: a VO bias adds up over a span faster than independent frame errors do. Without ``span``, the scales
+    the card carries (`pvo dpc-net calibrate --vo-spans`: at the span it chose on its validation split), else
+    learned over the card's span (or the model's Δp) on the validation split the corrections were calibrated on
+    (recorded in the card; else the model's own corpus: its rig), so both sides of the weighing are measured on
+    the same windows; None (the VO's own covariances) when that corpus is not here."""
     from pvo_core.readers import read_corpus_manifest
     from pvo_core.trajectory import read_kitti_poses
 
     from pvo_fusion import CalibrationSequence, calibrate_vo
 
-    from ..dpc import rig_sequences, vo_run
+    from ..dpc import card_vo_calibration, rig_sequences, vo_run
 
+    carried = card_vo_calibration(card) if span is None else None
+    if carried is not None:
+        say(
+            f"  VO covariance scales (x y z rx ry rz) from the model card, over {card.calibration.get('vo_span')}-frame "
+            f"motions: {np.round(carried.scale, 2)}"
+        )
+        return carried
     calibrated_on = ((card.calibration or {}).get("residual") or {}).get("corpus")
     path = calibrated_on or card.corpus.get("path")
     corpus = Path(path) if path else None

@@ -87,9 +87,20 @@ def pooled(label: str, parts: list[tuple[Any, Array]]) -> Evaluated:
     return Evaluated(label, figures)
 
 
+#: (sequence, poses file, rate) -> the VO's rotation errors and run: sections 1, 3 and 4 reuse the same runs
+_VO_RUNS: dict[tuple[Path, Path | None, float | None], tuple[Array, Any]] = {}
+
+
 def vo_rotation_errors(root: Path, poses_file: Path | None = None, rate_hz: float | None = None) -> tuple[Array, Any]:
     """The stereo VO's frame-to-frame rotation error (deg) per pair of a sequence (truth: ``poses_file``, default
-    its poses.txt), and its run."""
+    its poses.txt), and its run (the VO is deterministic: each sequence is run once per process)."""
+    key = (Path(root), poses_file, rate_hz)
+    if key not in _VO_RUNS:
+        _VO_RUNS[key] = _vo_rotation_errors(Path(root), poses_file, rate_hz)
+    return _VO_RUNS[key]
+
+
+def _vo_rotation_errors(root: Path, poses_file: Path | None, rate_hz: float | None) -> tuple[Array, Any]:
     from pvo_core.readers import KittiSequence
     from pvo_frontend.offline import run_sequence
     from pvo_frontend.vo import VOConfig
