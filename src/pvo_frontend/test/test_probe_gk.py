@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pvo_frontend.probe.gk import GKConfig, GKModel, NoiseModel, sparse_kernel, student_t_log_density
+from pvo_frontend.probe.gk import (
+    GKConfig,
+    GKModel,
+    NoiseModel,
+    fit_static_student_t,
+    sparse_kernel,
+    student_t_log_density,
+)
 from pvo_frontend.vo.solver import RobustLoss
 from scipy.stats import multivariate_t
 
@@ -80,6 +87,8 @@ def test_noise_model_is_the_student_t_the_solver_loss_minimises() -> None:
         ({"max_neighbours": 0}, "max_neighbours must be >= 1"),
         ({"prior_samples": 2.0}, "prior_samples must be > 2"),
         ({"prior_sigma": (1.0, 1.0)}, "prior_sigma needs 3 positive values"),
+        ({"prior": "flat"}, "prior must be one of fitted, nominal"),
+        ({"prior_dof": 0.0}, "prior_dof must be positive"),
     ],
 )
 def test_bad_configuration_is_one_clear_error(values: dict, message: str) -> None:
@@ -96,3 +105,29 @@ def test_bad_training_samples_are_refused() -> None:
         GKModel(("a",), np.array([[0.0], [np.nan]]), np.zeros((2, 3)))
     with pytest.raises(ValueError, match="must be finite"):
         GKModel(("a",), np.zeros((2, 1)), np.array([[0.0, 0.0, np.inf], [0.0, 0.0, 0.0]]))
+
+
+def test_static_student_t_fit_recovers_the_scale_of_student_t_draws() -> None:
+    shape = np.array([[0.09, 0.0, 0.03], [0.0, 0.02, 0.0], [0.03, 0.0, 0.06]])
+    draws = multivariate_t(loc=np.zeros(3), shape=shape, df=3.0, seed=2).rvs(size=60_000)
+    np.testing.assert_allclose(fit_static_student_t(draws, 3.0), shape, atol=0.06 * shape.max())
+    # the sample covariance of a dof-3 Student-t is three times its scale: the fit is not the covariance
+    assert np.cov(draws.T)[0, 0] > 2.0 * fit_static_student_t(draws, 3.0)[0, 0]
+
+
+def test_fitted_prior_is_the_static_student_t_where_the_model_has_no_neighbour() -> None:
+    rng = np.random.default_rng(3)
+    sigma = np.array([0.25, 0.13, 0.2])
+    errors = multivariate_t(loc=np.zeros(3), shape=np.diag(sigma**2), df=3.0, seed=4).rvs(size=20_000)
+    model = GKModel(("x",), rng.uniform(0.0, 1.0, (len(errors), 1)), errors, GKConfig(prior_dof=3.0))
+    assert model.config.prior == "fitted" and model.config.prior_samples == pytest.approx(5.0)
+    far = model.noise(np.array([[50.0]]))  # out of every sample's kernel support
+    assert far.dof[0] == pytest.approx(3.0)
+    static = fit_static_student_t(errors, 3.0)
+    np.testing.assert_allclose(far.scale[0], np.diag(np.diag(static)))
+    np.testing.assert_allclose(np.sqrt(np.diag(far.scale[0])), sigma, rtol=0.05)
+    # the nominal prior keeps its n virtual samples of (1, 1, 2) px whatever the errors
+    nominal = GKModel(("x",), rng.uniform(0.0, 1.0, (len(errors), 1)), errors, GKConfig(prior="nominal"))
+    np.testing.assert_allclose(nominal.noise(np.array([[50.0]])).scale[0], 3.0 * np.diag([1.0, 1.0, 4.0]))
+    with pytest.raises(ValueError, match="a fitted prior needs training errors"):
+        GKModel(("x",), np.zeros((2, 1)), np.zeros((2, 3)))

@@ -53,6 +53,18 @@ def test_a_saved_model_loads_to_the_same_noise(tmp_path: Path, kind: str) -> Non
         np.testing.assert_array_equal(a.keep, b.keep)
 
 
+def test_a_card_from_before_the_fitted_prior_loads_with_its_nominal_prior(tmp_path: Path) -> None:
+    import yaml
+
+    directory = small_model("gk").save(tmp_path / "old")
+    card = yaml.safe_load((directory / "model.yaml").read_text())
+    assert card["estimator_config"]["prior"] == "fitted" and card["estimator_config"]["prior_samples"] == 5.0
+    card["estimator_config"] = {"radius": 0.25, "max_neighbours": 8, "prior_samples": 3.0, "prior_sigma": [1.0, 1.0, 2.0]}
+    (directory / "model.yaml").write_text(yaml.safe_dump(card))
+    config = ProbeModel.load(directory).estimator.config
+    assert config.prior == "nominal" and config.prior_samples == 3.0 and config.prior_sigma == (1.0, 1.0, 2.0)
+
+
 def test_bad_model_files_are_one_clear_line(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="no such directory"):
         ProbeModel.load(tmp_path / "nothing")

@@ -7,7 +7,7 @@ import pytest
 from pvo_core.camera import StereoCamera
 from pvo_core.lie import se3_exp, se3_inverse, se3_log
 from pvo_frontend.vo import VOConfig, from_flat
-from pvo_frontend.vo.pipeline import estimate_motion
+from pvo_frontend.vo.pipeline import estimate_motion, inlier_gate
 from pvo_frontend.vo.ransac import align_points, ransac_motion, required_iterations
 from pvo_frontend.vo.solver import RobustLoss, feature_information, residuals_and_jacobians, solve_motion
 
@@ -147,6 +147,34 @@ def test_ransac_finds_inliers_among_30_percent_outliers() -> None:
     )
     assert np.array_equal(result.inliers, ~bad)
     assert result.iterations < 512  # adaptive: stops well before the cap
+
+
+def test_student_t_features_are_gated_at_their_own_quantile() -> None:
+    from scipy.stats import chi2, f, multivariate_t
+
+    # Gaussian noise (or one loss constant for all): the chi-square threshold as configured
+    assert inlier_gate(16.0, "cauchy", np.full(5, 3.0)) == 16.0
+    assert inlier_gate(16.0, "student_t", None) == 16.0
+    dof = np.array([1.0, 3.0, 30.0, 1e6])
+    gate = inlier_gate(16.0, "student_t", dof)
+    np.testing.assert_allclose(f.cdf(gate / 3.0, 3, dof), chi2.cdf(16.0, 3))
+    assert gate[-1] == pytest.approx(16.0, rel=1e-3) and np.all(np.diff(gate) < 0)  # -> chi-square as dof grows
+    # PROBE-GK's dof-3 features without outliers: the gate keeps (nearly) all of them, the chi-square one a tenth less
+    rng = np.random.default_rng(11)
+    obs_ref, obs_cur = observations(scene(rng, 400))
+    n = len(obs_ref)
+    scale = np.diag([0.25, 0.13, 0.2]) ** 2
+    obs_cur = obs_cur + multivariate_t(loc=np.zeros(3), shape=scale, df=3.0, seed=12).rvs(size=n)
+    covariances = np.broadcast_to(scale, (n, 3, 3))
+    config = VOConfig()
+    estimates = {
+        name: estimate_motion(
+            CAMERA, obs_ref, obs_cur, covariances, config, np.random.default_rng(0), None, dofs, "student_t", False
+        )
+        for name, dofs in (("student_t", np.full(n, 3.0)), ("chi_square", None))
+    }
+    assert estimates["student_t"].inliers.mean() > 0.99
+    assert estimates["chi_square"].inliers.mean() < 0.95
 
 
 @pytest.mark.parametrize("loss", ["huber", "cauchy", "geman_mcclure", "student_t"])

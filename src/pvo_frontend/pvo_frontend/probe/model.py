@@ -126,6 +126,8 @@ class ProbeModel:
         if columns != len(names):
             raise ValueError(f"model.npz holds {columns} predictor columns, the card names {len(names)}")
         settings = {k: tuple(v) if isinstance(v, list) else v for k, v in card["estimator_config"].items()}
+        if card["kind"] == "gk":
+            settings.setdefault("prior", "nominal")  # cards written before the fitted prior
         samples = (names, arrays["predictors"], arrays["errors"])
         estimator: GKModel | KNNModel
         if card["kind"] == "gk":

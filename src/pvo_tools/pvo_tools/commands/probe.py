@@ -46,7 +46,16 @@ def register(sub: Any) -> None:
         "--radius", type=float, default=0.25, help="GK kernel support in normalised predictor units (default 0.25)"
     )
     train.add_argument("--neighbours", type=int, default=8, help="GK: stored errors per query (default 8)")
-    train.add_argument("--prior-samples", type=float, default=3.0, help="GK: the prior's weight in virtual samples (default 3)")
+    train.add_argument(
+        "--prior",
+        choices=("fitted", "nominal"),
+        default="fitted",
+        help="GK prior: the training errors' static Student-t (fitted, default) or --prior-samples of (1, 1, 2) px (nominal)",
+    )
+    train.add_argument("--prior-dof", type=float, default=3.0, help="GK fitted prior: its Student-t dof (default 3)")
+    train.add_argument(
+        "--prior-samples", type=float, default=3.0, help="GK nominal prior: its weight in virtual samples (default 3)"
+    )
     train.add_argument(
         "--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter for the runs that collect the tracks"
     )
@@ -77,7 +86,13 @@ def run_train(args: argparse.Namespace) -> int:
         raise ValueError(f"{len(poses)} --poses files for {len(args.sequences)} sequences (give one per sequence, in order)")
     config = vo_config(args.param)
     predictors = PredictorConfig(patch=args.patch, image=not args.no_image, imu=args.imu)
-    gk = GKConfig(radius=args.radius, max_neighbours=args.neighbours, prior_samples=args.prior_samples)
+    gk = GKConfig(
+        radius=args.radius,
+        max_neighbours=args.neighbours,
+        prior=args.prior,
+        prior_dof=args.prior_dof,
+        prior_samples=args.prior_samples if args.prior == "nominal" else None,
+    )
     data, cameras = [], {}
     for index, directory in enumerate(args.sequences):
         if directory.suffix == ".mat":
