@@ -157,3 +157,23 @@ def test_training_on_two_corpora_joins_their_splits(corpus: Path, tmp_path: Path
     card = yaml.safe_load((model / "model.yaml").read_text())
     assert [c["path"] for c in card["corpus"]["corpora"]] == [str(corpus), str(other)]
     assert card["commands"]["corpus"].count("pvo sim corpus") == 2
+
+
+def test_an_extra_corpus_without_validation_sequences_adds_training_samples_only(corpus: Path, tmp_path: Path, capsys) -> None:
+    import shutil
+
+    extra = tmp_path / "extra"  # rendered with --split 1,0,0: training sequences only
+    shutil.copytree(corpus, extra, ignore=shutil.ignore_patterns(".cache"))
+    manifest = yaml.safe_load((extra / "manifest.yaml").read_text())
+    for entry in manifest["sequences"]:
+        entry["split"] = "train"
+    (extra / "manifest.yaml").write_text(yaml.safe_dump(manifest))
+    args = ["sun-bcnn", "train", "--corpus", str(corpus), "--corpus", str(extra), "-o", str(tmp_path / "m"), "--epochs", "1"]
+    assert main([*args, "--batch-size", "16", *TINY]) == 0
+    err = capsys.readouterr().err
+    assert f"{extra} has no validation sequence" in err
+    assert "96 training and 16 validation samples" in err  # (2 + 4) train x 16, the first corpus's 1 validation x 16
+    # no validation sequence anywhere: one line naming the corpora
+    args = ["sun-bcnn", "train", "--corpus", str(extra), "--corpus", str(extra), "-o", str(tmp_path / "n"), "--epochs", "1"]
+    assert main([*args, "--batch-size", "16", *TINY]) == 2
+    assert "no sequence in the validation split of" in capsys.readouterr().err.strip().splitlines()[-1]

@@ -218,9 +218,15 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
                 sequences = [s for s in sequences if s.name not in off_rig]
             sequences = sequences[: args.max_sequences or None]
             if not sequences:
-                raise ValueError(f"{manifest.path}: no sequence in the {split} split")
+                if len(manifests) == 1:
+                    raise ValueError(f"{manifest.path}: no sequence in the {split} split")
+                # an extra training corpus rendered with --split 1,0,0 adds no validation sequence: the others do
+                print(f"{entry.name}: {manifest.path.parent} has no {split} sequence", file=sys.stderr)
+                continue
             sources = [Source(sequence.root, sequence.name, split) for sequence in sequences]
             parts.append(_dataset(entry, config, sources, args.cache or manifest.path.parent / ".cache", split, args.quiet))
+        if not parts:
+            raise ValueError(f"no sequence in the {split} split of {', '.join(str(m.path) for m in manifests)}")
         sets[split] = parts[0] if len(parts) == 1 else ConcatDataset(parts)
     print(f"{entry.name}: {len(sets['train'])} training and {len(sets['validation'])} validation samples", file=sys.stderr)
     bar: Progress | None = None
