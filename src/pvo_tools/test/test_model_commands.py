@@ -167,12 +167,16 @@ def test_an_extra_corpus_without_validation_sequences_adds_training_samples_only
     manifest = yaml.safe_load((extra / "manifest.yaml").read_text())
     for entry in manifest["sequences"]:
         entry["split"] = "train"
+    manifest["corpus"]["split"] = [1.0, 0.0, 0.0]
     (extra / "manifest.yaml").write_text(yaml.safe_dump(manifest))
     args = ["sun-bcnn", "train", "--corpus", str(corpus), "--corpus", str(extra), "-o", str(tmp_path / "m"), "--epochs", "1"]
     assert main([*args, "--batch-size", "16", *TINY]) == 0
     err = capsys.readouterr().err
     assert f"{extra} has no validation sequence" in err
     assert "96 training and 16 validation samples" in err  # (2 + 4) train x 16, the first corpus's 1 validation x 16
+    # the card's corpus commands remake both corpora, the extra one with its shares
+    commands = yaml.safe_load((tmp_path / "m" / "model.yaml").read_text())["commands"]["corpus"].split(" && ")
+    assert "--split" not in commands[0] and commands[1].endswith("--split 1,0,0")
     # no validation sequence anywhere: one line naming the corpora
     args = ["sun-bcnn", "train", "--corpus", str(extra), "--corpus", str(extra), "-o", str(tmp_path / "n"), "--epochs", "1"]
     assert main([*args, "--batch-size", "16", *TINY]) == 2

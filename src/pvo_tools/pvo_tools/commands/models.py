@@ -154,6 +154,9 @@ def _corpus_command(manifest: Any) -> str:
     for name in ("focal", "baseline"):
         if data.get(f"calib_{name}_scale", 1.0) != 1.0:
             colour += f" --calib-{name}-scale {data[f'calib_{name}_scale']:g}"
+    shares = data.get("split")
+    if shares and [round(float(v), 6) for v in shares] != [0.7, 0.15, 0.15]:  # `pvo sim corpus`'s default shares
+        colour += " --split " + ",".join(f"{float(v):g}" for v in shares)
     if data.get("kitti_poses"):
         drives = {split: ",".join(data[f"kitti_{split}"]) for split in ("train", "validation", "test")}
         colour += (
