@@ -1,0 +1,88 @@
+"""PROBE-GK's prior chosen on a corpus's validation split (never its test split): the VO with the default noise
+against the VO with a PROBE model under each candidate prior, each sequence run with several RANSAC seeds.
+
+    python scripts/probe_prior_sweep.py runs/probe-fitted-gate/probe-corpus-model --corpus data/corpus-sun \\
+        --priors nominal fitted:2 fitted:3 fitted:5
+
+Prints, per prior, the mean relative change of translational ARMSE over all sequences, over those where tracking is
+hard (moving vehicles, motion blur, texture-poor walls) and the worst clean sequence (no condition drawn) - the
+figures the README's PROBE section quotes. The candidate priors are refitted from the model's stored errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from pvo_core.readers import KittiSequence, read_corpus_manifest
+from pvo_frontend.offline import run_sequence
+from pvo_frontend.probe.gk import GKConfig
+from pvo_frontend.probe.model import ProbeModel
+from pvo_frontend.vo import VOConfig
+
+from pvo_core import metrics
+
+HARD = {"moving vehicles", "motion blur", "texture-poor walls"}
+
+
+def prior_config(base: GKConfig, spec: str) -> GKConfig:
+    """``nominal`` or ``fitted:DOF`` on top of the model's kernel settings (the prior left to be fitted)."""
+    if spec == "nominal":
+        return GKConfig(base.radius, base.max_neighbours, prior="nominal")
+    kind, _, dof = spec.partition(":")
+    if kind != "fitted" or not dof:
+        raise SystemExit(f"prior {spec!r}: use nominal or fitted:DOF")
+    return GKConfig(base.radius, base.max_neighbours, prior="fitted", prior_dof=float(dof))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("model", type=Path, help="a PROBE-GK model trained on the corpus's training split")
+    parser.add_argument("--corpus", type=Path, default=Path("data/corpus-sun"))
+    parser.add_argument("--priors", nargs="+", default=["nominal", "fitted:2", "fitted:3", "fitted:5"])
+    parser.add_argument("--seeds", type=int, default=5, help="RANSAC seeds per sequence (default 5)")
+    parser.add_argument("--max-sequences", type=int, help="the first N validation sequences only")
+    args = parser.parse_args()
+
+    model = ProbeModel.load(args.model)
+    trained = model.estimator.config
+    models = {}
+    for spec in args.priors:
+        estimator = replace(model.estimator)  # a shallow copy: the stored samples are shared
+        estimator.config = prior_config(trained, spec).fitted_to(estimator.errors)
+        models[spec] = replace(model, estimator=estimator)
+    changes: dict[str, dict[str, float]] = {spec: {} for spec in args.priors}
+    conditions = {}
+    for item in read_corpus_manifest(args.corpus).split("validation")[: args.max_sequences or None]:
+        sequence = KittiSequence(item.root, poses_file=item.root / "poses.txt")
+        conditions[item.name] = set(item.conditions)
+        runs: dict[str, list[float]] = {"default": [], **{spec: [] for spec in args.priors}}
+        for seed in range(args.seeds):
+            config = replace(VOConfig(), ransac=replace(VOConfig().ransac, seed=seed))
+            runs["default"].append(metrics.armse(sequence.poses, run_sequence(sequence, config).poses)["trans"])
+            for spec, candidate in models.items():
+                poses = run_sequence(sequence, config, feature_noise=candidate.feature_noise()).poses
+                runs[spec].append(metrics.armse(sequence.poses, poses)["trans"])
+        for spec in args.priors:
+            changes[spec][item.name] = float(np.mean(runs[spec]) / np.mean(runs["default"]) - 1.0)
+        print(
+            item.name,
+            sorted(item.conditions),
+            " ".join(f"{s} {100 * changes[s][item.name]:+.1f} %" for s in args.priors),
+            flush=True,
+        )
+    for spec, change in changes.items():
+        clean = {name: c for name, c in change.items() if not conditions[name]}
+        hard = [c for name, c in change.items() if conditions[name] & HARD]
+        worst = max(clean, key=clean.get) if clean else None
+        hard_mean = 100 * np.mean(hard) if hard else float("nan")
+        print(
+            f"{spec}: all {100 * np.mean(list(change.values())):+.1f} %, hard {hard_mean:+.1f} %, "
+            + (f"worst clean {worst} {100 * clean[worst]:+.1f} %" if worst else "no clean sequence")
+        )
+
+
+if __name__ == "__main__":
+    main()
