@@ -85,10 +85,11 @@ def test_noise_model_is_the_student_t_the_solver_loss_minimises() -> None:
     [
         ({"radius": 0.0}, "radius must be positive"),
         ({"max_neighbours": 0}, "max_neighbours must be >= 1"),
-        ({"prior_samples": 2.0}, "prior_samples must be > 2"),
-        ({"prior_sigma": (1.0, 1.0)}, "prior_sigma needs 3 positive values"),
+        ({"prior": "nominal", "prior_samples": 2.0}, "prior_samples must be > 2"),
+        ({"prior": "nominal", "prior_sigma": (1.0, 1.0)}, "prior_sigma needs 3 positive values"),
         ({"prior": "flat"}, "prior must be one of fitted, nominal"),
         ({"prior_dof": 0.0}, "prior_dof must be positive"),
+        ({"prior_samples": 4.0}, "prior_samples and prior_sigma come together"),
     ],
 )
 def test_bad_configuration_is_one_clear_error(values: dict, message: str) -> None:

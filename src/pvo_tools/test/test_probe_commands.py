@@ -64,6 +64,10 @@ def test_bad_probe_input_is_one_line(tmp_path: Path, pvo_data: Path, capsys) -> 
     assert err.count("\n") == 1 and "--track-images" in err
     assert main(["probe", "train", str(tracks), "--no-image", "--kind", "knn", "--em", "-o", str(tmp_path / "m"), "-q"]) == 2
     assert "k-NN trains with ground truth only" in capsys.readouterr().err
+    # --prior-samples weighs the nominal prior only: with the fitted one it would be ignored, so it is refused
+    assert main(["probe", "train", str(clip), "--prior-samples", "5", "-o", str(tmp_path / "m"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "give --prior nominal with it" in err
 
 
 def test_experiment_probe_writes_its_report(tmp_path: Path, capsys) -> None:

@@ -96,6 +96,8 @@ class GKConfig:
             raise ValueError(f"PROBE-GK prior must be one of {', '.join(PRIORS)}, got {self.prior!r}")
         if not self.prior_dof > 0.0:
             raise ValueError(f"PROBE-GK prior_dof must be positive, got {self.prior_dof}")
+        if self.prior == "fitted" and (self.prior_samples is None) != (self.prior_sigma is None):
+            raise ValueError("PROBE-GK fitted prior: prior_samples and prior_sigma come together (as fitted) or not at all")
         if self.prior == "nominal":
             if self.prior_samples is None:
                 object.__setattr__(self, "prior_samples", NOMINAL_PRIOR_SAMPLES)

@@ -53,9 +53,7 @@ def register(sub: Any) -> None:
         help="GK prior: the training errors' static Student-t (fitted, default) or --prior-samples of (1, 1, 2) px (nominal)",
     )
     train.add_argument("--prior-dof", type=float, default=3.0, help="GK fitted prior: its Student-t dof (default 3)")
-    train.add_argument(
-        "--prior-samples", type=float, default=3.0, help="GK nominal prior: its weight in virtual samples (default 3)"
-    )
+    train.add_argument("--prior-samples", type=float, help="GK nominal prior: its weight in virtual samples (default 3)")
     train.add_argument(
         "--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter for the runs that collect the tracks"
     )
@@ -86,12 +84,16 @@ def run_train(args: argparse.Namespace) -> int:
         raise ValueError(f"{len(poses)} --poses files for {len(args.sequences)} sequences (give one per sequence, in order)")
     config = vo_config(args.param)
     predictors = PredictorConfig(patch=args.patch, image=not args.no_image, imu=args.imu)
+    if args.prior_samples is not None and args.prior != "nominal":
+        raise ValueError(
+            "--prior-samples weighs the nominal prior: give --prior nominal with it (a fitted prior has prior-dof + 2)"
+        )
     gk = GKConfig(
         radius=args.radius,
         max_neighbours=args.neighbours,
         prior=args.prior,
         prior_dof=args.prior_dof,
-        prior_samples=args.prior_samples if args.prior == "nominal" else None,
+        prior_samples=args.prior_samples,
     )
     data, cameras = [], {}
     for index, directory in enumerate(args.sequences):

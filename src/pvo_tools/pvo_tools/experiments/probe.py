@@ -24,14 +24,15 @@ from typing import Any
 from .common import ExperimentRun
 
 TITLE = "PROBE (ch. 4, Table 4.1): fixed / M-estimator / PROBE-GK-GT / PROBE-GK-EM / k-NN, synthetic world and KITTI tracks"
-#: odometry sequence -> raw-derived file and the frames with left images in ../shared/data
 #: PROBE-GK's prior for KITTI's KLT tracks, chosen by three-fold cross-validation on 07's frames 1-499 (never 06):
 #: PROBE-GK-GT against the static M-estimator, mean of the folds, tracks + IMU / tracks only: the nominal prior
 #: -16.4 / -3.9 %, the fitted static Student-t with 1 dof -2.2 / +2.7 %, with 3 dof -0.7 / +3.8 % (the single
 #: split 1-349 / 350-499 had favoured 1 dof, -15.2 % against -11.4 %; its folds disagree by 40 points, so one
-#: split decides nothing). The rendered corpus's VO tracks were validated the other way (GKConfig's default).
+#: split decides nothing; scripts/probe_kitti_prior_cv.py). The rendered corpus's VO tracks were validated the other way
+#: (GKConfig's default).
 KITTI_PRIOR = "nominal"
 
+#: odometry sequence -> raw-derived file and the frames with left images in ../shared/data
 DRIVES = {
     "06": ("2011_09_30_drive_0020_sync_KLT.mat", 51),
     "07": ("2011_09_30_drive_0027_sync_KLT.mat", 160),
