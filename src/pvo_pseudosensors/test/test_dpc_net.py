@@ -182,6 +182,11 @@ def test_every_variant_becomes_a_left_correction_with_unmeasured_axes() -> None:
         | dict.fromkeys(("corrected_rx", "corrected_ry", "corrected_rz"), 0.0)
     }
     assert np.diag(measurement_covariance(pose, worse)).tolist() == [0.5, 1.0, 1.5] + [UNMEASURED] * 3
+    # axes chosen on validation drives override the per-window verdicts; none chosen: nothing measured
+    drives = worse | {"fused_axes": ["z", "ry"]}
+    assert np.diag(measurement_covariance(pose, drives)).tolist() == [UNMEASURED] * 2 + [1.5, UNMEASURED, 2.5, UNMEASURED]
+    assert np.diag(measurement_covariance(rotation, drives)).tolist() == [UNMEASURED] * 4 + [2.5, UNMEASURED]
+    assert np.diag(measurement_covariance(pose, worse | {"fused_axes": []})).tolist() == [UNMEASURED] * 6
 
 
 def test_the_residual_covariance_of_no_correction_is_the_targets_second_moment(miscalibrated: Path, tmp_path: Path) -> None:

@@ -8,9 +8,14 @@ VO chained in between (:func:`pvo_pseudosensors.dpc_net.infer.overwrite_trajecto
 
 from __future__ import annotations
 
+import copy
+import subprocess
+import sys
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,6 +23,39 @@ from numpy.typing import NDArray
 Array = NDArray[np.float64]
 FIRST_STAMP_NS = 1_000_000_000  # the fusion's stamps start at 1 s (a zero stamp reads as unset in ROS)
 METHODS = ("fusion", "overwrite")
+#: the thesis's lens (Table 6.2) and the calibration error of Table 6.1's rig (calib.txt's focal length)
+LENS = (-0.3, 0.2, 0.01)
+FOCAL_SCALE = 1.03
+RIGS = ("clean", "lens", "calib")
+
+
+@dataclass(frozen=True)
+class Drive:
+    """A long sequence rendered along a KITTI drive: its name, the drive, the drive's first frame used, frames
+    (None: the caller's choice), and the renderer's seed and heading (deg) — a different world along the same
+    motion."""
+
+    name: str
+    drive: str
+    start: int
+    frames: int | None
+    seed: int
+    heading: float
+
+
+#: the experiment's test drives (KITTI 05, 06, 07: no training or validation sequence drove them; windows of one
+#: drive overlap by at most 140 frames)
+_TEST_STARTS = (("05a", "05", 0), ("06", "06", 0), ("07", "07", 0), ("05b", "05", 900), ("05c", "05", 1760))
+TEST_DRIVES: tuple[Drive, ...] = tuple(
+    Drive(name, drive, start, None, 900 + i, 37 * i % 360) for i, (name, drive, start) in enumerate(_TEST_STARTS)
+)
+#: long drives of the corpora's validation split (KITTI 04, 10), rendered like the test drives: what the fusion's
+#: weighing is chosen on (`pvo dpc-net calibrate --drives`), at the length the test figures are measured over
+VALIDATION_DRIVES: tuple[Drive, ...] = (
+    Drive("10a", "10", 0, 1000, 950, 200),
+    Drive("10b", "10", 201, 1000, 951, 311),
+    Drive("04", "04", 0, 271, 952, 77),
+)
 
 
 @dataclass
@@ -43,6 +81,75 @@ def rig_sequences(manifest: Any, card: Any, split: str = "validation") -> list[A
     off_rig = set(models()["dpc-net"].off_rig)
     presets = set((card.corpus or {}).get("presets") or [])
     return [s for s in manifest.split(split) if not set(s.conditions) & off_rig and (not presets or s.preset in presets)]
+
+
+def render_drives(
+    drives: Sequence[Drive], data: Path, out: Path, frames: int | None = None, jobs: int = 2, say: Any = print
+) -> dict[str, list[Path]]:
+    """``drives`` rendered clean and through :data:`LENS` into ``out/clean`` and ``out/lens`` (urban, 1x, KITTI
+    geometry at 620x188; `pvo sim` in ``jobs`` parallel processes; complete ones of this renderer revision kept),
+    and the clean ones with calib.txt's focal length x :data:`FOCAL_SCALE` in ``out/calib`` (:func:`miscalibrate`).
+    ``frames``: for a drive whose own is None. Returns the folders per rig (:data:`RIGS`)."""
+    from .experiments.common import rendered_by_this_revision
+
+    commands, folders = [], {rig: [] for rig in RIGS}
+    for drive in drives:
+        count = drive.frames or frames
+        if not count:
+            raise ValueError(f"drive {drive.name}: no frame count")
+        for rig in ("clean", "lens"):
+            folder = out / rig / drive.name
+            folders[rig].append(folder)
+            if rendered_by_this_revision(folder):
+                continue
+            command = [sys.executable, "-m", "pvo_tools.cli", "sim", str(folder), "--poses"]
+            command += [str((data / "kitti" / "poses" / f"{drive.drive}.txt").resolve()), "--start", str(drive.start)]
+            command += ["--frames", str(count), "--supersample", "1", "--seed", str(drive.seed), "-q", "--overwrite"]
+            command += ["--heading", f"{drive.heading:g}", "--start-time", "2011-09-30T10:30:00Z"]
+            if rig == "lens":
+                command += ["--distortion", *map(str, LENS)]
+            commands.append((f"{rig}/{drive.name}", command))
+    if commands:
+        say(f"rendering {len(commands)} sequences ({jobs} at a time) ...")
+
+    def render(item: tuple[str, list[str]]) -> None:
+        label, command = item
+        done = subprocess.run(command, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise RuntimeError(f"rendering {label} failed: {(done.stderr.strip().splitlines() or ['?'])[-1]}")
+        say(f"  {label} rendered")
+
+    with ThreadPoolExecutor(max(1, jobs)) as pool:
+        list(pool.map(render, commands))
+    for folder in folders["clean"]:
+        folders["calib"].append(miscalibrate(folder, out / "calib" / folder.name, FOCAL_SCALE))
+    return folders
+
+
+def miscalibrate(source: Path, out: Path, focal_scale: float) -> Path:
+    """``source``'s sequence (its images and poses linked) with ``calib.txt``'s focal length (and so the P1
+    baseline term, -f b) times ``focal_scale``, and its ``sim.yaml`` saying so: what `pvo sim --focal-scale`
+    writes for the same images."""
+    import yaml
+    from pvo_core.readers.kitti import read_kitti_calibration
+
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ("image_0", "image_1", "poses.txt", "times.txt"):
+        link = out / name
+        if not link.exists():
+            link.symlink_to((source / name).resolve())
+    lines = []
+    for key, matrix in read_kitti_calibration(source / "calib.txt").items():
+        scaled = matrix.copy()
+        scaled[0, 0] *= focal_scale
+        scaled[1, 1] *= focal_scale
+        scaled[0, 3] *= focal_scale
+        lines.append(f"{key}: " + " ".join(f"{v:.12e}" for v in scaled.reshape(-1)))
+    (out / "calib.txt").write_text("\n".join(lines) + "\n")
+    meta = yaml.safe_load((source / "sim.yaml").read_text())
+    meta["config"]["degradations"]["focal_scale"] = focal_scale
+    (out / "sim.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    return out
 
 
 def vo_run(root: Path, rate_hz: float = 10.0) -> Any:
@@ -176,3 +283,120 @@ def card_vo_calibration(card: Any) -> Any:
     if scale.shape != (6,) or not np.all(np.isfinite(scale)) or np.any(scale <= 0.0) or static.shape != (6, 6):
         raise ValueError(f"the model card's vo_scale must be 6 positive numbers (x y z rx ry rz), got {calibration['vo_scale']}")
     return VOCalibration(scale, static, ("model card",))
+
+
+#: the fused-axis sets a drive calibration tries, within the model variant's axes; "validated": those the
+#: correction improved on the validation windows (``residual.corrected_*``)
+AXIS_SETS: dict[str, tuple[str, ...] | None] = {
+    "validated": None,
+    "all": ("x", "y", "z", "rx", "ry", "rz"),
+    "translation": ("x", "y", "z"),
+    "rotation": ("rx", "ry", "rz"),
+}
+#: the VO spans a drive calibration tries by default (frames)
+DRIVE_SPANS = (3, 30, 100, 250)
+Candidate = TypeVar("Candidate")
+
+
+def select_fusion(changes: Mapping[Candidate, Any]) -> Candidate | None:
+    """The candidate whose fusion lowered both the translational and the rotational m-ATE on every drive (each
+    value: relative changes (drives, 2) against the VO alone), the lowest mean sum among them; None when none did
+    — then nothing is fused, as a correction that harmed one validation drive cannot be told from one that
+    harms a user's."""
+    accepted = {key: np.asarray(c, dtype=float) for key, c in changes.items() if np.all(np.asarray(c, dtype=float) < 0.0)}
+    if not accepted:
+        return None
+    return min(accepted, key=lambda key: float(accepted[key].mean(axis=0).sum()))
+
+
+@dataclass
+class FusionChoice:
+    """How the corrections are fused, chosen on long validation drives: ``span`` (frames over which the VO's
+    covariances are made consistent) and ``axes`` (the fused ones; [] when no candidate lowered every drive's
+    m-ATE, and ``span`` None); ``candidates``: per candidate label its span, axes, per-drive changes (m-ATE
+    translation, rotation) and whether it was acceptable; ``vo_calibration``: the VO's scales at ``span`` learned on
+    every drive (None when nothing is fused)."""
+
+    span: int | None
+    axes: list[str]
+    candidates: dict[str, dict[str, Any]]
+    drives: list[str]
+    vo_calibration: Any = None
+
+
+def choose_fusion(
+    model: Any, card: Any, drives: Sequence[Path], spans: Sequence[int] = DRIVE_SPANS, say: Any = None
+) -> FusionChoice:
+    """The VO span and the fused axes (:data:`AXIS_SETS` x ``spans``) for ``model``'s corrections, chosen on long
+    validation ``drives`` (sequence directories with poses.txt, of the model's rig) by :func:`select_fusion`. The
+    VO's scales for a drive are learned on the other drives (leave one drive out; in sample with one drive), so
+    no drive judges a weighing learned on itself."""
+    from pvo_core.trajectory import read_kitti_poses
+    from pvo_pseudosensors.dpc_net.config import DPCNetConfig
+    from pvo_pseudosensors.dpc_net.infer import AXES
+    from pvo_pseudosensors.dpc_net.rig import check_rig
+
+    from pvo_fusion import CalibrationSequence, calibrate_vo
+
+    from .experiments.common import fusion_figures
+
+    if not drives:
+        raise ValueError("choosing the fusion needs at least one validation drive")
+    if not spans or min(spans) < 1:
+        raise ValueError(f"VO spans must be positive frame counts, got {list(spans)}")
+    variant_axes = {"pose": AXES, "rotation": AXES[3:], "yaw": ("ry",)}[DPCNetConfig.from_card(card).variant]
+    residual = (card.calibration or {}).get("residual") or {}
+    axis_sets: dict[str, tuple[str, ...]] = {}
+    for name, axes in AXIS_SETS.items():
+        chosen = tuple(a for a in variant_axes if (residual.get(f"corrected_{a}", 1.0) if axes is None else a in axes))
+        if chosen and chosen not in axis_sets.values():
+            axis_sets[name] = chosen
+    prepared = {}
+    for root in drives:
+        root = Path(root)
+        for warning in check_rig(card.input.get("rig"), root):
+            (say or print)(f"  warning: {root}: {warning}")
+        run, _ = vo_run(root)
+        truth = read_kitti_poses(root / "poses.txt")
+        relative = run.relative()
+        alone = fusion_figures(truth, truth[0] @ run.poses)
+        sequence = CalibrationSequence(root.name, truth, relative["transforms"], relative["covariances"])
+        prepared[root.name] = (root, run, truth, alone, sequence)
+    names = list(prepared)
+    changes: dict[tuple[int, str], Array] = {}
+    for span in spans:
+        scales = {name: calibrate_vo([prepared[o][4] for o in names if o != name] or [prepared[name][4]], span) for name in names}
+        for label, axes in axis_sets.items():
+            candidate = copy.deepcopy(card)
+            candidate.calibration["fused_axes"] = list(axes)
+            rows = []
+            for name in names:
+                root, run, truth, alone, _ = prepared[name]
+                fused = correct_sequence(root, model, candidate, "fusion", scales[name], run=run)
+                figures = fusion_figures(truth, truth[0] @ fused.corrected_online)
+                rows.append(
+                    [
+                        figures["m_ate_trans"] / max(alone["m_ate_trans"], 1e-12) - 1.0,
+                        figures["m_ate_rot_deg"] / max(alone["m_ate_rot_deg"], 1e-12) - 1.0,
+                    ]
+                )
+            changes[(span, label)] = np.asarray(rows)
+            if say is not None:
+                mean = 100 * changes[(span, label)].mean(axis=0)
+                say(f"  span {span:4d}, {label:<11} axes: m-ATE {mean[0]:+6.1f} % translation, {mean[1]:+6.1f} % rotation")
+    best = select_fusion(changes)
+    candidates = {
+        f"span {span}, {label}": {
+            "span": span,
+            "axes": list(axis_sets[label]),
+            "per_drive": {name: [round(float(v), 4) for v in row] for name, row in zip(names, c, strict=True)},
+            "mean": [round(float(v), 4) for v in c.mean(axis=0)],
+            "accepted": bool(np.all(c < 0.0)),
+        }
+        for (span, label), c in changes.items()
+    }
+    if best is None:
+        return FusionChoice(None, [], candidates, names)
+    span, label = best
+    calibration = calibrate_vo([prepared[n][4] for n in names], span)
+    return FusionChoice(span, list(axis_sets[label]), candidates, names, calibration)

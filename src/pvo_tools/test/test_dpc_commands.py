@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import yaml
 from pvo_tools.cli import main
+from pvo_tools.dpc import select_fusion
 
 TINY = ["--height", "32", "--width", "104", "--stem", "4,4,8", "--body", "8,16", "--deltas", "2,3", "--test-delta", "3"]
 
@@ -95,6 +96,27 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
             main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", bad])
         assert exit_status.value.code == 2 and f"argument --vo-spans: {message}" in capsys.readouterr().err
 
+    # the fusion chosen on long drives (here the validation and test clips): every candidate's per-drive figures kept,
+    # the choice the one select_fusion makes of them (none: nothing fused, and `correct` says so)
+    drove = tmp_path / "drove"
+    shutil.copytree(model, drove)
+    calibrate = ["dpc-net", "calibrate", "--model", str(drove), "--corpus", str(corpus), "--vo-spans", "3,6"]
+    assert main([*calibrate, "--drives", str(corpus / "0001"), str(corpus / "0002")]) == 0
+    drive_card = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
+    candidates = drive_card["drive_calibration"]["candidates"]
+    assert {c["span"] for c in candidates.values()} == {3, 6} and all(len(c["per_drive"]) == 2 for c in candidates.values())
+    chosen = select_fusion({label: list(c["per_drive"].values()) for label, c in candidates.items()})
+    if chosen is None:
+        assert drive_card["fused_axes"] == [] and drive_card["drive_calibration"]["chosen"] is None
+        assert "nothing is fused" in capsys.readouterr().out
+        assert main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(drove), "-o", str(tmp_path / "d.txt")]) == 0
+        assert "fuses no axis" in capsys.readouterr().err
+    else:
+        assert drive_card["fused_axes"] == candidates[chosen]["axes"] and drive_card["vo_span"] == candidates[chosen]["span"]
+        assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
+    assert main([*calibrate, "--drives", str(tmp_path / "nowhere")]) == 2
+    assert "nowhere: not a sequence with poses.txt nor a folder of them" in capsys.readouterr().err
+
     out = tmp_path / "corrected.txt"
     assert main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(model), "-o", str(out)]) == 0
     printed = capsys.readouterr().out
@@ -152,7 +174,8 @@ def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
 def test_the_experiment_miscalibrates_a_copy_and_tabulates_changes(corpus: Path, tmp_path: Path) -> None:
     from pvo_core.readers.kitti import read_kitti_calibration
     from pvo_pseudosensors.dpc_net.rig import sequence_rig
-    from pvo_tools.experiments.dpc_net import miscalibrate, table
+    from pvo_tools.dpc import miscalibrate
+    from pvo_tools.experiments.dpc_net import table
 
     source = tmp_path / "source"
     source.mkdir()
@@ -176,3 +199,20 @@ def test_the_experiment_miscalibrates_a_copy_and_tabulates_changes(corpus: Path,
     lines = table(results, figures, "t")
     assert figures["t.lens_fusion_online.m_ate_trans_change"] == pytest.approx(0.0)  # -50 % and +50 %: mean 0
     assert "| + lens fusion online | +0.0 % |" in "\n".join(lines)
+
+
+def test_a_fusion_is_chosen_only_where_it_lowered_every_drive() -> None:
+    changes = {
+        "both lower everywhere": [[-0.2, -0.1], [-0.1, -0.05]],
+        "lower on average, worse on one drive": [[-0.9, -0.9], [0.01, -0.2]],
+        "lower everywhere, less": [[-0.05, -0.01], [-0.02, -0.01]],
+    }
+    assert select_fusion(changes) == "both lower everywhere"
+    assert select_fusion({k: v for k, v in changes.items() if k != "both lower everywhere"}) == "lower everywhere, less"
+    assert select_fusion({"worse on one drive": [[-0.5, -0.5], [-0.5, 0.0]]}) is None  # unchanged is not lowered
+    assert select_fusion({}) is None
+
+
+def test_drives_refuses_a_short_test_drive(tmp_path: Path, capsys) -> None:
+    assert main(["dpc-net", "drives", str(tmp_path / "d"), "--split", "test", "--frames", "50"]) == 2
+    assert "--frames must be >= 100 (segment errors need 100 m and more), got 50" in capsys.readouterr().err

@@ -77,13 +77,17 @@ def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
     """The corrected transform's covariance (6, 6), ROS order, on the axes the variant corrects (:data:`UNMEASURED`
     on the others, uncorrelated): the corrected transforms' own residual covariance on the validation split when
     the card has it (`pvo dpc-net calibrate`), else the training targets' (eq. 6.6, the thesis's; an upper bound:
-    the error of the VO the model corrects). An axis whose error the correction raised on validation (the
-    calibration records which) is left unmeasured too."""
+    the error of the VO the model corrects). Only the axes the calibration validated are measured: those its
+    long validation drives chose (``fused_axes``, `calibrate --drives`; none when no choice lowered every drive's
+    m-ATE), else those whose error the correction lowered on the validation windows (``residual.corrected_*``)."""
     covariance = np.asarray(calibration.get("residual_covariance", calibration["target_covariance"]), dtype=float)
     axes = {"pose": range(6), "rotation": range(3, 6), "yaw": [4]}[config.variant]
-    residual = calibration.get("residual") or {}
-    # an axis the correction made worse on validation is not measured (the VO alone there)
-    axes = [a for a in axes if residual.get(f"corrected_{AXES[a]}", 1.0)]
+    if calibration.get("fused_axes") is not None:
+        axes = [a for a in axes if AXES[a] in calibration["fused_axes"]]
+    else:
+        residual = calibration.get("residual") or {}
+        # an axis the correction made worse on validation is not measured (the VO alone there)
+        axes = [a for a in axes if residual.get(f"corrected_{AXES[a]}", 1.0)]
     kept = np.zeros((6, 6), dtype=bool)
     kept[np.ix_(list(axes), list(axes))] = True
     return np.where(kept, covariance, np.diag(np.full(6, UNMEASURED)))

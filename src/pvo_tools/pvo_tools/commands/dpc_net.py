@@ -1,5 +1,6 @@
-"""`pvo dpc-net predict|correct|eval`: DPC-Net's corrections of this project's stereo VO, the two fused through
-the fixed-lag smoother, and the figures against the truth (`train` is the generic one of :mod:`.models`)."""
+"""`pvo dpc-net predict|correct|calibrate|drives|eval`: DPC-Net's corrections of this project's stereo VO, the two
+fused through the fixed-lag smoother, how they are weighed, the long drives that choose it, and the figures
+against the truth (`train` is the generic one of :mod:`.models`)."""
 
 from __future__ import annotations
 
@@ -44,6 +45,25 @@ def register_actions(actions: Any, entry: Any) -> None:
         help="candidate spans (frames, comma-separated) over which the VO's covariances are made consistent for the "
         "fusion; the one whose fusion lowers the m-ATE most on the validation split (two-fold) goes into the card",
     )
+    calibrate.add_argument(
+        "--drives",
+        type=Path,
+        nargs="+",
+        help="long validation drives of the model's rig (sequence directories, or folders of them: `pvo dpc-net drives "
+        "OUT`, then OUT/<rig>): the VO span (--vo-spans, default 3,30,100,250) and the fused axes are chosen on them — "
+        "the choice that lowers every drive's translational and rotational m-ATE most, else nothing is fused",
+    )
+    drives = actions.add_parser(
+        "drives", help="render the long drives a fusion is chosen on (KITTI 04, 10) or tested on (05, 06, 07), each rig"
+    )
+    drives.set_defaults(handler=run_drives)
+    drives.add_argument("out", type=Path, help="output folder: OUT/clean, OUT/lens, OUT/calib (the clean ones, calib.txt x1.03)")
+    drives.add_argument("--split", choices=("validation", "test"), default="validation", help="which drives (default validation)")
+    drives.add_argument(
+        "--frames", type=int, default=1000, help="frames per test drive (default 1000; validation drives: 1000, 1000, 271)"
+    )
+    drives.add_argument("--data", type=Path, help="the shared data directory (default ../shared/data)")
+    drives.add_argument("--jobs", "-j", type=int, default=2, help="sequences rendered in parallel (default 2)")
     evaluate = actions.add_parser("eval", help="m-ATE and mean segment errors, corrected vs uncorrected")
     evaluate.set_defaults(handler=run_eval)
     evaluate.add_argument("--gt", type=Path, required=True, help="true poses (KITTI)")
@@ -107,6 +127,8 @@ def run_correct(args: argparse.Namespace) -> int:
         else ""
     )
     print(f"{args.out}: {len(result.vo)} poses, {how}{weighed}; the VO alone in {vo_file}")
+    if args.method == "fusion" and card.calibration.get("fused_axes") == []:
+        _warn(["its calibration on validation drives fuses no axis (none lowered every drive's m-ATE): the VO alone"], args.model)
     return 0
 
 
@@ -137,6 +159,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     covariance, figures = residual_covariance(model, card, windows)
     if card.input.get("rig"):  # calibrated for this VO
         card.input["rig"]["vo"] = vo_signature()
+    for stale in ("fused_axes", "drive_calibration", "vo_span", "vo_scale", "vo_static_covariance", "vo_span_changes"):
+        card.calibration.pop(stale, None)  # a new residual: what was chosen with the old one goes
     card.calibration["residual_covariance"] = covariance.tolist()
     card.calibration["residual"] = figures | {"corpus": str(args.corpus), "sequences": len(sources)}
     write_card(args.model, card)
@@ -147,6 +171,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         f"standard deviations (x y z rx ry rz) {np.sqrt(np.diag(covariance)).round(5).tolist()}; corrected axes (fused): "
         + (" ".join(axis for axis in AXES if figures[f"corrected_{axis}"]) or "none")
     )
+    if args.drives:
+        return calibrate_on_drives(args, model, card)
     if args.vo_spans:
         from ..dpc import choose_vo_span
 
@@ -166,6 +192,77 @@ def run_calibrate(args: argparse.Namespace) -> int:
             print(f"  VO span {span:3d} frames: fused m-ATE {100 * trans:+.1f} % translation, {100 * rot:+.1f} % rotation")
         how = "two-fold" if choice.folds == 2 else "in sample: one sequence"
         print(f"{args.model}: VO span {choice.span} frames ({choice.sequences} validation sequences, {how})")
+    return 0
+
+
+def drive_folders(paths: list[Path]) -> list[Path]:
+    """Sequence directories (with poses.txt) named by ``paths``: each one itself, or the sequences inside it."""
+    roots: list[Path] = []
+    for path in paths:
+        if (path / "poses.txt").is_file():
+            roots.append(path)
+            continue
+        inside = sorted(p for p in path.iterdir() if (p / "poses.txt").is_file()) if path.is_dir() else []
+        if not inside:
+            raise ValueError(f"{path}: not a sequence with poses.txt nor a folder of them")
+        roots.extend(inside)
+    return roots
+
+
+def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
+    """`calibrate --drives`: the VO span and the fused axes chosen on long validation drives, into the card."""
+    import numpy as np
+    from pvo_pseudosensors.learning.checkpoint import write_card
+
+    from ..dpc import DRIVE_SPANS, choose_fusion
+
+    roots = drive_folders(args.drives)
+    spans = args.vo_spans or list(DRIVE_SPANS)
+    print(
+        f"choosing the fusion (VO spans {spans} x fused axes) on {len(roots)} validation drives "
+        f"({', '.join(r.name for r in roots)}) ...",
+        file=sys.stderr,
+        flush=True,
+    )
+    choice = choose_fusion(model, card, roots, spans, say=lambda line: print(line, file=sys.stderr, flush=True))
+    chosen = f"span {choice.span}, axes {' '.join(choice.axes)}" if choice.axes else None
+    card.calibration["fused_axes"] = choice.axes
+    card.calibration["drive_calibration"] = {
+        "drives": [str(r) for r in roots],
+        "rule": "lowers the translational and the rotational m-ATE on every drive; the lowest mean sum",
+        "chosen": chosen,
+        "candidates": choice.candidates,
+    }
+    if choice.vo_calibration is not None:
+        card.calibration["vo_span"] = choice.span
+        card.calibration["vo_scale"] = [float(v) for v in choice.vo_calibration.scale]
+        card.calibration["vo_static_covariance"] = np.asarray(choice.vo_calibration.static_covariance).tolist()
+    write_card(args.model, card)
+    if chosen is None:
+        print(f"{args.model}: no choice lowered every drive's m-ATE: nothing is fused (the VO alone)")
+    else:
+        mean = 100 * np.asarray(
+            next(c["mean"] for c in choice.candidates.values() if c["span"] == choice.span and c["axes"] == choice.axes)
+        )
+        print(
+            f"{args.model}: fused axes {' '.join(choice.axes)}, VO span {choice.span} frames ({len(roots)} validation "
+            f"drives; m-ATE {mean[0]:+.1f} % translation, {mean[1]:+.1f} % rotation)"
+        )
+    return 0
+
+
+def run_drives(args: argparse.Namespace) -> int:
+    from ..dpc import TEST_DRIVES, VALIDATION_DRIVES, render_drives
+    from ..paths import data_directory
+
+    if args.frames < 100:
+        raise ValueError(f"--frames must be >= 100 (segment errors need 100 m and more), got {args.frames}")
+    drives = VALIDATION_DRIVES if args.split == "validation" else TEST_DRIVES
+    folders = render_drives(
+        drives, args.data or data_directory(), args.out, args.frames, args.jobs, lambda line: print(line, file=sys.stderr)
+    )
+    for rig, paths in folders.items():
+        print(f"{rig}: " + " ".join(str(p) for p in paths))
     return 0
 
 

@@ -16,32 +16,21 @@ twice: through a clean lens and through the thesis's radial distortion. From the
 from __future__ import annotations
 
 import argparse
-import subprocess
-import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..dpc import TEST_DRIVES, render_drives
 from ..paths import data_directory
-from .common import TRAJECTORY_METRICS, ExperimentRun, fusion_figures, rendered_by_this_revision, trajectory_tables
+from .common import TRAJECTORY_METRICS, ExperimentRun, fusion_figures, trajectory_tables
 
 TITLE = "DPC-Net (ch. 6, Tables 6.1-6.2): corrections for a miscalibrated and a distorted rig, no harm, fusion vs overwrite"
 Array = NDArray[np.float64]
 
-#: the long sequences: name, KITTI test drive, first pose (windows of one drive overlap by at most 140 frames)
-SEQUENCES: tuple[tuple[str, str, int], ...] = (
-    ("05a", "05", 0),
-    ("06", "06", 0),
-    ("07", "07", 0),
-    ("05b", "05", 900),
-    ("05c", "05", 1760),
-)
-#: the thesis's lens (Table 6.2) and this experiment's calibration error (Table 6.1)
-LENS = (-0.3, 0.2, 0.01)
-FOCAL_SCALE = 1.03
+#: the long sequences: name, KITTI test drive, first pose (:data:`pvo_tools.dpc.TEST_DRIVES`)
+SEQUENCES: tuple[tuple[str, str, int], ...] = tuple((d.name, d.drive, d.start) for d in TEST_DRIVES)
 _VALIDATION_RUNS: dict[Path, list[Any]] = {}  # per corpus: the VO over its validation split, run once
 
 
@@ -67,66 +56,28 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
 
 
+def fusion_summary(card: Any) -> str:
+    """How a card weighs its corrections against the VO, in words (for the report)."""
+    calibration = card.calibration or {}
+    drives = calibration.get("drive_calibration")
+    if drives is not None:
+        names = ", ".join(Path(d).name for d in drives.get("drives", []))
+        if not calibration.get("fused_axes"):
+            return f"chosen on the validation drives {names}: nothing fused (no choice lowered every drive's m-ATE)"
+        return (
+            f"chosen on the validation drives {names}: axes {' '.join(calibration['fused_axes'])}, VO span "
+            f"{calibration.get('vo_span')} frames"
+        )
+    residual = calibration.get("residual") or {}
+    axes = " ".join(a for a in ("x", "y", "z", "rx", "ry", "rz") if residual.get(f"corrected_{a}", 1.0))
+    span = calibration.get("vo_span") or "the model's Δp"
+    return f"calibrated on validation windows: axes {axes}, VO span {span}"
+
+
 def render_sequences(data: Path, count: int, frames: int, out: Path, jobs: int, say: Any) -> dict[str, list[Path]]:
-    """The first ``count`` of :data:`SEQUENCES`, rendered clean and through :data:`LENS` into ``out/clean`` and
-    ``out/lens`` (urban, 1x, seeded; `pvo sim` in parallel processes; complete ones of this renderer revision
-    kept), and the clean ones
-    with a miscalibrated ``calib.txt`` in ``out/calib`` (:func:`miscalibrate`). Returns the folders per rig."""
-    commands, folders = [], {"clean": [], "lens": [], "calib": []}
-    for index, (name, drive, start) in enumerate(SEQUENCES[:count]):
-        for rig in ("clean", "lens"):
-            folder = out / rig / name
-            folders[rig].append(folder)
-            if rendered_by_this_revision(folder):
-                continue
-            command = [sys.executable, "-m", "pvo_tools.cli", "sim", str(folder), "--poses"]
-            command += [str((data / "kitti" / "poses" / f"{drive}.txt").resolve()), "--start", str(start)]
-            command += ["--frames", str(frames), "--supersample", "1", "--seed", str(900 + index), "-q", "--overwrite"]
-            command += ["--heading", str(37 * index % 360), "--start-time", "2011-09-30T10:30:00Z"]
-            if rig == "lens":
-                command += ["--distortion", *map(str, LENS)]
-            commands.append((f"{rig}/{name}", command))
-    if commands:
-        say(f"rendering {len(commands)} sequences of {frames} frames ({jobs} at a time) ...")
-
-    def render(item: tuple[str, list[str]]) -> None:
-        label, command = item
-        done = subprocess.run(command, capture_output=True, text=True)
-        if done.returncode != 0:
-            raise RuntimeError(f"rendering {label} failed: {(done.stderr.strip().splitlines() or ['?'])[-1]}")
-        say(f"  {label} rendered")
-
-    with ThreadPoolExecutor(max(1, jobs)) as pool:
-        list(pool.map(render, commands))
-    for folder in folders["clean"]:
-        folders["calib"].append(miscalibrate(folder, out / "calib" / folder.name, FOCAL_SCALE))
-    return folders
-
-
-def miscalibrate(source: Path, out: Path, focal_scale: float) -> Path:
-    """``source``'s sequence (its images and poses linked) with ``calib.txt``'s focal length (and so the P1
-    baseline term, -f b) times ``focal_scale``, and its ``sim.yaml`` saying so: what `pvo sim --focal-scale`
-    writes for the same images."""
-    import yaml
-    from pvo_core.readers.kitti import read_kitti_calibration
-
-    out.mkdir(parents=True, exist_ok=True)
-    for name in ("image_0", "image_1", "poses.txt", "times.txt"):
-        link = out / name
-        if not link.exists():
-            link.symlink_to((source / name).resolve())
-    lines = []
-    for key, matrix in read_kitti_calibration(source / "calib.txt").items():
-        scaled = matrix.copy()
-        scaled[0, 0] *= focal_scale
-        scaled[1, 1] *= focal_scale
-        scaled[0, 3] *= focal_scale
-        lines.append(f"{key}: " + " ".join(f"{v:.12e}" for v in scaled.reshape(-1)))
-    (out / "calib.txt").write_text("\n".join(lines) + "\n")
-    meta = yaml.safe_load((source / "sim.yaml").read_text())
-    meta["config"]["degradations"]["focal_scale"] = focal_scale
-    (out / "sim.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
-    return out
+    """The first ``count`` of :data:`pvo_tools.dpc.TEST_DRIVES`, ``frames`` each, rendered clean, through the
+    thesis's lens and with a miscalibrated calib.txt (:func:`pvo_tools.dpc.render_drives`)."""
+    return render_drives(TEST_DRIVES[:count], data, out, frames, jobs, say)
 
 
 def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
@@ -321,12 +272,15 @@ def run(args: argparse.Namespace) -> int:
     report += [
         f"{args.sequences} sequences of {args.frames} frames (620x188, KITTI geometry) driven along KITTI's test drives "
         f"({', '.join(f'{d} from {s}' for _, d, s in SEQUENCES[: args.sequences])}); the VO is this project's stereo VO "
-        "with its defaults. VO covariances are scaled per axis on the validation split the model's corrections were "
-        "calibrated on (its rig) over "
+        "with its defaults. Each model's corrections are weighed against the VO as its card's calibration says: "
+        "chosen on long validation drives of its rig rendered like these (KITTI 04 and 10, `pvo dpc-net drives`; "
+        "`pvo dpc-net calibrate --drives`: the VO span and the fused axes that lowered every drive's m-ATE, else nothing "
+        "fused) when it has that, else the VO's covariances scaled on the validation split its corrections were "
+        "calibrated on over "
         + (f"{args.vo_span} frames" if args.vo_span else "the span its card chose on that split (else Δp)")
-        + ". The corrections' covariance is their residual covariance on that split, fused on the axes whose error "
-        "over 100 windows the correction lowers there "
-        "(`pvo dpc-net calibrate`; the training targets' of eq. 6.6 without it). *fusion online*: the newest state as the fusion "
+        + " and the axes whose error over 100 windows the correction lowers there. The corrections' covariance is "
+        "their residual covariance on that split (`pvo dpc-net calibrate`; the training targets' of eq. 6.6 without it). "
+        "*fusion online*: the newest state as the fusion "
         "node publishes it; *fusion smoothed*: after the fixed lag; *overwrite*: every Δp-th pose overwritten "
         "(the authors' shipped code). m-ATE and segment errors as §6.5 (eqs. 6.31-6.32; segments of 100-800 m).",
         "",
@@ -353,6 +307,7 @@ def run(args: argparse.Namespace) -> int:
         if not models:
             report += [heading, "", "Not run: no model for this rig was given.", ""]
             continue
+        report += [heading, "", *(f"- {name}: {fusion_summary(card)}" for name, (_, card) in models.items()), ""]
         methods = {name: ("fusion", "overwrite") for name in models if loaded[name][1].hyperparameters["variant"] == "pose"}
         results, trajectories = evaluate_rig(key, folders[rig], models, say, methods, args.vo_span)
         tables[key] = results
@@ -362,7 +317,7 @@ def run(args: argparse.Namespace) -> int:
                 file.parent.mkdir(parents=True, exist_ok=True)
                 write_kitti_poses(file, poses)
         figure = plot_rig(out, key, folders[rig], trajectories)
-        report += [heading, "", *table(results, figures, key), f"![c-ATE]({figure})", ""]
+        report += [*table(results, figures, key), f"![c-ATE]({figure})", ""]
     if "clean" in loaded and "no_harm" in tables:
         changes = [figures[f"no_harm.clean_fusion_online.{k}_change"] for k in TRAJECTORY_METRICS]
         figures["no_harm.worst_change"] = max(changes)
