@@ -27,6 +27,12 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("dpc_net", DPCNetSensorConfig(), status_topic="/pvo/dpc_net/status", **kwargs)
         self.sensor, self.model_error = self.load(lambda: DPCNetSensor(self.config), "DPC-Net model")
+        if self.sensor is not None and self.sensor.card.calibration.get("fused_axes") == []:
+            # published all the same (the graph stays whole), each axis marked unmeasured
+            self.get_logger().warning(
+                f"{self.config.model or 'dpc_net'}: its calibration on validation drives fuses no axis (none lowered every "
+                "drive's m-ATE): the corrections carry no weight"
+            )
         self.lefts: dict[int, Image] = {}
         self.vo_frame_id = ""
         self.published = 0
