@@ -17,7 +17,9 @@ def register(sub: Any) -> None:
     lst.add_argument("--wait", type=float, default=2.5, help="discovery time (s)")
     info = verbs.add_parser("info", help="type and publisher/subscription counts")
     info.add_argument("topic")
-    info.add_argument("--wait", type=float, default=2.0)
+    info.add_argument(
+        "--wait", type=float, default=5.0, help="the longest wait for the topic to appear (s; it answers as soon as it does)"
+    )
     echo = verbs.add_parser("echo", help="print messages as YAML")
     echo.add_argument("topic")
     echo.add_argument("--once", action="store_true", help="print one message and exit")
