@@ -112,6 +112,30 @@ def test_windows_of_vo_in_corrections_out(ros_context, tiny_model: Path) -> None
     assert not np.allclose(expected[0].transform, vo_only)  # the correction was applied
 
 
+def test_a_card_that_fuses_no_axis_publishes_unmeasured_corrections_and_says_so(ros_context, tiny_model: Path) -> None:
+    import yaml
+    from pvo_pseudosensors.dpc_net.infer import UNMEASURED
+
+    card = yaml.safe_load((tiny_model / "model.yaml").read_text())
+    card["calibration"]["fused_axes"] = []  # what `calibrate --drives` writes when no weighing lowered every drive
+    (tiny_model / "model.yaml").write_text(yaml.safe_dump(card))
+    rng = np.random.default_rng(1)
+
+    def script(left, right, vo, received, statuses, node) -> None:
+        for k in range(4):
+            left.publish(image_message(rng.integers(0, 256, (64, 208), np.uint8), (k + 1) * STEP))
+            right.publish(image_message(rng.integers(0, 256, (64, 208), np.uint8), (k + 1) * STEP))
+        wait_for(lambda: len(node.sensor.images) == 4, 20)
+        for k in range(1, 4):
+            vo.publish(vo_message((k + 1) * STEP, k * STEP, se3_exp([0, 0, 0.8, 0, 0, 0])))
+        wait_for(lambda: len(received) >= 1 and len(statuses) >= 1, 20)
+
+    received, statuses = run_graph(ros_context, {"model": str(tiny_model)}, script)
+    np.testing.assert_array_equal(np.diag(np.reshape(received[0].pose.covariance, (6, 6))), [UNMEASURED] * 6)
+    assert statuses[-1].status[0].level == DiagnosticStatus.WARN
+    assert "fuses no axis; the corrections carry no weight" in statuses[-1].status[0].message
+
+
 def test_a_broken_chain_starts_a_new_window_and_a_bad_pair_is_reported(ros_context, tiny_model: Path) -> None:
     from pvo_pseudosensors.dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
 

@@ -22,6 +22,10 @@ from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, reliable, run_node, st
 
 from .dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
 
+#: what the status says when the model card fuses no axis (`pvo dpc-net calibrate --drives` found no weighing that
+#: lowered every validation drive's m-ATE)
+NOTHING_FUSED = "the model card's calibration on validation drives fuses no axis; the corrections carry no weight"
+
 
 class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
     def __init__(self, **kwargs: Any) -> None:
@@ -29,10 +33,7 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
         self.sensor, self.model_error = self.load(lambda: DPCNetSensor(self.config), "DPC-Net model")
         if self.sensor is not None and self.sensor.card.calibration.get("fused_axes") == []:
             # published all the same (the graph stays whole), each axis marked unmeasured
-            self.get_logger().warning(
-                f"{self.config.model or 'dpc_net'}: its calibration on validation drives fuses no axis (none lowered every "
-                "drive's m-ATE): the corrections carry no weight"
-            )
+            self.get_logger().warning(f"{self.config.model or 'dpc_net'}: {NOTHING_FUSED}")
         self.lefts: dict[int, Image] = {}
         self.vo_frame_id = ""
         self.published = 0
@@ -121,7 +122,10 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
         out.rotation_only = False
         self.publisher.publish(out)
         self.published += 1
-        self._status(correction.stamp, OK, "published")
+        if self.sensor is not None and self.sensor.card.calibration.get("fused_axes") == []:
+            self._status(correction.stamp, WARN, f"published with no axis measured: {NOTHING_FUSED}")
+        else:
+            self._status(correction.stamp, OK, "published")
 
     def _status(self, stamp: int, level: int, message: str) -> None:
         values = {"published": self.published, "rejected": self.rejected}
