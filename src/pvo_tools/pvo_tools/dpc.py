@@ -13,7 +13,7 @@ import subprocess
 import sys
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -172,9 +172,11 @@ def correct_sequence(
     rate_hz: float = 10.0,
     allow_any_rig: bool = False,
     cache_dir: Path | None = None,
+    corrections: Any = None,
 ) -> CorrectedSequence:
     """The VO of the sequence at ``root`` (``run``: a `run_sequence` result already made, else it is run) with
-    ``model``'s corrections applied by ``method``. ``vo_calibration``: per-axis scales of the VO's covariances
+    ``model``'s corrections applied by ``method`` (``corrections``: those already predicted for this run, else
+    they are). ``vo_calibration``: per-axis scales of the VO's covariances
     (:func:`pvo_fusion.calibrate_vo`), None for the VO's own. The model's rig is checked first
     (:func:`pvo_pseudosensors.dpc_net.rig.check_rig`: ``ValueError`` on another rig unless ``allow_any_rig``)."""
     from pvo_pseudosensors.dpc_net.infer import overwrite_trajectory, predict_corrections
@@ -189,7 +191,8 @@ def correct_sequence(
     sequence = None
     if run is None:
         run, sequence = vo_run(root, rate_hz)
-    corrections = predict_corrections(model, card, root, run.poses, cache_dir)
+    if corrections is None:
+        corrections = predict_corrections(model, card, root, run.poses, cache_dir)
     if method == "overwrite":
         poses = overwrite_trajectory(run.poses, corrections)
         return CorrectedSequence(run.poses, poses, poses, corrections, len(corrections.first), warnings)
@@ -333,7 +336,7 @@ def choose_fusion(
     no drive judges a weighing learned on itself."""
     from pvo_core.trajectory import read_kitti_poses
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
-    from pvo_pseudosensors.dpc_net.infer import AXES
+    from pvo_pseudosensors.dpc_net.infer import AXES, measurement_covariance, predict_corrections
     from pvo_pseudosensors.dpc_net.rig import check_rig
 
     from pvo_fusion import CalibrationSequence, calibrate_vo
@@ -354,6 +357,10 @@ def choose_fusion(
     prepared = {}
     for root in drives:
         root = Path(root)
+        if root.name in prepared:
+            raise ValueError(
+                f"two validation drives are named {root.name!r} ({prepared[root.name][0]} and {root}): one rig's drives"
+            )
         for warning in check_rig(card.input.get("rig"), root):
             (say or print)(f"  warning: {root}: {warning}")
         run, _ = vo_run(root)
@@ -361,7 +368,8 @@ def choose_fusion(
         relative = run.relative()
         alone = fusion_figures(truth, truth[0] @ run.poses)
         sequence = CalibrationSequence(root.name, truth, relative["transforms"], relative["covariances"])
-        prepared[root.name] = (root, run, truth, alone, sequence)
+        # the network's corrections do not depend on how they are weighed: predicted once, reweighed per candidate
+        prepared[root.name] = (root, run, truth, alone, sequence, predict_corrections(model, card, root, run.poses))
     names = list(prepared)
     changes: dict[tuple[int, str], Array] = {}
     for span in spans:
@@ -369,10 +377,12 @@ def choose_fusion(
         for label, axes in axis_sets.items():
             candidate = copy.deepcopy(card)
             candidate.calibration["fused_axes"] = list(axes)
+            covariance = measurement_covariance(DPCNetConfig.from_card(candidate), candidate.calibration)
             rows = []
             for name in names:
-                root, run, truth, alone, _ = prepared[name]
-                fused = correct_sequence(root, model, candidate, "fusion", scales[name], run=run)
+                root, run, truth, alone, _, predicted = prepared[name]
+                weighed = replace(predicted, covariances=np.broadcast_to(covariance, predicted.covariances.shape).copy())
+                fused = correct_sequence(root, model, candidate, "fusion", scales[name], run=run, corrections=weighed)
                 figures = fusion_figures(truth, truth[0] @ fused.corrected_online)
                 rows.append(
                     [

@@ -116,6 +116,8 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
     assert main([*calibrate, "--drives", str(tmp_path / "nowhere")]) == 2
     assert "nowhere: not a sequence with poses.txt nor a folder of them" in capsys.readouterr().err
+    assert main([*calibrate, "--drives", str(corpus / "0001"), str(corpus / "0001")]) == 2
+    assert "two validation drives are named '0001'" in capsys.readouterr().err
 
     out = tmp_path / "corrected.txt"
     assert main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(model), "-o", str(out)]) == 0
