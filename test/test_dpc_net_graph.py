@@ -133,7 +133,7 @@ def test_a_card_that_fuses_no_axis_publishes_unmeasured_corrections_and_says_so(
     received, statuses = run_graph(ros_context, {"model": str(tiny_model)}, script)
     np.testing.assert_array_equal(np.diag(np.reshape(received[0].pose.covariance, (6, 6))), [UNMEASURED] * 6)
     assert statuses[-1].status[0].level == DiagnosticStatus.WARN
-    assert "fuses no axis; the corrections carry no weight" in statuses[-1].status[0].message
+    assert "calibration measures no axis; the corrections carry no weight" in statuses[-1].status[0].message
 
 
 def test_a_broken_chain_starts_a_new_window_and_a_bad_pair_is_reported(ros_context, tiny_model: Path) -> None:

@@ -22,16 +22,16 @@ from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, reliable, run_node, st
 
 from .dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
 
-#: what the status says when the model card fuses no axis (`pvo dpc-net calibrate --drives` found no weighing that
-#: lowered every validation drive's m-ATE)
-NOTHING_FUSED = "the model card's calibration on validation drives fuses no axis; the corrections carry no weight"
+#: what the status says when the model card's calibration measures no axis (`pvo dpc-net calibrate --drives` found
+#: no weighing that lowered every validation drive's m-ATE, or no axis improved on the validation windows)
+NOTHING_FUSED = "the model card's calibration measures no axis; the corrections carry no weight"
 
 
 class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("dpc_net", DPCNetSensorConfig(), status_topic="/pvo/dpc_net/status", **kwargs)
         self.sensor, self.model_error = self.load(lambda: DPCNetSensor(self.config), "DPC-Net model")
-        if self.sensor is not None and self.sensor.card.calibration.get("fused_axes") == []:
+        if self.sensor is not None and not self.sensor.measures_anything:
             # published all the same (the graph stays whole), each axis marked unmeasured
             self.get_logger().warning(f"{self.config.model or 'dpc_net'}: {NOTHING_FUSED}")
         self.lefts: dict[int, Image] = {}
@@ -122,7 +122,7 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
         out.rotation_only = False
         self.publisher.publish(out)
         self.published += 1
-        if self.sensor is not None and self.sensor.card.calibration.get("fused_axes") == []:
+        if self.sensor is not None and not self.sensor.measures_anything:
             self._status(correction.stamp, WARN, f"published with no axis measured: {NOTHING_FUSED}")
         else:
             self._status(correction.stamp, OK, "published")

@@ -14,7 +14,7 @@ from pvo_core.lie import se3_exp
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import DPCNetConfig
-from .infer import load_dpc_net, measurement_covariance
+from .infer import UNMEASURED, load_dpc_net, measurement_covariance
 from .rig import Rig, rig_problems
 
 Array = NDArray[np.float64]
@@ -81,6 +81,12 @@ class DPCNetSensor:
         self.lost_at: int | None = None  # a lost VO frame inside the current window
         self.dropped: str | None = None  # why the last window gave no correction
         self.pending: tuple[int, int, Array] | None = None  # (first, last, VO estimate): a window awaiting images
+
+    @property
+    def measures_anything(self) -> bool:
+        """Whether the card's calibration measures any axis (none when its validation drives refused every weighing,
+        ``fused_axes: []``): else the corrections carry no weight in the fusion."""
+        return bool(np.any(np.diag(self.covariance) < UNMEASURED))
 
     def check_camera(self, width: int, height: int, focal_px: float, baseline_m: float) -> tuple[list[str], list[str]]:
         """(refusals, warnings) of the model's rig check for a camera of this size and calibration (what its
