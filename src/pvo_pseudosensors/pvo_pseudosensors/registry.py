@@ -193,6 +193,7 @@ def _hydranet() -> ModelEntry:
             "covariance": "aleatoric covariance: cholesky (full, the thesis) | diagonal (the authors' code)",
             "reverse": "add every training pair reversed (images swapped, target C_k-1,k)",
             "bootstrap": "each head trains on its own fixed half of the samples (bootstrapped heads)",
+            "mirror": "mirror training pairs left-right at random (flow flipped, the rotation's y and z negated)",
         },
     )
 

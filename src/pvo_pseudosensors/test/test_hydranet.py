@@ -14,7 +14,7 @@ from pvo_pseudosensors.hydranet import quaternion as quat
 from pvo_pseudosensors.hydranet.config import HydraNetConfig
 from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
 from pvo_pseudosensors.hydranet.flow import FlowPairs, dense_flow
-from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask, head_nll, precision_root, predict_rotations
+from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask, head_nll, mirror_pairs, precision_root, predict_rotations
 from pvo_pseudosensors.hydranet.synthetic import write_rotation_sequence
 from pvo_pseudosensors.learning import Source, TrainConfig, fit
 from pvo_pseudosensors.learning.checkpoint import ModelFileError, save_model
@@ -192,3 +192,25 @@ def test_bootstrapped_heads_each_train_on_a_fixed_half() -> None:
     model.eval()  # in evaluation every head counts: the plain mean
     heads, root = model(flows)
     torch.testing.assert_close(task.loss(model, small), head_nll(heads, small["rotation"], root).mean())
+
+
+def _rotation_flow(rotation: np.ndarray, height: int = 24, width: int = 40, focal: float = 30.0) -> np.ndarray:
+    """(2, H, W) pixel flow a pure rotation C_k,k-1 makes, principal point at the image's centre."""
+    centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
+    v, u = np.mgrid[0:height, 0:width].astype(float)
+    bearings = np.stack([(u - centre[0]) / focal, (v - centre[1]) / focal, np.ones_like(u)], axis=-1)
+    moved = bearings @ rotation.T
+    projected = focal * moved[..., :2] / moved[..., 2:] + centre
+    return np.moveaxis(projected - np.stack([u, v], axis=-1), -1, 0)
+
+
+def test_a_mirrored_pair_is_the_flow_and_rotation_of_the_mirrored_drive() -> None:
+    rotation = so3_exp(np.array([0.01, 0.05, -0.02]))
+    mirror = np.diag([-1.0, 1.0, 1.0])
+    flow = torch.from_numpy(_rotation_flow(rotation)[None])
+    q = quat.exp(torch.tensor([[0.01, 0.05, -0.02]], dtype=torch.float64))
+    mirrored_flow, mirrored_q = mirror_pairs(flow, q, torch.tensor([True]))
+    np.testing.assert_allclose(mirrored_flow[0].numpy(), _rotation_flow(mirror @ rotation @ mirror), atol=1e-9)
+    np.testing.assert_allclose(quaternion_to_rotation(mirrored_q[0].numpy()), mirror @ rotation @ mirror, atol=1e-12)
+    kept_flow, kept_q = mirror_pairs(flow, q, torch.tensor([False]))
+    assert torch.equal(kept_flow, flow) and torch.equal(kept_q, q)

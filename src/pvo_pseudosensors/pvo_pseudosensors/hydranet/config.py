@@ -22,7 +22,9 @@ class HydraNetConfig:
     form, "cholesky" (a full lower-triangular factor of the precision, the thesis) or "diagonal" (the
     authors' code); reverse: add every training pair reversed (images swapped, target C_k-1,k), as the
     thesis; bootstrap: each head trains on its own fixed half of the samples (bootstrapped heads), so the heads
-    disagree more where the data did not pin them down."""
+    disagree more where the data did not pin them down; mirror: in training, each pair is mirrored left-right
+    at random (the flow flipped, its horizontal component negated; the rotation's y and z components negated:
+    a mirrored drive turns the other way), so that turns either way are learned alike."""
 
     height: int = 64
     width: int = 208
@@ -34,6 +36,7 @@ class HydraNetConfig:
     covariance: str = "cholesky"
     reverse: bool = True
     bootstrap: bool = False
+    mirror: bool = False
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths:
@@ -57,5 +60,6 @@ class HydraNetConfig:
     def from_card(cls, card: Any) -> HydraNetConfig:
         values = dict(card.hyperparameters)
         values["widths"] = tuple(values["widths"])
-        values.setdefault("bootstrap", False)  # models from before the option
+        values.setdefault("bootstrap", False)  # models from before the options
+        values.setdefault("mirror", False)
         return cls(**values)

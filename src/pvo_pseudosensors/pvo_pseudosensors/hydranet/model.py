@@ -109,6 +109,18 @@ def bootstrap_mask(batch: dict[str, torch.Tensor], heads: int) -> torch.Tensor:
     return ((mixed >> 15) & 1).to(torch.float32)
 
 
+def mirror_pairs(flow: torch.Tensor, rotation: torch.Tensor, which: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The samples ``which`` (B,) bool mirrored left-right: flow (B, 2, H, W) flipped along its width with u
+    negated, the rotation (B, 4) (w, x, y, z) of C_k,k-1 conjugated by the mirror M = diag(-1, 1, 1) of the
+    camera's x axis: M C M has the rotation vector (x, -y, -z) (the axes of the camera's optical frame)."""
+    mirrored_flow = flow.flip(-1) * torch.tensor([-1.0, 1.0], dtype=flow.dtype).view(1, 2, 1, 1)
+    mirrored_rotation = rotation * torch.tensor([1.0, 1.0, -1.0, -1.0], dtype=rotation.dtype)
+    return (
+        torch.where(which[:, None, None, None], mirrored_flow, flow),
+        torch.where(which[:, None], mirrored_rotation, rotation),
+    )
+
+
 @dataclass
 class HydraTask:
     """HydraNet for the training loop: the heads' NLL (eq. 7.17) averaged over batch and heads."""
@@ -120,8 +132,11 @@ class HydraTask:
         return HydraNet(self.config)
 
     def loss(self, model: nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        heads, root = model(batch["flow"])
-        nll = head_nll(heads, batch["rotation"], root)
+        flow, rotation = batch["flow"], batch["rotation"]
+        if self.config.mirror and model.training:
+            flow, rotation = mirror_pairs(flow, rotation, torch.rand(len(flow)) < 0.5)  # the global RNG: seeded
+        heads, root = model(flow)
+        nll = head_nll(heads, rotation, root)
         if not (self.config.bootstrap and model.training):
             return nll.mean()
         mask = bootstrap_mask(batch, nll.shape[1])
