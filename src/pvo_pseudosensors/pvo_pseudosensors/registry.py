@@ -136,7 +136,14 @@ def _hydranet() -> ModelEntry:
     def dataset(config: HydraNetConfig, sources, cache_dir, progress=None, training: bool = True):
         from .hydranet.flow import FlowPairs
 
-        return FlowPairs(sources, config.size, reverse=config.reverse and training, cache_dir=cache_dir, progress=progress)
+        return FlowPairs(
+            sources,
+            config.size,
+            reverse=config.reverse and training,
+            cache_dir=cache_dir,
+            progress=progress,
+            texture=config.texture,
+        )
 
     def predict(model_dir, sequence, cache_dir=None, **_mc):
         from .hydranet.infer import load_hydranet, predict_sequence
@@ -194,6 +201,7 @@ def _hydranet() -> ModelEntry:
             "reverse": "add every training pair reversed (images swapped, target C_k-1,k)",
             "bootstrap": "each head trains on its own fixed half of the samples (bootstrapped heads)",
             "mirror": "mirror training pairs left-right at random (flow flipped, the rotation's y and z negated)",
+            "texture": "a third input channel: the texture (log gradient magnitude) of the image the flow starts from",
         },
     )
 

@@ -13,7 +13,7 @@ from pvo_core.lie import quaternion_to_rotation, so3_exp
 from pvo_pseudosensors.hydranet import quaternion as quat
 from pvo_pseudosensors.hydranet.config import HydraNetConfig
 from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
-from pvo_pseudosensors.hydranet.flow import FlowPairs, dense_flow
+from pvo_pseudosensors.hydranet.flow import FlowPairs, dense_flow, texture_map
 from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask, head_nll, mirror_pairs, precision_root, predict_rotations
 from pvo_pseudosensors.hydranet.synthetic import write_rotation_sequence
 from pvo_pseudosensors.learning import Source, TrainConfig, fit
@@ -214,3 +214,44 @@ def test_a_mirrored_pair_is_the_flow_and_rotation_of_the_mirrored_drive() -> Non
     np.testing.assert_allclose(quaternion_to_rotation(mirrored_q[0].numpy()), mirror @ rotation @ mirror, atol=1e-12)
     kept_flow, kept_q = mirror_pairs(flow, q, torch.tensor([False]))
     assert torch.equal(kept_flow, flow) and torch.equal(kept_q, q)
+
+
+def test_the_texture_channel_is_the_log_gradient_of_the_image_the_flow_starts_from(rotations, tmp_path: Path) -> None:
+    ramp = np.tile((np.arange(40) * 3).astype(np.uint8), (20, 1))  # 3 grey levels per pixel along u
+    np.testing.assert_allclose(texture_map(ramp)[5:-5, 5:-5], np.log1p(3.0), rtol=1e-6)
+    assert np.all(texture_map(np.full((20, 40), 128, np.uint8)) == 0.0)  # flat: no texture
+
+    source = rotations["train"][0]
+    plain = FlowPairs([source], (48, 144), reverse=True, cache_dir=tmp_path)
+    textured = FlowPairs([source], (48, 144), reverse=True, cache_dir=tmp_path, texture=True)
+    images = textured.pairs[0].images
+    forward, backward = textured[4], textured[24 + 4]  # the pair 4 -> 5 and its reverse 5 -> 4
+    assert forward["flow"].shape == (3, 48, 144)
+    torch.testing.assert_close(forward["flow"][:2], plain[4]["flow"])
+    np.testing.assert_allclose(forward["flow"][2].numpy(), texture_map(np.asarray(images[4, 0])))
+    np.testing.assert_allclose(backward["flow"][2].numpy(), texture_map(np.asarray(images[5, 0])))
+    # mirrored, the texture is flipped but keeps its sign
+    mirrored, _ = mirror_pairs(forward["flow"][None], forward["rotation"][None], torch.tensor([True]))
+    torch.testing.assert_close(mirrored[0, 2], forward["flow"][2].flip(-1))
+
+
+def test_a_textured_model_predicts_through_the_sensor_and_the_sequence_call_alike(rotations, tmp_path: Path) -> None:
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+    from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+
+    config = HydraNetConfig(**{**TINY.__dict__, "texture": True})
+    torch.manual_seed(0)
+    save_model(tmp_path / "model", HydraNet(config), HydraTask(config).card())
+    model, card = load_hydranet(tmp_path / "model")
+    source = rotations["test"][0]
+    predictions = predict_sequence(model, card, source.root)
+    sensor = HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "model")))
+    paths = source.images("left", False)
+    import cv2
+
+    estimates = [
+        sensor.estimate(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE), (k + 1) * 100_000_000) for k, path in enumerate(paths[:3])
+    ]
+    assert estimates[0] is None
+    for k in (1, 2):
+        np.testing.assert_allclose(estimates[k].quaternion, predictions.quaternions[k - 1], atol=1e-5)

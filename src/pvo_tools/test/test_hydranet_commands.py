@@ -123,3 +123,18 @@ def test_experiment_reports_every_section(
     staged = (out / "kitti06" / "poses.txt").read_text().splitlines()
     assert len(staged) == 51  # the clip's poses, relative to its first frame
     np.testing.assert_allclose(np.array(staged[0].split(), float).reshape(3, 4), np.eye(4)[:3], atol=1e-12)
+
+
+def test_a_model_of_several_corpora_was_trained_on_their_presets() -> None:
+    from types import SimpleNamespace
+
+    from pvo_tools.experiments.hydranet import model_presets
+
+    manifest = SimpleNamespace(split=lambda name: [SimpleNamespace(preset="urban"), SimpleNamespace(preset="planetary")])
+    one = SimpleNamespace(corpus={"path": "a", "presets": ["urban"]})
+    several = SimpleNamespace(corpus={"corpora": [{"path": "a", "presets": ["urban"]}, {"path": "b", "presets": ["urban"]}]})
+    unrestricted = SimpleNamespace(corpus={"corpora": [{"path": "a", "presets": ["urban"]}, {"path": "b"}]})
+    assert model_presets(one, manifest) == {"urban"}
+    assert model_presets(several, manifest) == {"urban"}
+    assert model_presets(unrestricted, manifest) == {"urban", "planetary"}
+    assert model_presets(SimpleNamespace(corpus={}), manifest) == {"urban", "planetary"}

@@ -24,7 +24,9 @@ class HydraNetConfig:
     thesis; bootstrap: each head trains on its own fixed half of the samples (bootstrapped heads), so the heads
     disagree more where the data did not pin them down; mirror: in training, each pair is mirrored left-right
     at random (the flow flipped, its horizontal component negated; the rotation's y and z components negated:
-    a mirrored drive turns the other way), so that turns either way are learned alike."""
+    a mirrored drive turns the other way), so that turns either way are learned alike; texture: a third input
+    channel, the texture (log gradient magnitude) of the image the flow starts from, so the network can tell
+    measured flow from flow interpolated over flat regions."""
 
     height: int = 64
     width: int = 208
@@ -37,6 +39,7 @@ class HydraNetConfig:
     reverse: bool = True
     bootstrap: bool = False
     mirror: bool = False
+    texture: bool = False
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths:
@@ -47,6 +50,11 @@ class HydraNetConfig:
             raise ValueError(f"head_dropout must be in [0, 1), got {self.head_dropout}")
         if self.covariance not in COVARIANCES:
             raise ValueError(f"unknown covariance {self.covariance!r}: choose one of {', '.join(COVARIANCES)}")
+
+    @property
+    def channels(self) -> int:
+        """The network's input channels: the flow's two, and the texture's."""
+        return 3 if self.texture else 2
 
     @property
     def size(self) -> tuple[int, int]:
@@ -62,4 +70,5 @@ class HydraNetConfig:
         values["widths"] = tuple(values["widths"])
         values.setdefault("bootstrap", False)  # models from before the options
         values.setdefault("mirror", False)
+        values.setdefault("texture", False)
         return cls(**values)

@@ -11,7 +11,8 @@ import torch
 from numpy.typing import NDArray
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
-from .flow import dense_flow
+from .config import HydraNetConfig
+from .flow import dense_flow, network_input
 from .infer import load_hydranet
 from .model import predict_rotations
 
@@ -83,6 +84,7 @@ class HydraNetSensor:
         torch.set_num_threads(config.threads)
         self.model, self.card = load_hydranet(resolve_model(config.model))
         self.height, self.width = (int(v) for v in self.card.input["size"])
+        self.texture = HydraNetConfig.from_card(self.card).texture
         self.previous: NDArray[np.uint8] | None = None
         self.previous_stamp = 0
         self.previous_shape: tuple[int, ...] = ()
@@ -106,7 +108,7 @@ class HydraNetSensor:
             return None
         if shape != previous_shape:
             raise ValueError(f"image size changed from {previous_shape} to {shape}: this image starts a new pair")
-        flow = torch.from_numpy(dense_flow(previous, resized))[None]
+        flow = torch.from_numpy(network_input(previous, dense_flow(previous, resized), self.texture))[None]
         output = predict_rotations(self.model, flow)
         return RotationEstimate(
             previous_stamp,

@@ -5,7 +5,9 @@ window 15, 3 iterations, poly_n 5, poly_sigma 1.2) between the two grey images r
 input: (2, H, W) float32, pixels at that size, flow[:, v, u] = where pixel (u, v) of the earlier image went
 in the later one. Per sequence, the flows of every consecutive pair, forward and reversed, are computed once
 and kept as float16 ``.npy`` beside the decoded-image cache (memory-mapped afterwards): Farnebäck on every
-sample every epoch would dominate a CPU epoch.
+sample every epoch would dominate a CPU epoch. With ``texture`` a third channel carries the texture of the image
+the flow starts from (:func:`texture_map`): where it is flat (sky, an empty square) Farnebäck's flow is an
+interpolation, not a measurement, and the network can see that.
 """
 
 from __future__ import annotations
@@ -36,6 +38,26 @@ def dense_flow(earlier: NDArray[np.uint8], later: NDArray[np.uint8]) -> NDArray[
         raise ValueError(f"flow needs two grey images of one size, got {earlier.shape} and {later.shape}")
     flow = cv2.calcOpticalFlowFarneback(earlier, later, None, *FARNEBACK)
     return np.ascontiguousarray(flow.transpose(2, 0, 1))
+
+
+def texture_map(image: NDArray[np.uint8]) -> NDArray[np.float32]:
+    """(H, W) float32 log(1 + |grad I|) of a grey (H, W) uint8 image, the gradient by 3x3 Sobel normalised to grey
+    levels per pixel (a ramp of slope g gives log(1 + g) inside the image)."""
+    import cv2
+
+    grey = image.astype(np.float32)
+    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE) / 8.0
+    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE) / 8.0
+    return np.log1p(np.sqrt(gx * gx + gy * gy))
+
+
+def network_input(source: NDArray[np.uint8], flow: NDArray[np.floating], texture: bool) -> NDArray[np.float32]:
+    """The network's input (2 or 3, H, W) float32: the flow (2, H, W) from grey ``source`` (H, W), and with
+    ``texture`` the source's :func:`texture_map` as a third channel."""
+    flow = np.asarray(flow, dtype=np.float32)
+    if not texture:
+        return flow
+    return np.concatenate([flow, texture_map(np.asarray(source))[None]], axis=0)
 
 
 def relative_rotations(poses: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -74,6 +96,7 @@ class _Pairs:
     forward: NDArray[np.float16]
     backward: NDArray[np.float16] | None
     rotations: NDArray[np.float64] | None
+    images: NDArray[np.uint8]  # (N, 1, H, W) at the flow's size
 
 
 @dataclass
@@ -82,7 +105,8 @@ class FlowPairs(torch.utils.data.Dataset):
     with ``reverse``), as dicts: ``flow`` (2, H, W) float32 pixels; ``rotation`` (4,) the unit quaternion
     (w, x, y, z) of C_k,k-1 (C_k-1,k for a reversed pair); ``sequence``, ``frame`` (the later frame k),
     ``reversed`` (0 or 1). targets: read each sequence's ``poses.txt`` for the rotations (False: flows only,
-    for prediction on sequences without truth; samples then carry no ``rotation``)."""
+    for prediction on sequences without truth; samples then carry no ``rotation``); texture: ``flow`` carries
+    the texture of the image it starts from as a third channel (:func:`network_input`)."""
 
     sources: Sequence[Source]
     size: tuple[int, int]
@@ -90,6 +114,7 @@ class FlowPairs(torch.utils.data.Dataset):
     cache_dir: Path | None = None
     progress: Callable[[], None] | None = None
     targets: bool = True
+    texture: bool = False
     pairs: list[_Pairs] = field(init=False, default_factory=list)
     index: NDArray[np.int64] = field(init=False)
 
@@ -104,7 +129,7 @@ class FlowPairs(torch.utils.data.Dataset):
             key = _images_key(paths, self.size)
             forward = sequence_flows(images, self.cache_dir, key, False, self.progress)
             backward = sequence_flows(images, self.cache_dir, key, True, self.progress) if self.reverse else None
-            self.pairs.append(_Pairs(source, forward, backward, rotations))
+            self.pairs.append(_Pairs(source, forward, backward, rotations, images))
             frames = np.arange(1, len(paths))
             rows.append(np.column_stack([np.full(len(frames), number), frames, np.zeros(len(frames), np.int64)]))
             if self.reverse:
@@ -131,8 +156,9 @@ class FlowPairs(torch.utils.data.Dataset):
         pairs = self.pairs[number]
         flows = pairs.backward if backwards else pairs.forward
         assert flows is not None
+        start = pairs.images[k if backwards else k - 1, 0]  # the image the flow starts from
         sample = {
-            "flow": torch.from_numpy(np.asarray(flows[k - 1], dtype=np.float32)),
+            "flow": torch.from_numpy(network_input(start, flows[k - 1], self.texture)),
             "sequence": torch.tensor(number),
             "frame": torch.tensor(k),
             "reversed": torch.tensor(backwards),

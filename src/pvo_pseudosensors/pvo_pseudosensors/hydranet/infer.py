@@ -14,7 +14,7 @@ from pvo_core.readers import ROTATION_PREDICTIONS_HEADER
 from ..learning.checkpoint import ModelCard, load_model
 from ..learning.data import Source
 from .config import ARCHITECTURE, HydraNetConfig
-from .flow import FlowPairs
+from .flow import FlowPairs, network_input
 from .model import HydraNet, predict_rotations
 
 Array = NDArray[np.float64]
@@ -53,7 +53,7 @@ class RotationPredictions:
 
 
 def predict_flows(model: HydraNet, flows: torch.Tensor, batch: int = 64) -> tuple[Array, Array, Array]:
-    """Quaternions (N, 4), Sigma_e and Sigma_a (N, 3, 3) for flows (N, 2, H, W), in batches."""
+    """Quaternions (N, 4), Sigma_e and Sigma_a (N, 3, 3) for network inputs (N, C, H, W), in batches."""
     parts = [predict_rotations(model, flows[start : start + batch]) for start in range(0, len(flows), batch)]
     return tuple(torch.cat([getattr(p, name) for p in parts]).numpy() for name in ("quaternion", "epistemic", "aleatoric"))  # type: ignore[return-value]
 
@@ -65,7 +65,11 @@ def predict_sequence(
     config = HydraNetConfig.from_card(card)
     sequence = Path(sequence)
     data = FlowPairs([Source(sequence, sequence.name)], config.size, reverse=False, cache_dir=cache_dir, targets=False)
-    flows = torch.from_numpy(np.asarray(data.pairs[0].forward, dtype=np.float32))
+    pairs = data.pairs[0]
+    flows = np.asarray(pairs.forward, dtype=np.float32)
+    if config.texture:
+        flows = np.stack([network_input(image[0], flow, True) for image, flow in zip(pairs.images[:-1], flows, strict=True)])
+    flows = torch.from_numpy(flows)
     quaternions, epistemic, aleatoric = predict_flows(model, flows, batch)
     frames = np.arange(1, len(flows) + 1)
     return RotationPredictions(frames - 1, frames, quaternions, epistemic, aleatoric)

@@ -32,7 +32,7 @@ class HydraNet(nn.Module):
         super().__init__()
         self.config = config
         layers: list[nn.Module] = []
-        channels = 2
+        channels = config.channels
         for width in config.widths:
             layers += [
                 nn.Conv2d(channels, width, 3, stride=2, padding=1, bias=False),
@@ -42,7 +42,7 @@ class HydraNet(nn.Module):
             channels = width
         self.body = nn.Sequential(*layers)
         with torch.no_grad():
-            flat = self.body(torch.zeros(1, 2, *config.size)).numel()
+            flat = self.body(torch.zeros(1, config.channels, *config.size)).numel()
         self.feature = nn.Sequential(nn.Flatten(), nn.Linear(flat, config.feature), nn.ReLU(inplace=True))
         self.heads = nn.ModuleList(
             nn.Sequential(
@@ -68,8 +68,9 @@ class HydraNet(nn.Module):
             last.bias.zero_()
 
     def forward(self, flow: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """flow (B, 2, H, W) in pixels -> the heads' unit quaternions (B, heads, 4) of C_k,k-1 (w >= 0) and
-        the lower-triangular Cholesky factor L (B, 3, 3) of the aleatoric precision Sigma_a^-1 = L L^T."""
+        """flow (B, C, H, W): the flow in pixels (and the texture channel) -> the heads' unit quaternions
+        (B, heads, 4) of C_k,k-1 (w >= 0) and the lower-triangular Cholesky factor L (B, 3, 3) of the aleatoric
+        precision Sigma_a^-1 = L L^T."""
         features = self.feature(self.body(flow))
         heads = torch.stack([head(features) for head in self.heads], dim=1)
         heads = nn.functional.normalize(heads, dim=-1)
@@ -110,10 +111,13 @@ def bootstrap_mask(batch: dict[str, torch.Tensor], heads: int) -> torch.Tensor:
 
 
 def mirror_pairs(flow: torch.Tensor, rotation: torch.Tensor, which: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The samples ``which`` (B,) bool mirrored left-right: flow (B, 2, H, W) flipped along its width with u
-    negated, the rotation (B, 4) (w, x, y, z) of C_k,k-1 conjugated by the mirror M = diag(-1, 1, 1) of the
-    camera's x axis: M C M has the rotation vector (x, -y, -z) (the axes of the camera's optical frame)."""
-    mirrored_flow = flow.flip(-1) * torch.tensor([-1.0, 1.0], dtype=flow.dtype).view(1, 2, 1, 1)
+    """The samples ``which`` (B,) bool mirrored left-right: flow (B, C, H, W) flipped along its width with u
+    negated (a texture channel only flipped), the rotation (B, 4) (w, x, y, z) of C_k,k-1 conjugated by the
+    mirror M = diag(-1, 1, 1) of the camera's x axis: M C M has the rotation vector (x, -y, -z) (the axes of
+    the camera's optical frame)."""
+    signs = torch.ones(flow.shape[1], dtype=flow.dtype)
+    signs[0] = -1.0
+    mirrored_flow = flow.flip(-1) * signs.view(1, -1, 1, 1)
     mirrored_rotation = rotation * torch.tensor([1.0, 1.0, -1.0, -1.0], dtype=rotation.dtype)
     return (
         torch.where(which[:, None, None, None], mirrored_flow, flow),

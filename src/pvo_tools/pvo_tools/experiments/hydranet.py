@@ -125,9 +125,13 @@ COLUMNS = (
 
 
 def model_presets(card: Any, manifest: Any) -> set[str]:
-    """The presets a model was trained on: its card's (``--presets-only``), else every preset of the corpus."""
-    presets = card.corpus.get("presets") if isinstance(card.corpus, dict) else None
-    return set(presets) if presets else {s.preset for s in manifest.split("train")}
+    """The presets a model was trained on: its card's (``--presets-only``; of each corpus, for a model trained on
+    several), else every preset of the corpus."""
+    corpus = card.corpus if isinstance(card.corpus, dict) else {}
+    parts = corpus.get("corpora") or [corpus]
+    if not all(part.get("presets") for part in parts):
+        return {s.preset for s in manifest.split("train")}
+    return {preset for part in parts for preset in part["presets"]}
 
 
 def format_table(rows: list[Evaluated], extra: dict[str, float] | None = None, extra_name: str = "") -> str:
@@ -503,8 +507,8 @@ def real_images_section(
     if args.finetune_epochs:
         say(f"fine-tuning on KITTI 07 frames 0-127 for {args.finetune_epochs} epochs (validation 128-{count07 - 1}) ...")
         config = HydraNetConfig.from_card(card)
-        train = FlowPairs([Source(train07, "07-train")], config.size, reverse=config.reverse)
-        validation = FlowPairs([Source(validation07, "07-validation")], config.size)
+        train = FlowPairs([Source(train07, "07-train")], config.size, reverse=config.reverse, texture=config.texture)
+        validation = FlowPairs([Source(validation07, "07-validation")], config.size, texture=config.texture)
         loop = TrainConfig(epochs=args.finetune_epochs, batch_size=16, learning_rate=1e-4, patience=0, threads=args.threads)
         tuned_dir = out / "kitti-finetuned"
         extra = {

@@ -1,0 +1,93 @@
+"""HydraNet models fused with the stereo VO on the long *validation* drives, for choosing a model and the fusion's
+rotation gate without touching the test split.
+
+The drives are DPC-Net's validation drives (KITTI 10 frames 0-999 and 201-1200, KITTI 04's 271 frames; urban,
+renderer revision 7), each clean, through the thesis's lens and with a focal length 3 % off in calib.txt:
+
+    pvo dpc-net drives runs/dpc/vlong --split validation
+    python scripts/hydranet_validation_drives.py --models src/pvo_pseudosensors/models/hydranet runs/hydranet7/urban2-20 \
+        --gates 0.9999,0.999,0.99,0.95
+
+The VO's covariance scales are learned on the corpus's urban validation sequences (as `pvo experiment hydranet`
+does). Per drive: HydraNet's mean angular error and ANEES, and the change of m-ATE (translation / rotation) of
+the online fused estimate against the VO alone; then the mean over drives per model and gate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from pvo_core.readers import KittiSequence, read_corpus_manifest
+from pvo_core.trajectory import read_kitti_poses
+from pvo_frontend.offline import run_sequence
+from pvo_frontend.vo import VOConfig
+from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
+from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+from pvo_tools.experiments.common import TRAJECTORY_METRICS, fusion_figures
+from pvo_tools.experiments.hydranet import FIRST_STAMP_NS, rotation_measurements, vo_rotation_errors
+
+from pvo_fusion import CalibrationSequence, FusionGraph, calibrate_vo, ordered_events, run_offline, vo_measurements
+from pvo_fusion.config import from_flat
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--models", nargs="+", type=Path, required=True)
+    parser.add_argument("--gates", default="0.9999", help="inputs.rotation.gate_probability values, comma-separated")
+    parser.add_argument("--drives", type=Path, default=Path("runs/dpc/vlong"), help="OUT of `pvo dpc-net drives`")
+    parser.add_argument("--corpus", type=Path, default=Path("data/corpus-hydra7"), help="for the VO's covariance scales")
+    parser.add_argument("--cache", type=Path, default=Path("runs/hydranet-validation-drives/cache"), help="flow cache")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+
+    calibration_sequences = []
+    for item in [s for s in read_corpus_manifest(args.corpus).split("validation") if s.preset == "urban"]:
+        _, run = vo_rotation_errors(item.root)
+        relative = run.relative()
+        truth = read_kitti_poses(item.root / "poses.txt")
+        calibration_sequences.append(CalibrationSequence(item.name, truth, relative["transforms"], relative["covariances"]))
+    calibration = calibrate_vo(calibration_sequences, 1)
+    print(f"VO covariance scales (x y z rx ry rz): {np.round(calibration.scale, 2)}", flush=True)
+
+    gates = [float(g) for g in args.gates.split(",")]
+    models = [(path, *load_hydranet(path)) for path in args.models]
+    changes: dict[tuple[str, float], list[list[float]]] = {(str(p), g): [] for p in args.models for g in gates}
+    drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
+    if not drives:
+        raise SystemExit(f"{args.drives}: no drive (render them with `pvo dpc-net drives {args.drives} --split validation`)")
+    for folder in drives:
+        started = time.perf_counter()
+        sequence = KittiSequence(folder, poses_file=folder / "poses.txt")
+        truth = sequence.poses
+        stamps = FIRST_STAMP_NS + (np.asarray(sequence.stamps) * 1e9).round().astype(np.int64)
+        run = run_sequence(sequence, VOConfig())
+        relative = run.relative()
+        vo = vo_measurements(stamps, relative["transforms"], relative["covariances"], calibration)
+        alone = fusion_figures(truth, truth[0] @ run.poses)
+        line = f"{folder.parent.name}/{folder.name}: VO {alone['m_ate_trans']:.2f} m {alone['m_ate_rot_deg']:.2f} deg"
+        for path, model, card in models:
+            predictions = predict_sequence(model, card, folder, cache_dir=args.cache)
+            true = true_relative_rotations(truth, predictions.earlier, predictions.frames)
+            accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
+            line += f" | {path.name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
+            rotations = [("rotation", m) for m in rotation_measurements(predictions, stamps)]
+            for gate in gates:
+                graph = FusionGraph(from_flat({"prior.source": "given", "inputs.rotation.gate_probability": gate}))
+                graph.set_initial_pose(truth[0])
+                fused = fusion_figures(truth, run_offline(graph, stamps, ordered_events(vo, rotations)).online_poses)
+                change = [fused[k] / max(alone[k], 1e-12) - 1.0 for k in TRAJECTORY_METRICS]
+                changes[(str(path), gate)].append(change)
+                line += f"; gate {gate:g}: {100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
+        print(f"{line} ({time.perf_counter() - started:.0f} s)", flush=True)
+    print(f"\nmean change over {len(drives)} drives (m-ATE translation / rotation, segments translation / rotation):")
+    for (path, gate), rows in changes.items():
+        mean = 100 * np.mean(rows, axis=0)
+        print(f"  {path} gate {gate:g}: {mean[0]:+.1f} / {mean[1]:+.1f} %, segments {mean[2]:+.1f} / {mean[3]:+.1f} %")
+
+
+if __name__ == "__main__":
+    main()
