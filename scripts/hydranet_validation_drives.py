@@ -6,7 +6,7 @@ renderer revision 7), each clean, through the thesis's lens and with a focal len
 
     pvo dpc-net drives runs/dpc/vlong --split validation
     python scripts/hydranet_validation_drives.py --models src/pvo_pseudosensors/models/hydranet runs/hydranet7/urban2-20 \
-        --gates 0.9999,0.999,0.99,0.95
+        --gates 0.9999,0.99,0.95,0.9,0.8,0.65,0.5,0.3 --huber 0,1.345
 
 The VO's covariance scales are learned on the corpus's urban validation sequences (as `pvo experiment hydranet`
 does). Per drive: HydraNet's mean angular error and ANEES, and the change of m-ATE (translation / rotation) of
@@ -38,6 +38,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--models", nargs="+", type=Path, required=True)
     parser.add_argument("--gates", default="0.9999", help="inputs.rotation.gate_probability values, comma-separated")
+    parser.add_argument("--huber", default="0", help="inputs.rotation.huber_k values, comma-separated (each with each gate)")
     parser.add_argument("--drives", type=Path, default=Path("runs/dpc/vlong"), help="OUT of `pvo dpc-net drives`")
     parser.add_argument("--corpus", type=Path, default=Path("data/corpus-hydra7"), help="for the VO's covariance scales")
     parser.add_argument("--cache", type=Path, default=Path("runs/hydranet-validation-drives/cache"), help="flow cache")
@@ -53,9 +54,9 @@ def main() -> None:
     calibration = calibrate_vo(calibration_sequences, 1)
     print(f"VO covariance scales (x y z rx ry rz): {np.round(calibration.scale, 2)}", flush=True)
 
-    gates = [float(g) for g in args.gates.split(",")]
+    settings = [(float(g), float(k)) for g in args.gates.split(",") for k in args.huber.split(",")]
     models = [(path, *load_hydranet(path)) for path in args.models]
-    changes: dict[tuple[str, float], list[list[float]]] = {(str(p), g): [] for p in args.models for g in gates}
+    changes: dict[tuple[str, tuple[float, float]], list[list[float]]] = {(str(p), s): [] for p in args.models for s in settings}
     drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
     if not drives:
         raise SystemExit(f"{args.drives}: no drive (render them with `pvo dpc-net drives {args.drives} --split validation`)")
@@ -75,18 +76,19 @@ def main() -> None:
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
             line += f" | {path.name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
             rotations = [("rotation", m) for m in rotation_measurements(predictions, stamps)]
-            for gate in gates:
-                graph = FusionGraph(from_flat({"prior.source": "given", "inputs.rotation.gate_probability": gate}))
+            for gate, huber in settings:
+                flat = {"prior.source": "given", "inputs.rotation.gate_probability": gate, "inputs.rotation.huber_k": huber}
+                graph = FusionGraph(from_flat(flat))
                 graph.set_initial_pose(truth[0])
                 fused = fusion_figures(truth, run_offline(graph, stamps, ordered_events(vo, rotations)).online_poses)
                 change = [fused[k] / max(alone[k], 1e-12) - 1.0 for k in TRAJECTORY_METRICS]
-                changes[(str(path), gate)].append(change)
-                line += f"; gate {gate:g}: {100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
+                changes[(str(path), (gate, huber))].append(change)
+                line += f"; gate {gate:g} huber {huber:g}: {100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
         print(f"{line} ({time.perf_counter() - started:.0f} s)", flush=True)
     print(f"\nmean change over {len(drives)} drives (m-ATE translation / rotation, segments translation / rotation):")
-    for (path, gate), rows in changes.items():
+    for (path, (gate, huber)), rows in changes.items():
         mean = 100 * np.mean(rows, axis=0)
-        print(f"  {path} gate {gate:g}: {mean[0]:+.1f} / {mean[1]:+.1f} %, segments {mean[2]:+.1f} / {mean[3]:+.1f} %")
+        print(f"  {path} gate {gate:g} huber {huber:g}: {mean[0]:+.1f} / {mean[1]:+.1f} %, segments {mean[2]:+.1f} / {mean[3]:+.1f} %")
 
 
 if __name__ == "__main__":

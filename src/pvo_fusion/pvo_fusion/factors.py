@@ -116,14 +116,20 @@ def rotation_error(rotation_from: Array, rotation_to: Array, measured_from_to: A
     return error, j_from, j_to
 
 
-def rotation_factor(key_from: int, key_to: int, transform_to_from: Array, covariance_ros: Array) -> gtsam.CustomFactor:
-    """Rotation-only factor from a ``RelativePose`` (T_to,from; ROS-order left covariance, rotation block used).
+def rotation_factor(
+    key_from: int, key_to: int, transform_to_from: Array, covariance_ros: Array, huber_k: float = 0.0
+) -> gtsam.CustomFactor:
+    """Rotation-only factor from a ``RelativePose`` (T_to,from; ROS-order left covariance, rotation block used;
+    Huber on the whitened 3-D residual when ``huber_k`` > 0).
 
     A left perturbation of C_to,from is a right perturbation (negated) of C_from,to = C_to,from^T,
     so the 3x3 rotation block applies unchanged.
     """
     measured_from_to = np.asarray(transform_to_from, dtype=float)[:3, :3].T.copy()
-    noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance_ros, dtype=float)[3:, 3:].copy())
+    gaussian = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance_ros, dtype=float)[3:, 3:].copy())
+    noise = (
+        gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(huber_k), gaussian) if huber_k > 0 else gaussian
+    )
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list[Array] | None) -> Array:
         keys = this.keys()

@@ -352,7 +352,7 @@ class FusionGraph:
         if reference_key is None:
             return "dropped.reference_not_in_window"
         if kind == "rotation":
-            factor = rotation_factor(reference_key, key, m.transform, m.covariance)
+            factor = rotation_factor(reference_key, key, m.transform, m.covariance, self.config.inputs.rotation.huber_k)
             e, j_from, j_to = rotation_error(
                 self._estimates[reference_key].rotation().matrix(),
                 self._estimates[key].rotation().matrix(),

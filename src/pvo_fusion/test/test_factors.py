@@ -147,6 +147,10 @@ def test_rotation_factor_matches_eq_7_22_and_uses_the_rotation_block() -> None:
     factor = rotation_factor(X(0), X(1), bumped, covariance)
     assert np.linalg.norm(factor.unwhitenedError(values)) == pytest.approx(0.03, rel=1e-9)
     assert factor.error(values) == pytest.approx(0.5 * 0.03**2 / 2e-4, rel=1e-6)
+    # With a Huber loss the cost of this 2.1-sigma residual r is k (r - k/2), not r^2 / 2.
+    robust = rotation_factor(X(0), X(1), bumped, covariance, huber_k=1.0)
+    whitened = 0.03 / np.sqrt(2e-4)
+    assert robust.error(values) == pytest.approx(1.0 * (whitened - 0.5), rel=1e-6)
 
 
 def test_gtsam_between_and_prior_factors_match_finite_differences() -> None:
