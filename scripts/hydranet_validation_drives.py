@@ -41,33 +41,56 @@ def main() -> None:
     parser.add_argument("--huber", default="0", help="inputs.rotation.huber_k values, comma-separated (each with each gate)")
     parser.add_argument("--drives", type=Path, default=Path("runs/dpc/vlong"), help="OUT of `pvo dpc-net drives`")
     parser.add_argument("--corpus", type=Path, default=Path("data/corpus-hydra7"), help="for the VO's covariance scales")
+    parser.add_argument(
+        "--vo-spans",
+        default="",
+        help="learn the VO's covariance scales on the other drives (leave one drive out, every rig) over these spans, "
+        "comma-separated, instead of on the corpus's short validation sequences (frame to frame)",
+    )
     parser.add_argument("--cache", type=Path, default=Path("runs/hydranet-validation-drives/cache"), help="flow cache")
     args = parser.parse_args()
     torch.set_num_threads(1)
 
-    calibration_sequences = []
+    corpus_sequences = []
     for item in [s for s in read_corpus_manifest(args.corpus).split("validation") if s.preset == "urban"]:
         _, run = vo_rotation_errors(item.root)
         relative = run.relative()
         truth = read_kitti_poses(item.root / "poses.txt")
-        calibration_sequences.append(CalibrationSequence(item.name, truth, relative["transforms"], relative["covariances"]))
-    calibration = calibrate_vo(calibration_sequences, 1)
-    print(f"VO covariance scales (x y z rx ry rz): {np.round(calibration.scale, 2)}", flush=True)
+        corpus_sequences.append(CalibrationSequence(item.name, truth, relative["transforms"], relative["covariances"]))
+    corpus_calibration = calibrate_vo(corpus_sequences, 1)
+    print(f"VO covariance scales (x y z rx ry rz) on the corpus: {np.round(corpus_calibration.scale, 2)}", flush=True)
+    spans = [int(v) for v in args.vo_spans.split(",")] if args.vo_spans else [0]  # 0: the corpus's frame-to-frame scales
 
-    settings = [(float(g), float(k)) for g in args.gates.split(",") for k in args.huber.split(",")]
+    settings = [(float(g), float(k), span) for g in args.gates.split(",") for k in args.huber.split(",") for span in spans]
     models = [(path, *load_hydranet(path)) for path in args.models]
-    changes: dict[tuple[str, tuple[float, float]], list[list[float]]] = {(str(p), s): [] for p in args.models for s in settings}
+    changes: dict[tuple[str, tuple[float, float, int]], list[list[float]]] = {
+        (str(p), s): [] for p in args.models for s in settings
+    }
     drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
     if not drives:
         raise SystemExit(f"{args.drives}: no drive (render them with `pvo dpc-net drives {args.drives} --split validation`)")
+    runs = {}
     for folder in drives:
-        started = time.perf_counter()
         sequence = KittiSequence(folder, poses_file=folder / "poses.txt")
-        truth = sequence.poses
-        stamps = FIRST_STAMP_NS + (np.asarray(sequence.stamps) * 1e9).round().astype(np.int64)
         run = run_sequence(sequence, VOConfig())
         relative = run.relative()
-        vo = vo_measurements(stamps, relative["transforms"], relative["covariances"], calibration)
+        runs[folder] = (sequence, run, relative)
+    for folder in drives:
+        started = time.perf_counter()
+        sequence, run, relative = runs[folder]
+        truth = sequence.poses
+        stamps = FIRST_STAMP_NS + (np.asarray(sequence.stamps) * 1e9).round().astype(np.int64)
+        calibrations = {0: corpus_calibration}
+        others = [
+            CalibrationSequence(
+                f"{f.parent.name}/{f.name}", runs[f][0].poses, runs[f][2]["transforms"], runs[f][2]["covariances"]
+            )
+            for f in drives
+            if f.name != folder.name
+        ]
+        for span in spans:
+            if span:
+                calibrations[span] = calibrate_vo(others, span)
         alone = fusion_figures(truth, truth[0] @ run.poses)
         line = f"{folder.parent.name}/{folder.name}: VO {alone['m_ate_trans']:.2f} m {alone['m_ate_rot_deg']:.2f} deg"
         for path, model, card in models:
@@ -76,19 +99,22 @@ def main() -> None:
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
             line += f" | {path.name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
             rotations = [("rotation", m) for m in rotation_measurements(predictions, stamps)]
-            for gate, huber in settings:
+            for gate, huber, span in settings:
+                vo = vo_measurements(stamps, relative["transforms"], relative["covariances"], calibrations[span])
                 flat = {"prior.source": "given", "inputs.rotation.gate_probability": gate, "inputs.rotation.huber_k": huber}
                 graph = FusionGraph(from_flat(flat))
                 graph.set_initial_pose(truth[0])
                 fused = fusion_figures(truth, run_offline(graph, stamps, ordered_events(vo, rotations)).online_poses)
                 change = [fused[k] / max(alone[k], 1e-12) - 1.0 for k in TRAJECTORY_METRICS]
-                changes[(str(path), (gate, huber))].append(change)
-                line += f"; gate {gate:g} huber {huber:g}: {100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
+                changes[(str(path), (gate, huber, span))].append(change)
+                line += f"; gate {gate:g} huber {huber:g} span {span}: {100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
         print(f"{line} ({time.perf_counter() - started:.0f} s)", flush=True)
     print(f"\nmean change over {len(drives)} drives (m-ATE translation / rotation, segments translation / rotation):")
-    for (path, (gate, huber)), rows in changes.items():
+    for (path, (gate, huber, span)), rows in changes.items():
         mean = 100 * np.mean(rows, axis=0)
-        print(f"  {path} gate {gate:g} huber {huber:g}: {mean[0]:+.1f} / {mean[1]:+.1f} %, segments {mean[2]:+.1f} / {mean[3]:+.1f} %")
+        vo = f"VO scales over {span} frames on the other drives" if span else "VO scales from the corpus"
+        figures = f"{mean[0]:+.1f} / {mean[1]:+.1f} %, segments {mean[2]:+.1f} / {mean[3]:+.1f} %"
+        print(f"  {path} gate {gate:g} huber {huber:g}, {vo}: {figures}")
 
 
 if __name__ == "__main__":
