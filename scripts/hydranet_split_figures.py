@@ -1,0 +1,49 @@
+"""HydraNet models' pooled per-pair figures on one split and preset of a corpus (for choosing models on the
+validation split; `pvo hydranet eval` gives one sequence's):
+
+    python scripts/hydranet_split_figures.py --corpus data/corpus-hydra7 --split validation --preset planetary \
+        --models runs/hydranet7/urban2-20 runs/hydranet8/urban2-bootstrap-20
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+from pvo_core.readers import read_corpus_manifest
+from pvo_core.trajectory import read_kitti_poses
+from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
+from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--corpus", type=Path, required=True)
+    parser.add_argument("--split", default="validation", choices=("train", "validation", "test"))
+    parser.add_argument("--preset", default="urban")
+    parser.add_argument("--models", nargs="+", type=Path, required=True)
+    args = parser.parse_args()
+    torch.set_num_threads(2)
+    sequences = [s for s in read_corpus_manifest(args.corpus).split(args.split) if s.preset == args.preset]
+    if not sequences:
+        raise SystemExit(f"{args.corpus}: no {args.preset} sequence in the {args.split} split")
+    for path in args.models:
+        model, card = load_hydranet(path)
+        quaternions, covariances, truth = [], [], []
+        for item in sequences:
+            predictions = predict_sequence(model, card, item.root, cache_dir=args.corpus / ".cache")
+            poses = read_kitti_poses(item.root / "poses.txt")
+            quaternions.append(predictions.quaternions)
+            covariances.append(predictions.covariance)
+            truth.append(true_relative_rotations(poses, predictions.earlier, predictions.frames))
+        f = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth))
+        print(
+            f"{path}: {args.split} {args.preset}, {len(sequences)} sequences, {int(f['pairs'])} pairs: mean "
+            f"{f['angle_mean_deg']:.4f} deg, median {f['angle_median_deg']:.4f}, NLL {f['nll']:.2f}, ANEES {f['anees']:.3f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
