@@ -66,6 +66,10 @@ class CorpusConfig:
     kitti_train: tuple[str, ...] = ("00", "02", "08", "09")
     kitti_validation: tuple[str, ...] = ("04", "10")
     kitti_test: tuple[str, ...] = ("05", "06", "07")
+    # windows drawn in proportion to how much the vehicle turns in them (``kitti_turning``: the total rotation
+    # angle over the window, plus a floor of a straight window's share), not uniformly: a drive is mostly
+    # straight, and a frame-to-frame rotation model sees its sharp turns too rarely to learn them
+    kitti_turning: bool = False
     # one lens for the whole corpus (the rig DPC-Net learns to correct): plumb-bob k1 [k2 k3] on every sequence,
     # instead of the drawn distortion
     lens_distortion: tuple[float, ...] = ()
@@ -233,11 +237,30 @@ def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
         drives = corpus.kitti_drives(split)
         drive = drives[int(rng.integers(len(drives)))]
         file = Path(corpus.kitti_poses) / f"{drive}.txt"
-        poses = sum(1 for _ in file.open())
-        start = int(rng.integers(0, poses - corpus.frames + 1))
+        if corpus.kitti_turning:
+            weights = turning_weights(file, corpus.frames)
+            start = int(rng.choice(len(weights), p=weights))
+        else:
+            poses = sum(1 for _ in file.open())
+            start = int(rng.integers(0, poses - corpus.frames + 1))
         config = replace(config, path="kitti", poses_file=str(file.resolve()), start_frame=start)
         conditions.append(f"KITTI {drive} from frame {start}")
     return SequencePlan(index, f"{index:04d}", split, config, tuple(conditions))
+
+
+def turning_weights(poses_file: Path, frames: int, floor: float = 0.1) -> np.ndarray:
+    """Probabilities (N - frames + 1,) of each window start of a KITTI pose file (N poses): each window's total
+    frame-to-frame rotation angle (rad), plus ``floor`` times the mean over windows (a straight window keeps a
+    chance), normalised."""
+    from pvo_core.trajectory import read_kitti_poses
+
+    poses = read_kitti_poses(poses_file)
+    relative = np.einsum("nji,njk->nik", poses[:-1, :3, :3], poses[1:, :3, :3])  # C_k-1^T C_k
+    angles = np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
+    cumulative = np.concatenate([[0.0], np.cumsum(angles)])
+    turning = cumulative[frames - 1 :] - cumulative[: len(cumulative) - frames + 1]  # the window's frames - 1 steps
+    weights = turning + floor * turning.mean()
+    return weights / weights.sum()
 
 
 def content_hash(folder: Path) -> str:

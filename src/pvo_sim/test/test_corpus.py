@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +71,40 @@ def test_kitti_drives_give_each_split_its_own_windows(tmp_path: Path) -> None:
         CorpusConfig(kitti_poses=str(drives), kitti_train=("00",), kitti_validation=("04",), kitti_test=("07",), frames=20)
     with pytest.raises(ValueError, match="holds fewer than 100 poses"):
         CorpusConfig(kitti_poses=str(drives), kitti_train=("00",), kitti_validation=("04",), kitti_test=("05",), frames=100)
+
+
+def test_turning_windows_are_drawn_in_proportion_to_their_turning(tmp_path: Path) -> None:
+    """A drive straight for 100 poses, then turning 1 degree per frame for 20: a 10-pose window's weight is its
+    total turn plus a tenth of the mean's, and the turning draw lands in the turn far more often."""
+    from pvo_core.lie import so3_exp
+    from pvo_sim.corpus import turning_weights
+
+    rows = []
+    for k in range(120):
+        rotation = so3_exp(np.array([0.0, np.radians(max(0, k - 100)), 0.0]))
+        rows.append(" ".join(f"{v:.12g}" for v in np.hstack([rotation, [[k], [0], [0]]]).reshape(-1)))
+    drive = tmp_path / "00.txt"
+    drive.write_text("\n".join(rows) + "\n")
+    weights = turning_weights(drive, 10)
+    turning = np.array([np.radians(max(0, start + 9 - max(start, 100))) for start in range(111)])
+    expected = turning + 0.1 * turning.mean()
+    np.testing.assert_allclose(weights, expected / expected.sum(), rtol=1e-6)  # poses written to 12 digits
+    for name in ("02", "04", "05"):
+        (tmp_path / f"{name}.txt").write_text(drive.read_text())
+    config = CorpusConfig(
+        sequences=40,
+        frames=10,
+        seed=2,
+        kitti_poses=str(tmp_path),
+        kitti_train=("00", "02"),
+        kitti_validation=("04",),
+        kitti_test=("05",),
+        kitti_turning=True,
+    )
+    starts = np.array([plan_sequence(config, i).config.start_frame for i in range(40)])
+    assert np.mean(starts > 91) > 0.6  # windows holding part of the turn: 19 of 111 starts, most of the weight
+    uniform = replace(config, kitti_turning=False)
+    assert np.mean([plan_sequence(uniform, i).config.start_frame > 91 for i in range(40)]) < 0.4
 
 
 def test_sun_elevations_span_low_to_high() -> None:

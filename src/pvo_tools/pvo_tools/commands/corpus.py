@@ -62,6 +62,11 @@ def register(sub: Any) -> None:
     kitti.add_argument("--kitti-train", default="00,02,08,09", help="drives for the train split (default 00,02,08,09)")
     kitti.add_argument("--kitti-validation", default="04,10", help="drives for the validation split (default 04,10)")
     kitti.add_argument("--kitti-test", default="05,06,07", help="drives for the test split (default 05,06,07)")
+    kitti.add_argument(
+        "--kitti-turning",
+        action="store_true",
+        help="draw windows in proportion to how much the vehicle turns in them (default: uniformly)",
+    )
 
 
 def _drives(text: str) -> tuple[str, ...]:
@@ -90,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         kitti_train=_drives(args.kitti_train),
         kitti_validation=_drives(args.kitti_validation),
         kitti_test=_drives(args.kitti_test),
+        kitti_turning=args.kitti_turning,
         lens_distortion=tuple(args.lens_distortion),
         calib_focal_scale=args.calib_focal_scale,
         calib_baseline_scale=args.calib_baseline_scale,

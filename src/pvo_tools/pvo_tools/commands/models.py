@@ -163,6 +163,8 @@ def _corpus_command(manifest: Any) -> str:
             f" --kitti-poses {data['kitti_poses']} --kitti-train {drives['train']} --kitti-validation {drives['validation']}"
             f" --kitti-test {drives['test']}"
         )
+        if data.get("kitti_turning"):
+            colour += " --kitti-turning"
     return (
         f"pvo sim corpus {manifest.path.parent} --sequences {data['sequences']} --frames {data['frames']} --size {size} "
         f"--presets {presets} --seed {data['seed']}{colour}"
