@@ -25,8 +25,8 @@ class HydraNetConfig:
     disagree more where the data did not pin them down; mirror: in training, each pair is mirrored left-right
     at random (the flow flipped, its horizontal component negated; the rotation's y and z components negated:
     a mirrored drive turns the other way), so that turns either way are learned alike; texture: a third input
-    channel, the texture (log gradient magnitude) of the image the flow starts from, so the network can tell
-    measured flow from flow interpolated over flat regions."""
+    channel, the texture (log gradient magnitude) of the image the flow starts from, to show the network where
+    the flow was measured and where interpolated over flat regions."""
 
     height: int = 64
     width: int = 208

@@ -7,7 +7,8 @@ in the later one. Per sequence, the flows of every consecutive pair, forward and
 and kept as float16 ``.npy`` beside the decoded-image cache (memory-mapped afterwards): Farnebäck on every
 sample every epoch would dominate a CPU epoch. With ``texture`` a third channel carries the texture of the image
 the flow starts from (:func:`texture_map`): where it is flat (sky, an empty square) Farnebäck's flow is an
-interpolation, not a measurement, and the network can see that.
+interpolation, not a measurement, and the channel shows the network where (measured: it did not teach the shipped
+data's network to distrust such flow, see the README).
 """
 
 from __future__ import annotations
