@@ -111,9 +111,9 @@ class RotationInputConfig:
     ``huber_k`` > 0 puts a Huber loss on its whitened residual (0: plain L2, eq. 7.22).
 
     The gate is tighter than the other inputs': HydraNet is overconfident where the flow is an interpolation
-    (a turn across an empty square), and on the long validation drives (nine, 271-1000 frames) the fused
-    rotation m-ATE changed +9.3 % at 0.9999, +2.8 % at 0.99, -4.4 % at 0.95, -7.8 % at 0.8, -5.4 % at 0.5
-    (`scripts/hydranet_validation_drives.py`)."""
+    (a turn across an empty square). On the long validation drives (nine, 271-1000 frames) the shipped model's
+    fused rotation m-ATE changed +5.4 % at 0.9999, -1.7 % at 0.99, -5.4 % at 0.95, -7.9 % at 0.9, -10.2 % at 0.8,
+    -8.3 % at 0.65 (the two-corpus model's: +9.3, +2.8, -4.4, -6.6, -7.8, -7.5 %; `scripts/hydranet_validation_drives.py`)."""
 
     enabled: bool = True
     gate_probability: float = 0.8

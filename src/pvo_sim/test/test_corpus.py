@@ -46,17 +46,15 @@ def write_drives(root: Path, names: tuple[str, ...], poses: int) -> Path:
     return root
 
 
+def kitti_corpus(drives: Path, sequences: int, frames: int, **options) -> CorpusConfig:
+    """A corpus over the drives 00, 02 (train), 04 (validation) and 05 (test) of ``drives``, seed 2."""
+    splits = {"kitti_train": ("00", "02"), "kitti_validation": ("04",), "kitti_test": ("05",)}
+    return CorpusConfig(sequences=sequences, frames=frames, seed=2, kitti_poses=str(drives), **splits, **options)
+
+
 def test_kitti_drives_give_each_split_its_own_windows(tmp_path: Path) -> None:
     drives = write_drives(tmp_path, ("00", "02", "04", "05"), 60)
-    config = CorpusConfig(
-        sequences=60,
-        frames=20,
-        seed=2,
-        kitti_poses=str(drives),
-        kitti_train=("00", "02"),
-        kitti_validation=("04",),
-        kitti_test=("05",),
-    )
+    config = kitti_corpus(drives, 60, 20)
     plain = CorpusConfig(sequences=60, frames=20, seed=2)
     for i in range(60):
         plan, before = plan_sequence(config, i), plan_sequence(plain, i)
@@ -91,16 +89,7 @@ def test_turning_windows_are_drawn_in_proportion_to_their_turning(tmp_path: Path
     np.testing.assert_allclose(weights, expected / expected.sum(), rtol=1e-6)  # poses written to 12 digits
     for name in ("02", "04", "05"):
         (tmp_path / f"{name}.txt").write_text(drive.read_text())
-    config = CorpusConfig(
-        sequences=40,
-        frames=10,
-        seed=2,
-        kitti_poses=str(tmp_path),
-        kitti_train=("00", "02"),
-        kitti_validation=("04",),
-        kitti_test=("05",),
-        kitti_turning=True,
-    )
+    config = kitti_corpus(tmp_path, 40, 10, kitti_turning=True)
     starts = np.array([plan_sequence(config, i).config.start_frame for i in range(40)])
     assert np.mean(starts > 91) > 0.6  # windows holding part of the turn: 19 of 111 starts, most of the weight
     uniform = replace(config, kitti_turning=False)
