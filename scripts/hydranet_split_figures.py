@@ -1,5 +1,6 @@
 """HydraNet models' pooled per-pair figures on one split and preset of a corpus (for choosing models on the
-validation split; `pvo hydranet eval` gives one sequence's):
+validation split; `pvo hydranet eval` gives one sequence's), and the share of the split's pairs that turn more than
+2 degrees:
 
     python scripts/hydranet_split_figures.py --corpus data/corpus-hydra7 --split validation --preset planetary \
         --models runs/hydranet7/urban2-20 runs/hydranet8/urban2-bootstrap-20
@@ -16,6 +17,7 @@ from pvo_core.readers import read_corpus_manifest
 from pvo_core.trajectory import read_kitti_poses
 from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
 from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+from pvo_pseudosensors.learning.checkpoint import ModelFileError
 
 
 def main() -> None:
@@ -30,7 +32,10 @@ def main() -> None:
     if not sequences:
         raise SystemExit(f"{args.corpus}: no {args.preset} sequence in the {args.split} split")
     for path in args.models:
-        model, card = load_hydranet(path)
+        try:
+            model, card = load_hydranet(path)
+        except ModelFileError as error:
+            raise SystemExit(str(error)) from None
         quaternions, covariances, truth = [], [], []
         for item in sequences:
             predictions = predict_sequence(model, card, item.root, cache_dir=args.corpus / ".cache")
@@ -38,10 +43,13 @@ def main() -> None:
             quaternions.append(predictions.quaternions)
             covariances.append(predictions.covariance)
             truth.append(true_relative_rotations(poses, predictions.earlier, predictions.frames))
-        f = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth))
+        true = np.concatenate(truth)
+        f = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), true)
+        turning = np.degrees(np.arccos(np.clip((np.trace(true, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))) > 2.0
         print(
-            f"{path}: {args.split} {args.preset}, {len(sequences)} sequences, {int(f['pairs'])} pairs: mean "
-            f"{f['angle_mean_deg']:.4f} deg, median {f['angle_median_deg']:.4f}, NLL {f['nll']:.2f}, ANEES {f['anees']:.3f}"
+            f"{path}: {args.split} {args.preset}, {len(sequences)} sequences, {int(f['pairs'])} pairs "
+            f"({100 * turning.mean():.0f} % turning > 2 deg): mean {f['angle_mean_deg']:.4f} deg, "
+            f"median {f['angle_median_deg']:.4f}, NLL {f['nll']:.2f}, ANEES {f['anees']:.3f}"
         )
 
 

@@ -27,6 +27,7 @@ from pvo_frontend.offline import run_sequence
 from pvo_frontend.vo import VOConfig
 from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
 from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+from pvo_pseudosensors.learning.checkpoint import ModelFileError
 from pvo_tools.experiments.common import TRAJECTORY_METRICS, fusion_figures
 from pvo_tools.experiments.hydranet import FIRST_STAMP_NS, rotation_measurements, vo_rotation_errors
 
@@ -62,7 +63,10 @@ def main() -> None:
     spans = [int(v) for v in args.vo_spans.split(",")] if args.vo_spans else [0]  # 0: the corpus's frame-to-frame scales
 
     settings = [(float(g), float(k), span) for g in args.gates.split(",") for k in args.huber.split(",") for span in spans]
-    models = [(path, *load_hydranet(path)) for path in args.models]
+    try:
+        models = [(path, *load_hydranet(path)) for path in args.models]
+    except ModelFileError as error:
+        raise SystemExit(str(error)) from None
     changes: dict[tuple[str, tuple[float, float, int]], list[list[float]]] = {
         (str(p), s): [] for p in args.models for s in settings
     }
