@@ -2,7 +2,7 @@
 
 Subscribes: /stereo/{left,right}/image_rect (mono8/rgb8/bgr8), /stereo/{left,right}/camera_info, and
 /imu/data (sensor_msgs/Imu) when the PROBE model (``probe.model``) has IMU predictors: the reading nearest
-each frame (within 50 ms) feeds them; a frame without one gets the default noise.
+each frame (within 50 ms) feeds them; a frame without one is weighed by the model's other predictors alone.
 Publishes: /pvo/vo/relative (pvo_msgs/RelativePose, T_cur,prev with ROS-order covariance of a left
 perturbation), /pvo/vo/odometry and /pvo/vo/path (pose of camera_left_optical in odom),
 /pvo/vo/status (diagnostic_msgs/DiagnosticArray: features, inliers, iterations, stage times, lost).
@@ -222,8 +222,8 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
         self._imu.append((stamp_ns, reading))
 
     def _imu_at(self, stamp_ns: int) -> np.ndarray | None:
-        """The IMU reading nearest the frame, within IMU_TOLERANCE_NS; None without one (PROBE then gives the
-        frame the default noise)."""
+        """The IMU reading nearest the frame, within IMU_TOLERANCE_NS; None without one (PROBE then weighs the
+        frame by its other predictors alone)."""
         if not self._imu:
             return None
         stamp, reading = min(self._imu, key=lambda item: abs(item[0] - stamp_ns))

@@ -46,6 +46,25 @@ def test_posterior_equals_the_hand_computed_update() -> None:
     assert nu_far[0] == 4.0
 
 
+def test_marginal_model_is_the_kernel_over_the_kept_predictors_alone() -> None:
+    config = GKConfig(radius=0.5, max_neighbours=8, prior_samples=4.0, prior_sigma=(1.0, 2.0, 3.0))
+    # sample 1 is near the query in x but far in y: the full model leaves it out, the marginal over x keeps it
+    predictors = np.array([[0.0, 0.0], [0.2, 5.0], [3.0, 0.0]])
+    errors = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [9.0, 9.0, 9.0]])
+    model = GKModel(("x", "y"), predictors, errors, config, mean=np.zeros(2), std=np.ones(2))
+    marginal = model.marginal(("x",))
+    assert marginal.names == ("x",) and marginal.config == model.config
+    psi, nu = marginal.posterior(np.array([[0.0]]))
+    weights = [sparse_kernel(np.array(d / 0.5)) for d in (0.0, 0.2)]
+    expected = 4.0 * np.diag([1.0, 4.0, 9.0]) + sum(w * np.outer(e, e) for w, e in zip(weights, errors[:2], strict=True))
+    np.testing.assert_allclose(psi[0], expected)
+    assert nu[0] == pytest.approx(4.0 + sum(weights))
+    full_psi, full_nu = model.posterior(np.array([[0.0, 0.0]]))
+    np.testing.assert_allclose(full_psi[0], 4.0 * np.diag([1.0, 4.0, 9.0]) + np.outer(errors[0], errors[0]))
+    with pytest.raises(ValueError, match="no predictor z"):
+        model.marginal(("x", "z"))
+
+
 def test_heteroscedastic_variances_are_recovered_within_20_percent() -> None:
     rng = np.random.default_rng(0)
     x = rng.uniform(0.0, 1.0, 40_000)

@@ -236,6 +236,14 @@ class GKModel:
     def normalise(self, predictors: Array) -> Array:
         return self._space.normalise(predictors)
 
+    def marginal(self, names: tuple[str, ...]) -> GKModel:
+        """The same stored errors indexed by the predictors ``names`` only (a subset of this model's), for a
+        query that lacks the others (an IMU model at a frame without an IMU reading): the kernel over the kept
+        predictors, normalised by their training statistics, and the same (already resolved) prior."""
+        columns = predictor_columns(self.names, names)
+        assert self.mean is not None and self.std is not None
+        return GKModel(names, self.predictors[:, columns], self.errors, self.config, self.mean[columns], self.std[columns])
+
     def replace_errors(self, errors: Array) -> None:
         """New errors for the same samples (an EM step): the index over the predictors is kept."""
         errors = np.asarray(errors, dtype=float)
@@ -273,6 +281,14 @@ class GKModel:
         psi, nu = self.posterior(predictors, exclude)
         dof = nu - ERROR_DIM + 1.0
         return NoiseModel(psi / dof[:, None, None], dof)
+
+
+def predictor_columns(names: tuple[str, ...], kept: tuple[str, ...]) -> list[int]:
+    """The column of each of ``kept`` among ``names``; a name the model lacks is a ValueError."""
+    missing = [n for n in kept if n not in names]
+    if missing:
+        raise ValueError(f"PROBE: the model has no predictor {', '.join(missing)} (it has {', '.join(names)})")
+    return [names.index(n) for n in kept]
 
 
 def student_t_log_density(errors: Array, noise: NoiseModel) -> Array:

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from pvo_core.camera import StereoCamera
 
 from ..vo.solver import RobustLoss
-from .gk import PredictorSpace
+from .gk import PredictorSpace, predictor_columns
 from .training import FramePair, solve_pair
 
 Array = NDArray[np.float64]
@@ -73,6 +73,12 @@ class KNNModel:
         assert space.tree is not None
         self._tree = space.tree
         self.average_error = float(self.errors.mean())
+
+    def marginal(self, names: tuple[str, ...]) -> KNNModel:
+        """The same stored errors indexed by the predictors ``names`` only (see :meth:`GKModel.marginal`)."""
+        columns = predictor_columns(self.names, names)
+        assert self.mean is not None and self.std is not None
+        return KNNModel(names, self.predictors[:, columns], self.errors, self.config, self.mean[columns], self.std[columns])
 
     def weights(self, predictors: Array) -> Array:
         """beta (N,) of eq. A.6 at the query predictors (N, p)."""

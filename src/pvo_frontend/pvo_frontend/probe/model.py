@@ -5,7 +5,7 @@ trained), and the per-frame noise it gives the VO (:class:`pvo_frontend.vo.pipel
 from __future__ import annotations
 
 import zipfile
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +59,7 @@ class ProbeModel:
     estimator: GKModel | KNNModel
     training: dict[str, Any] = field(default_factory=dict)
     nominal_sigma: tuple[float, float, float] = (1.0, 1.0, 2.0)
+    _without_imu: ProbeModel | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -140,15 +141,27 @@ class ProbeModel:
         return cls(card["kind"], predictors, estimator, card.get("training") or {}, nominal)  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ in the VO
+    def without_imu(self) -> ProbeModel:
+        """This model for frames without an IMU reading: the same stored errors queried over its other
+        predictors (the IMU columns marginalised out of the kernel), so that one model uses the IMU where there
+        is one and works from the images alone where there is not. A model without IMU predictors is itself."""
+        if not self.predictors.imu:
+            return self
+        if self._without_imu is None:
+            predictors = replace(self.predictors, imu=False)
+            estimator = self.estimator.marginal(predictors.names)
+            self._without_imu = ProbeModel(self.kind, predictors, estimator, self.training, self.nominal_sigma)
+        return self._without_imu
+
     def feature_noise(self) -> Any:
         """The VO's noise hook (:data:`pvo_frontend.vo.pipeline.FeatureNoise`) for this model; a model with IMU
-        predictors gives no estimate (the VO's default noise) for a frame without an IMU reading."""
+        predictors queries its stored errors without them (:meth:`without_imu`) at a frame without an IMU
+        reading."""
 
         def hook(before: Any, after: Any, image: NDArray[np.uint8], imu: Array | None = None) -> Any:
             magnitudes = imu_magnitudes(imu)
-            if self.predictors.imu and magnitudes is None:
-                return None
-            return self.noise(before.left, after.left, image, magnitudes, before.observations()[:, 2])
+            model = self if magnitudes is not None else self.without_imu()
+            return model.noise(before.left, after.left, image, magnitudes, before.observations()[:, 2])
 
         return hook
 
