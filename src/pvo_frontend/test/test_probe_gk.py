@@ -60,6 +60,7 @@ def test_marginal_model_is_the_kernel_over_the_kept_predictors_alone() -> None:
     np.testing.assert_allclose(psi[0], expected)
     assert nu[0] == pytest.approx(4.0 + sum(weights))
     full_psi, full_nu = model.posterior(np.array([[0.0, 0.0]]))
+    assert full_nu[0] == pytest.approx(5.0)
     np.testing.assert_allclose(full_psi[0], 4.0 * np.diag([1.0, 4.0, 9.0]) + np.outer(errors[0], errors[0]))
     with pytest.raises(ValueError, match="no predictor z"):
         model.marginal(("x", "z"))
