@@ -7,6 +7,7 @@ against the VO with a PROBE model under each candidate prior, each sequence run 
 Prints, per prior, the mean relative change of translational ARMSE over all sequences, over those where tracking is
 hard (moving vehicles, motion blur, texture-poor walls) and the worst clean sequence (no condition drawn) - the
 figures the README's PROBE section quotes. The candidate priors are refitted from the model's stored errors.
+``--also MODEL...`` compares other models (say, trained on more sequences) on the same runs, each as trained.
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ def main() -> None:
     parser.add_argument("--priors", nargs="+", default=["nominal", "fitted:2", "fitted:3", "fitted:5"])
     parser.add_argument("--seeds", type=int, default=5, help="RANSAC seeds per sequence (default 5)")
     parser.add_argument("--max-sequences", type=int, help="the first N validation sequences only")
+    parser.add_argument(
+        "--also", type=Path, nargs="+", default=[], help="other models to compare, each with its own prior as trained"
+    )
     args = parser.parse_args()
 
     model = ProbeModel.load(args.model)
@@ -53,24 +57,27 @@ def main() -> None:
         estimator = replace(model.estimator)  # a shallow copy: the stored samples are shared
         estimator.config = prior_config(trained, spec).fitted_to(estimator.errors)
         models[spec] = replace(model, estimator=estimator)
-    changes: dict[str, dict[str, float]] = {spec: {} for spec in args.priors}
+    for other in args.also:
+        models[str(other)] = ProbeModel.load(other)
+    labels = list(models)
+    changes: dict[str, dict[str, float]] = {label: {} for label in labels}
     conditions = {}
     for item in read_corpus_manifest(args.corpus).split("validation")[: args.max_sequences or None]:
         sequence = KittiSequence(item.root, poses_file=item.root / "poses.txt")
         conditions[item.name] = set(item.conditions)
-        runs: dict[str, list[float]] = {"default": [], **{spec: [] for spec in args.priors}}
+        runs: dict[str, list[float]] = {"default": [], **{label: [] for label in labels}}
         for seed in range(args.seeds):
             config = replace(VOConfig(), ransac=replace(VOConfig().ransac, seed=seed))
             runs["default"].append(metrics.armse(sequence.poses, run_sequence(sequence, config).poses)["trans"])
             for spec, candidate in models.items():
                 poses = run_sequence(sequence, config, feature_noise=candidate.feature_noise()).poses
                 runs[spec].append(metrics.armse(sequence.poses, poses)["trans"])
-        for spec in args.priors:
-            changes[spec][item.name] = float(np.mean(runs[spec]) / np.mean(runs["default"]) - 1.0)
+        for label in labels:
+            changes[label][item.name] = float(np.mean(runs[label]) / np.mean(runs["default"]) - 1.0)
         print(
             item.name,
             sorted(item.conditions),
-            " ".join(f"{s} {100 * changes[s][item.name]:+.1f} %" for s in args.priors),
+            " ".join(f"{s} {100 * changes[s][item.name]:+.1f} %" for s in labels),
             flush=True,
         )
     for spec, change in changes.items():

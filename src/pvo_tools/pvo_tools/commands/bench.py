@@ -147,8 +147,11 @@ def bench_probe(args: argparse.Namespace) -> int:
         "blur": lambda: blur_metric(image, current, cfg.patch, cfg.blur_taps),
         "fft low/high": lambda: frequency_composition(gather_patches(image, current, cfg.patch), cfg.block),
         "flow variance": lambda: flow_variance_score(reference, current, cfg.flow_small, cfg.flow_large),
-        "predictors + noise (total)": lambda: model.noise(reference, current, image, disparity=disparity),
+        "predictors + noise (total)": lambda: model.without_imu().noise(reference, current, image, disparity=disparity),
     }
+    if cfg.imu:  # the total above is a frame without an IMU reading (the images alone); this one has one
+        imu = np.array([9.81, 0.05])  # |specific force| m/s^2, |angular rate| rad/s
+        stages["... with an IMU reading"] = lambda: model.noise(reference, current, image, imu, disparity)
     print(
         f"pvo bench probe: model {args.model} ({model.kind}, {len(model.estimator.errors)} stored samples, "
         f"predictors {', '.join(cfg.names)}), {args.features} features on a {width}x{height} image, one core"
