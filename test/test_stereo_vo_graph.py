@@ -195,6 +195,52 @@ def test_stereo_vo_with_probe_model_over_dds(ros_context, sample_bag: Path, pvo_
     assert not np.allclose(expected[-1].pose, baseline[-1].pose, atol=1e-6)  # the model changed the estimate
 
 
+def test_stereo_vo_reads_imu_data_for_a_probe_model_with_imu_predictors(ros_context, sample_bag: Path, pvo_data: Path) -> None:
+    """probe_kitti has IMU predictors: with /imu/data at the frames' stamps (the raw drive's IMU) the node's
+    relative poses are the ROS-free VO's with those readings, and differ from its images-only ones."""
+    from pvo_core.readers import read_klt_tracks
+    from pvo_frontend.vo import from_flat
+    from pvo_tools.bagio import iter_messages, open_bag
+    from sensor_msgs.msg import Imu
+
+    with open_bag(sample_bag) as reader:
+        left = [c for c in reader.connections if c.topic == "/stereo/left/image_rect"]
+        stamps = [t for _, t, _ in iter_messages(reader, left)]
+    drive = read_klt_tracks(pvo_data / "kitti/raw-derived/2011_09_30_drive_0020_sync_KLT.mat")  # odometry 06
+    readings = np.column_stack([drive.angular_rate, drive.specific_force])[: len(stamps)]
+    vo_node = StereoVONode(context=ros_context, parameter_overrides=[Parameter("probe.model", value="probe_kitti")])
+    listener = Node("listener", context=ros_context)
+    player_node = Node("player", context=ros_context)
+    imu_publisher = player_node.create_publisher(Imu, "/imu/data", QoSProfile(depth=400, reliability=ReliabilityPolicy.RELIABLE))
+    relative: list[RelativePose] = []
+    listener.create_subscription(RelativePose, "/pvo/vo/relative", relative.append, RELIABLE)
+    try:
+        with Spinner(ros_context, vo_node), Spinner(ros_context, listener):
+            wait_for(lambda: imu_publisher.get_subscription_count() >= 1)
+            for stamp, reading in zip(stamps, readings, strict=True):
+                msg = Imu()
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+                msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in reading[:3])
+                a = msg.linear_acceleration
+                a.x, a.y, a.z = (float(v) for v in reading[3:])
+                imu_publisher.publish(msg)
+            wait_for(lambda: len(vo_node._imu) >= len(stamps))
+            BagPlayer(player_node, sample_bag, PlayOptions(rate=2.0, wait_for_subscribers=1, clock=False)).play()
+            wait_for(lambda: len(relative) >= 50)
+    finally:
+        for node in (vo_node, listener, player_node):
+            node.destroy_node()
+    assert len(relative) == 50
+    sequence = KittiSequence(pvo_data / "kitti/sequences/06", rate_hz=10.0)
+    with_imu = StereoVO(sequence.camera(1226, 370), from_flat({"probe.model": "probe_kitti"}))
+    images_only = StereoVO(sequence.camera(1226, 370), from_flat({"probe.model": "probe_kitti"}))
+    expected = [with_imu.process(*sequence.load_pair(i), stamps[i] * 1e-9, readings[i]) for i in range(len(sequence))]
+    without = [images_only.process(*sequence.load_pair(i), stamps[i] * 1e-9) for i in range(len(sequence))]
+    for msg, result in zip(relative, expected[1:], strict=True):
+        assert np.allclose(pose_to_matrix(msg.pose.pose), result.transform, atol=1e-9)
+    assert not np.allclose(expected[-1].pose, without[-1].pose, atol=1e-9)  # the readings were used
+
+
 def test_a_missing_probe_model_stops_the_node_at_start_with_one_line(ros_context, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"PROBE model .*missing: no such directory"):
         StereoVONode(context=ros_context, parameter_overrides=[Parameter("probe.model", value=str(tmp_path / "missing"))])
