@@ -47,12 +47,13 @@ class ModelEntry:
     prediction_header: str = ""
     options: dict[str, str] = field(default_factory=dict)  # option help per config field
     off_rig: tuple[str, ...] = ()
+    shipped: tuple[str, ...] = ()  # models installed with the package: `predict --model NAME` takes these names
 
 
 def _sun_bcnn() -> ModelEntry:
     from pvo_core.readers import SUN_PREDICTIONS_HEADER
 
-    from .sun_bcnn.config import SunBCNNConfig
+    from .sun_bcnn.config import SHIPPED, SunBCNNConfig
 
     def task(config: SunBCNNConfig):
         from .sun_bcnn.model import SunTask
@@ -108,6 +109,7 @@ def _sun_bcnn() -> ModelEntry:
         truth="true sun vectors (sun.csv of the sequence)",
         calibrate=calibrate,
         prediction_header=SUN_PREDICTIONS_HEADER,
+        shipped=SHIPPED,
         options={
             "height": "input height (px)",
             "width": "input width (px)",
@@ -126,7 +128,7 @@ def _sun_bcnn() -> ModelEntry:
 def _hydranet() -> ModelEntry:
     from pvo_core.readers import ROTATION_PREDICTIONS_HEADER
 
-    from .hydranet.config import HydraNetConfig
+    from .hydranet.config import SHIPPED, HydraNetConfig
 
     def task(config: HydraNetConfig):
         from .hydranet.model import HydraTask
@@ -188,6 +190,7 @@ def _hydranet() -> ModelEntry:
         # each image decoded, then the flow of each consecutive pair (and of each reversed pair in training)
         work=lambda config, frames, training: sum(n + (n - 1) * (2 if config.reverse and training else 1) for n in frames),
         mc_sampling=False,
+        shipped=SHIPPED,
         prediction_header=ROTATION_PREDICTIONS_HEADER,
         options={
             "height": "height (px) of the images the flow is computed at",

@@ -90,6 +90,16 @@ def test_train_predict_eval(corpus: Path, tmp_path: Path, capsys) -> None:
     assert record["figures"]["images"] == 16.0
 
 
+def test_predict_takes_a_shipped_models_name(corpus: Path, tmp_path: Path) -> None:
+    from pvo_pseudosensors.learning.checkpoint import shipped_model
+
+    by_name, by_path = tmp_path / "name.csv", tmp_path / "path.csv"
+    predict = ["sun-bcnn", "predict", str(corpus / "0003"), "--samples", "2"]
+    assert main([*predict, "--model", "sun_bcnn", "-o", str(by_name)]) == 0
+    assert main([*predict, "--model", str(shipped_model("sun_bcnn")), "-o", str(by_path)]) == 0
+    assert len(by_name.read_text().splitlines()) == 17 and by_name.read_text() == by_path.read_text()
+
+
 def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     assert (
         main(["sun-bcnn", "predict", str(corpus / "0003"), "--model", str(tmp_path / "none"), "-o", str(tmp_path / "p.csv")]) == 2

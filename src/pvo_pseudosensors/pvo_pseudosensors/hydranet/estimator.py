@@ -11,14 +11,13 @@ import torch
 from numpy.typing import NDArray
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
-from .config import HydraNetConfig
+from .config import SHIPPED, HydraNetConfig
 from .flow import dense_flow, network_input
 from .infer import load_hydranet
 from .model import predict_rotations
 
 Array = NDArray[np.float64]
 UNMEASURED = 9999.0  # variance of a RelativePose's translation block: HydraNet says nothing about it
-SHIPPED = ("hydranet", "hydranet_kitti")  # trained on the synthetic corpus / fine-tuned on KITTI 07
 
 
 def resolve_model(model: str) -> Path:

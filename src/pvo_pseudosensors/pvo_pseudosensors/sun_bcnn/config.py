@@ -7,6 +7,9 @@ from typing import Any
 
 from ..learning.spec import DataSpec
 
+#: Models installed with the package, by name (``model: NAME``).
+SHIPPED = ("sun_bcnn", "sun_bcnn_kitti")  # trained on the synthetic corpus / fine-tuned on KITTI 07
+
 ARCHITECTURE = "sun-bcnn"
 
 

@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 from pvo_core.sun import unit_zenith_azimuth
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
+from .config import SHIPPED
 from .infer import MODES, combine, draw_samples, load_sun_bcnn
 
 Array = NDArray[np.float64]
@@ -35,9 +36,6 @@ class SunBCNNSensorConfig:
             raise ValueError("every_n and threads must be >= 1 and samples >= 2")
         if self.mode not in MODES:
             raise ValueError(f"unknown mode {self.mode!r}: choose one of {', '.join(MODES)}")
-
-
-SHIPPED = ("sun_bcnn", "sun_bcnn_kitti")  # trained on the synthetic corpus / fine-tuned on KITTI 07
 
 
 def resolve_model(model: str) -> Path:

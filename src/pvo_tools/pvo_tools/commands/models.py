@@ -96,7 +96,8 @@ def _predict_parser(actions: Any, entry: ModelEntry) -> None:
     predict = actions.add_parser("predict", help=f"run a trained {entry.name} over a sequence's images")
     predict.set_defaults(handler=lambda args: run_predict(args, entry))
     predict.add_argument("sequence", type=Path, help="KITTI-layout sequence directory")
-    predict.add_argument("--model", type=Path, required=True, help="model directory (weights.safetensors + model.yaml)")
+    names = f", or a shipped model's name ({', '.join(entry.shipped)})" if entry.shipped else ""
+    predict.add_argument("--model", type=Path, required=True, help=f"model directory (weights.safetensors + model.yaml){names}")
     predict.add_argument("--out", "-o", type=Path, required=True, help="prediction file (CSV)")
     predict.add_argument("--cache", type=Path, help="decoded-image cache directory (default: none, decode afresh)")
     if not entry.mc_sampling:
@@ -279,6 +280,10 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
 
 def run_predict(args: argparse.Namespace, entry: ModelEntry) -> int:
     assert entry.predict is not None
+    if entry.shipped:
+        from pvo_pseudosensors.learning.checkpoint import resolve_model
+
+        args.model = resolve_model(str(args.model), entry.shipped)
     if not entry.mc_sampling:
         predictions = entry.predict(args.model, args.sequence, cache_dir=args.cache)
         path = predictions.write_csv(args.out)

@@ -39,7 +39,9 @@ FUSION_SEQUENCES: tuple[tuple[str, str, int, dict[str, float]], ...] = (
 
 def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--corpus", type=Path, required=True, help="corpus (its test split is held out)")
-    parser.add_argument("--model", type=Path, required=True, help="the HydraNet model to evaluate")
+    parser.add_argument(
+        "--model", type=Path, required=True, help="the HydraNet model to evaluate: a directory or a shipped name (hydranet)"
+    )
     parser.add_argument(
         "--other-form",
         "--diagonal",
@@ -255,8 +257,10 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from pvo_core.readers import read_corpus_manifest
     from pvo_core.results import RunResult
+    from pvo_pseudosensors.hydranet.estimator import resolve_model
     from pvo_pseudosensors.hydranet.infer import load_hydranet
 
+    args.model = resolve_model(str(args.model))  # a shipped name (hydranet) or a directory
     torch.set_num_threads(args.threads)
     session = ExperimentRun.start(args)
     say, out = session.say, session.out

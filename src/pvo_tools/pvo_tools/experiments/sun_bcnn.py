@@ -224,7 +224,12 @@ def format_table(results: list[Evaluated]) -> str:
 
 def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--corpus", type=Path, required=True, help="the corpus the models were trained on (its test split)")
-    parser.add_argument("--model", type=Path, required=True, help="the Sun-BCNN model (calibrated), with the aleatoric output")
+    parser.add_argument(
+        "--model",
+        type=Path,
+        required=True,
+        help="the Sun-BCNN model (calibrated), with the aleatoric output: a directory or a shipped name (sun_bcnn)",
+    )
     parser.add_argument("--homoscedastic", type=Path, help="the same model trained without the aleatoric output (calibrated)")
     parser.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
     parser.add_argument("--samples", type=int, default=25, help="MC-dropout passes (default 25)")
@@ -240,10 +245,10 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
     from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
     from pvo_core.results import RunResult
     from pvo_pseudosensors.learning.training import FineTune
+    from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
     from pvo_pseudosensors.sun_bcnn.evaluation import calibration_curve, method_comparison, time_per_image
     from pvo_pseudosensors.sun_bcnn.infer import (
         Draws,
@@ -257,6 +262,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..plots import pyplot
 
+    args.model = resolve_model(str(args.model))  # a shipped name (sun_bcnn) or a directory
     session = ExperimentRun.start(args)
     say, command, out = session.say, session.command, session.out
     manifest = read_corpus_manifest(args.corpus)
