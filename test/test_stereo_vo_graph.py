@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -164,11 +165,9 @@ def test_the_path_is_bounded_and_published_once_per_path_period(ros_context) -> 
     assert [len(p.poses) for p in paths] == [1, 4, 4, 4]
 
 
-def test_stereo_vo_with_probe_model_over_dds(ros_context, sample_bag: Path, pvo_data: Path) -> None:
-    """probe.model set on the node (the shipped probe_kitti): the relative poses over DDS are what the
-    ROS-free VO with that model computes, and differ from the plain VO's."""
-    from pvo_frontend.vo import from_flat
-
+def probe_node_relative_poses(ros_context, sample_bag: Path, before_play: Any = None) -> list[RelativePose]:
+    """The sample bag through a stereo_vo node with probe.model = probe_kitti: its /pvo/vo/relative messages.
+    ``before_play(vo_node, player_node)`` runs once both spin, before the bag plays."""
     vo_node = StereoVONode(context=ros_context, parameter_overrides=[Parameter("probe.model", value="probe_kitti")])
     listener = Node("listener", context=ros_context)
     player_node = Node("player", context=ros_context)
@@ -176,12 +175,23 @@ def test_stereo_vo_with_probe_model_over_dds(ros_context, sample_bag: Path, pvo_
     listener.create_subscription(RelativePose, "/pvo/vo/relative", relative.append, RELIABLE)
     try:
         with Spinner(ros_context, vo_node), Spinner(ros_context, listener):
+            if before_play is not None:
+                before_play(vo_node, player_node)
             BagPlayer(player_node, sample_bag, PlayOptions(rate=2.0, wait_for_subscribers=1, clock=False)).play()
             wait_for(lambda: len(relative) >= 50)
     finally:
         for node in (vo_node, listener, player_node):
             node.destroy_node()
     assert len(relative) == 50
+    return relative
+
+
+def test_stereo_vo_with_probe_model_over_dds(ros_context, sample_bag: Path, pvo_data: Path) -> None:
+    """probe.model set on the node (the shipped probe_kitti): the relative poses over DDS are what the
+    ROS-free VO with that model computes, and differ from the plain VO's."""
+    from pvo_frontend.vo import from_flat
+
+    relative = probe_node_relative_poses(ros_context, sample_bag)
     stamps = [stamp_to_nanoseconds(m.reference_stamp) for m in relative[:1]] + [
         stamp_to_nanoseconds(m.header.stamp) for m in relative
     ]
@@ -208,29 +218,20 @@ def test_stereo_vo_reads_imu_data_for_a_probe_model_with_imu_predictors(ros_cont
         stamps = [t for _, t, _ in iter_messages(reader, left)]
     drive = read_klt_tracks(pvo_data / "kitti/raw-derived/2011_09_30_drive_0020_sync_KLT.mat")  # odometry 06
     readings = np.column_stack([drive.angular_rate, drive.specific_force])[: len(stamps)]
-    vo_node = StereoVONode(context=ros_context, parameter_overrides=[Parameter("probe.model", value="probe_kitti")])
-    listener = Node("listener", context=ros_context)
-    player_node = Node("player", context=ros_context)
-    imu_publisher = player_node.create_publisher(Imu, "/imu/data", QoSProfile(depth=400, reliability=ReliabilityPolicy.RELIABLE))
-    relative: list[RelativePose] = []
-    listener.create_subscription(RelativePose, "/pvo/vo/relative", relative.append, RELIABLE)
-    try:
-        with Spinner(ros_context, vo_node), Spinner(ros_context, listener):
-            wait_for(lambda: imu_publisher.get_subscription_count() >= 1)
-            for stamp, reading in zip(stamps, readings, strict=True):
-                msg = Imu()
-                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-                msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z = (float(v) for v in reading[:3])
-                a = msg.linear_acceleration
-                a.x, a.y, a.z = (float(v) for v in reading[3:])
-                imu_publisher.publish(msg)
-            wait_for(lambda: len(vo_node._imu) >= len(stamps))
-            BagPlayer(player_node, sample_bag, PlayOptions(rate=2.0, wait_for_subscribers=1, clock=False)).play()
-            wait_for(lambda: len(relative) >= 50)
-    finally:
-        for node in (vo_node, listener, player_node):
-            node.destroy_node()
-    assert len(relative) == 50
+
+    def publish_imu(vo_node: StereoVONode, player_node: Node) -> None:
+        publisher = player_node.create_publisher(Imu, "/imu/data", QoSProfile(depth=400, reliability=ReliabilityPolicy.RELIABLE))
+        wait_for(lambda: publisher.get_subscription_count() >= 1)
+        for stamp, reading in zip(stamps, readings, strict=True):
+            msg = Imu()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+            w, a = msg.angular_velocity, msg.linear_acceleration
+            w.x, w.y, w.z = (float(v) for v in reading[:3])
+            a.x, a.y, a.z = (float(v) for v in reading[3:])
+            publisher.publish(msg)
+        wait_for(lambda: len(vo_node._imu) >= len(stamps))
+
+    relative = probe_node_relative_poses(ros_context, sample_bag, publish_imu)
     sequence = KittiSequence(pvo_data / "kitti/sequences/06", rate_hz=10.0)
     with_imu = StereoVO(sequence.camera(1226, 370), from_flat({"probe.model": "probe_kitti"}))
     images_only = StereoVO(sequence.camera(1226, 370), from_flat({"probe.model": "probe_kitti"}))
