@@ -60,17 +60,19 @@ def _sun_bcnn() -> ModelEntry:
 
         return SunTask(config)
 
-    def predict(model_dir, sequence, samples=25, seed=0, cache_dir=None, mode="full"):
-        from .sun_bcnn.infer import load_sun_bcnn, predict_sequence
+    def predict(model_dir, sequence, samples=25, seed=0, cache_dir=None, mode=None):
+        from .sun_bcnn.infer import DEFAULT_MODE, load_sun_bcnn, predict_sequence
 
         model, card = load_sun_bcnn(model_dir)
+        mode = mode or DEFAULT_MODE
         return predict_sequence(model, card, sequence, samples=samples, seed=seed, cache_dir=cache_dir, mode=mode)
 
-    def calibrate(model_dir, sequences, samples=25, mode="full", cache_dir=None):
+    def calibrate(model_dir, sequences, samples=25, mode=None, cache_dir=None):
         from .learning.checkpoint import write_card
-        from .sun_bcnn.infer import calibrate, load_sun_bcnn
+        from .sun_bcnn.infer import DEFAULT_MODE, calibrate, load_sun_bcnn
 
         model, card = load_sun_bcnn(model_dir)
+        mode = mode or DEFAULT_MODE
         figures = calibrate(model, card, sequences, samples=samples, mode=mode, cache_dir=cache_dir)
         card.calibration = {**figures, "mode": mode}
         write_card(model_dir, card)

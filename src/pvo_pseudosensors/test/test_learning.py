@@ -390,6 +390,36 @@ def test_the_aleatoric_output_learns_larger_covariance_for_noisier_images(tmp_pa
     assert np.all(np.linalg.eigvalsh(covariance) > 0) and np.allclose(covariance, covariance.transpose(0, 2, 1))
 
 
+def test_mirrored_mc_modes_pool_the_image_and_its_mirror() -> None:
+    """A mirrored mode is the plain mode's passes over the image plus its passes over the mirrored image with
+    the sun's x negated; without dropout, so every pass is the same, the mirrored image's mean is exactly the
+    image's mean mirrored - which the plain mode of an untrained network is not."""
+    from pvo_pseudosensors.sun_bcnn.infer import combine, draw_samples
+
+    torch.manual_seed(0)
+    images = torch.rand(3, 1, *SIZE)
+    flipped = torch.flip(images, dims=[-1])
+    model = SunBCNN(replace(TINY, aleatoric=True))
+    mirrored = draw_samples(model, images, 5, seed=3, mode="full-mirrored")
+    direct, other = draw_samples(model, images, 3, seed=3, mode="full"), draw_samples(model, flipped, 2, seed=4, mode="full")
+    np.testing.assert_allclose(mirrored.vectors, np.concatenate([direct.vectors, other.vectors * [-1.0, 1.0, 1.0]]))
+    assert mirrored.inverse_concentration is not None and other.inverse_concentration is not None
+    np.testing.assert_allclose(mirrored.inverse_concentration[3:], other.inverse_concentration)
+    head = draw_samples(model, images, 4, seed=3, mode="head-mirrored")
+    assert head.vectors.shape == (4, 3, 3)
+
+    deterministic = SunBCNN(replace(TINY, dropout=0.0))
+    mirror_x = np.array([-1.0, 1.0, 1.0])
+    for mode, equivariant in (("full-mirrored", True), ("full", False)):
+        mean, _ = combine(draw_samples(deterministic, images, 4, seed=0, mode=mode), np.inf)
+        mean_flipped, _ = combine(draw_samples(deterministic, flipped, 4, seed=0, mode=mode), np.inf)
+        assert np.allclose(mean_flipped, mean * mirror_x, atol=1e-6) == equivariant
+    with pytest.raises(ValueError, match="at least 2 samples"):
+        draw_samples(model, images, 1, seed=0, mode="head-mirrored")
+    with pytest.raises(ValueError, match="unknown MC mode 'sideways'"):
+        draw_samples(model, images, 4, seed=0, mode="sideways")
+
+
 def test_the_model_parameter_names_a_shipped_model_or_a_path(tmp_path: Path) -> None:
     from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
 

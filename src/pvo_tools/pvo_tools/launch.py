@@ -16,6 +16,10 @@ from typing import Any
 from .errors import PvoError
 from .graph import find_executable
 
+#: How long a node may take to stop after SIGINT before it is killed: generous, since five nodes finishing their
+#: queues on two loaded cores took over 15 s once, and a kill is for a node that hangs.
+STOP_TIMEOUT_S = 30.0
+
 
 @dataclass
 class NodeProcess:
@@ -38,6 +42,7 @@ class NodeGroup:
 
     nodes: list[NodeProcess] = field(default_factory=list)
     packages: dict[str, str] = field(default_factory=dict)
+    killed: list[str] = field(default_factory=list)  # nodes the last stop() had to kill
 
     def start(
         self, package: str, executable: str, params_file: Path | None, log_dir: Path, env: Mapping[str, str], suffix: str = ""
@@ -80,8 +85,10 @@ class NodeGroup:
             if code is not None and not node.expected_dead:
                 raise PvoError(f"node {node.name} died (exit status {code}): {node.tail() or 'no output'} (log {node.log})")
 
-    def stop(self, timeout_s: float = 15.0) -> dict[str, int]:
-        """SIGINT to every node still running, then wait (SIGKILL after ``timeout_s``); exit status per node."""
+    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> dict[str, int]:
+        """SIGINT to every node still running, then wait (SIGKILL after ``timeout_s``, the node then named in
+        ``killed``); exit status per node."""
+        self.killed = []
         for node in self.nodes:
             if node.process.poll() is None:
                 node.process.send_signal(signal.SIGINT)
@@ -92,6 +99,7 @@ class NodeGroup:
                 codes[node.name] = node.process.wait(timeout=max(deadline - time.monotonic(), 0.1))
             except subprocess.TimeoutExpired:
                 os.killpg(node.process.pid, signal.SIGKILL)
+                self.killed.append(node.name)
                 codes[node.name] = node.process.wait()
         return codes
 

@@ -145,7 +145,9 @@ def test_experiment_reports_every_table(corpus: Path, pvo_data: Path, tmp_path: 
     assert "fine-tuned on 07, KITTI 06" in report and "trained on 07 alone, KITTI 06" in report
     assert (out / "calibration.png").stat().st_size > 10_000
     figures = json.loads((out / "metrics.json").read_text())["figures"]
-    assert 0.0 <= figures["aleatoric.vector_median_deg"] <= 180.0 and figures["ms_per_image_full"] > 0
+    assert 0.0 <= figures["aleatoric.vector_median_deg"] <= 180.0
+    for mode in ("full", "head", "full-mirrored", "head-mirrored"):  # every MC mode timed and in the table
+        assert figures[f"ms_per_image_{mode}"] > 0 and f"\n{mode} " in report, mode
     tuned = yaml.safe_load((out / "kitti-finetuned" / "model.yaml").read_text())
     assert "fine-tuned from" in tuned["notes"] and tuned["calibration"]["on"] == "KITTI 07 frames 128-159"
     staged = (out / "kitti07-validation" / "sun.csv").read_text().splitlines()

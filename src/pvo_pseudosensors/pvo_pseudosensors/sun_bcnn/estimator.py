@@ -12,7 +12,7 @@ from pvo_core.sun import unit_zenith_azimuth
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import SHIPPED
-from .infer import MODES, combine, draw_samples, load_sun_bcnn
+from .infer import DEFAULT_MODE, MODES, combine, draw_samples, load_sun_bcnn
 
 Array = NDArray[np.float64]
 
@@ -21,13 +21,13 @@ Array = NDArray[np.float64]
 class SunBCNNSensorConfig:
     """model: the model directory ("" = the model shipped in the package, trained on the synthetic corpus;
     "sun_bcnn_kitti" = the shipped one fine-tuned on KITTI); every_n: one estimate every N
-    images (the thesis used every 10th); samples: MC-dropout passes; mode: full | head (see `infer`);
-    seed: of the dropout samples; threads: torch threads."""
+    images (the thesis used every 10th); samples: MC-dropout passes; mode: full | head | full-mirrored |
+    head-mirrored (see `infer.MODES`; default `infer.DEFAULT_MODE`); seed: of the dropout samples; threads: torch threads."""
 
     model: str = ""
     every_n: int = 10
     samples: int = 25
-    mode: str = "full"
+    mode: str = DEFAULT_MODE
     seed: int = 0
     threads: int = 1
 

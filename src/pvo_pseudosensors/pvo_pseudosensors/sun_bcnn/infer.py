@@ -51,7 +51,15 @@ class SunPredictions:
         return path
 
 
-MODES = ("full", "head")
+#: MC sampling: "full" (dropout everywhere, every pass through the whole network; the thesis), "head" (the
+#: backbone once, the passes through the head), and either "-mirrored": half the passes over the image mirrored
+#: left-right, their sun's x negated (the network was trained on mirrored images; pooling both halves averages
+#: out what the network does differently to the two).
+MODES = ("full", "head", "full-mirrored", "head-mirrored")
+MIRRORED = "-mirrored"
+#: The default, chosen on the corpus's validation split (60 sequences, 2,400 images, the shipped model, 24 passes):
+#: median vector error 22.23 deg full, 21.39 deg full-mirrored (12 + 12 passes; 48 passes without mirroring: 22.12).
+DEFAULT_MODE = "full-mirrored"
 
 
 def predict_sequence(
@@ -62,7 +70,7 @@ def predict_sequence(
     batch: int = 32,
     seed: int = 0,
     cache_dir: Path | None = None,
-    mode: str = "full",
+    mode: str = DEFAULT_MODE,
     tau: float | None = None,
 ) -> SunPredictions:
     """Every left image of ``sequence`` through ``samples`` dropout passes (seeded). mode "full": dropout in
@@ -88,7 +96,7 @@ def sample_sequence(
     batch: int = 32,
     seed: int = 0,
     cache_dir: Path | None = None,
-    mode: str = "full",
+    mode: str = DEFAULT_MODE,
 ) -> tuple[NDArray[np.int64], Draws]:
     """The frame numbers (N,) of ``sequence``'s left images and their MC-dropout draws (samples, N, ...)."""
     if mode not in MODES:
@@ -117,8 +125,23 @@ class Draws:
     inverse_concentration: Array | None
 
 
-def draw_samples(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, mode: str = "full") -> Draws:
-    """``samples`` MC-dropout passes; the global RNG is left as it was."""
+def draw_samples(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, mode: str = DEFAULT_MODE) -> Draws:
+    """``samples`` MC-dropout passes over images (B, C, H, W) in ``mode`` (:data:`MODES`); the global RNG is left
+    as it was. A mirrored mode draws ceil(samples / 2) passes over the images (seed) and the rest over the images
+    mirrored left-right (seed + 1), the latter's sun vectors mirrored back (x negated)."""
+    if mode not in MODES:
+        raise ValueError(f"unknown MC mode {mode!r}: choose one of {', '.join(MODES)}")
+    if mode.endswith(MIRRORED):
+        if samples < 2:
+            raise ValueError(f"MC mode {mode}: needs at least 2 samples (one per side), got {samples}")
+        base = mode.removesuffix(MIRRORED)
+        direct = draw_samples(model, images, (samples + 1) // 2, seed, base)
+        mirror = draw_samples(model, torch.flip(images, dims=[-1]), samples // 2, seed + 1, base)
+        vectors = mirror.vectors * np.array([-1.0, 1.0, 1.0])
+        inverse = None
+        if direct.inverse_concentration is not None and mirror.inverse_concentration is not None:
+            inverse = np.concatenate([direct.inverse_concentration, mirror.inverse_concentration])
+        return Draws(np.concatenate([direct.vectors, vectors]), inverse)
     state = torch.get_rng_state()
     torch.manual_seed(seed)
     try:
@@ -154,7 +177,7 @@ def calibrate(
     card: ModelCard,
     sequences: list[Path],
     samples: int = 25,
-    mode: str = "full",
+    mode: str = DEFAULT_MODE,
     max_cosine_distance: float = 0.3,
     cache_dir: Path | None = None,
 ) -> dict[str, float]:

@@ -297,7 +297,7 @@ def run_graph(
     from rclpy.context import Context
     from rclpy.node import Node
 
-    from ..launch import NodeGroup, wait_for_graph, wait_until
+    from ..launch import STOP_TIMEOUT_S, NodeGroup, wait_for_graph, wait_until
     from ..player import BagPlayer, PlayOptions
     from ..recorder import BagRecorder, RecordOptions
     from ..testing import Spinner
@@ -371,9 +371,13 @@ def run_graph(
         rclpy.shutdown(context=context)
     died = {name: code for name, code in codes.items() if code != 0}
     if died:
+        killed = f"killed: still running {STOP_TIMEOUT_S:g} s after SIGINT"
         raise PvoError(
             "node(s) did not exit cleanly: "
-            + ", ".join(f"{name} (exit {code}, log {log_dir / (name + '.log')})" for name, code in died.items())
+            + ", ".join(
+                f"{name} ({killed if name in nodes.killed else f'exit {code}'}, log {log_dir / (name + '.log')})"
+                for name, code in died.items()
+            )
         )
     expected = [
         "/pvo/vo/relative",

@@ -1,7 +1,7 @@
 """Sun-BCNN, thesis ch. 5 on the project's corpus and on real KITTI images.
 
 1. Accuracy (Table 5.1) per test sequence of the corpus and overall, with and without the aleatoric output,
-   both MC modes (full / head) with their time per image; a calibration plot (predicted sigma against the
+   every MC mode (full / head, each also mirrored) with its time per image; a calibration plot (predicted sigma against the
    actual error).
 2. Cloud cover (§5.10.1): sunny against overcast test sequences.
 3. Method I against Method II (Tables 5.7, 5.8): the mean and the covariance of the MC samples.
@@ -251,6 +251,8 @@ def run(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
     from pvo_pseudosensors.sun_bcnn.evaluation import calibration_curve, method_comparison, time_per_image
     from pvo_pseudosensors.sun_bcnn.infer import (
+        DEFAULT_MODE,
+        MODES,
         Draws,
         calibrate,
         load_sun_bcnn,
@@ -334,16 +336,18 @@ def run(args: argparse.Namespace) -> int:
 
     default = per_model["aleatoric"]
     model, card = loaded["aleatoric"]
-    say("head-only MC mode and timing ...")
-    head_rows, head_truth = [], []
-    for sequence in test:
-        p = predict_sequence(model, card, sequence.root, args.samples, cache_dir=cache, mode="head")
-        head_rows.append(p.rows())
-        head_truth.append(read_kitti_sun_csv(sequence.root / "sun.csv")[p.frames])
-    head = evaluate("aleatoric, head-only MC", np.vstack(head_rows), np.vstack(head_truth))
-    timing = {mode: time_per_image(model, card, 40, mode, args.samples) for mode in ("full", "head")}
-    figures.update({"ms_per_image_full": timing["full"], "ms_per_image_head": timing["head"]})
-    figures.update({f"head.{k}": v for k, v in head.figures.items()})
+    say("the other MC modes and timing ...")
+    other_modes: dict[str, Any] = {}
+    for mode in (m for m in MODES if m != DEFAULT_MODE):
+        mode_rows, mode_truth = [], []
+        for sequence in test:
+            p = predict_sequence(model, card, sequence.root, args.samples, cache_dir=cache, mode=mode)
+            mode_rows.append(p.rows())
+            mode_truth.append(read_kitti_sun_csv(sequence.root / "sun.csv")[p.frames])
+        other_modes[mode] = evaluate(f"aleatoric, {mode}", np.vstack(mode_rows), np.vstack(mode_truth))
+        figures.update({f"{mode}.{k}": v for k, v in other_modes[mode].figures.items()})
+    timing = {mode: time_per_image(model, card, 40, mode, args.samples) for mode in MODES}
+    figures.update({f"ms_per_image_{mode}": ms for mode, ms in timing.items()})
 
     report += ["## 1. Accuracy on the corpus's test split (Table 5.1's columns; degrees)", ""]
     for name, result in per_model.items():
@@ -354,11 +358,16 @@ def run(args: argparse.Namespace) -> int:
         ]
         report.append(format_table([r for _, r in result["per_sequence"]] + [result["overall"]]))
         report += ["```", ""]
-    report += [f"MC modes of the aleatoric model (N = {args.samples}; time per image on one thread, batch 1):", "", "```"]
-    report.append(
-        format_table([replace(default["overall"], label="full (dropout everywhere)"), replace(head, label="head only")])
-    )
-    report += ["```", "", f"Time per image: full {timing['full']:.1f} ms, head only {timing['head']:.1f} ms.", ""]
+    report += [
+        f"MC modes of the aleatoric model (N = {args.samples}; full: dropout everywhere, head: the backbone once, "
+        "-mirrored: half the passes over the mirrored image; the default above is "
+        f"{DEFAULT_MODE}):",
+        "",
+        "```",
+    ]
+    mode_results = {DEFAULT_MODE: default["overall"], **other_modes}
+    report.append(format_table([replace(mode_results[m], label=m) for m in MODES]))
+    report += ["```", "", "Time per image, one thread, batch 1: " + ", ".join(f"{m} {timing[m]:.1f} ms" for m in MODES) + ".", ""]
 
     fig, axes = pyplot().subplots(1, 2, figsize=(11, 4.5))
     for name, result in per_model.items():
