@@ -1,4 +1,4 @@
-"""`pvo bench vo|probe|sim|realism|fusion|soak|faults`: benchmarks that print figures (speed, memory, accuracy)."""
+"""`pvo bench vo|probe|sun-bcnn|sim|realism|fusion|soak|faults`: benchmarks that print figures (speed, memory, accuracy)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,9 @@ from .vo import add_sequence_arguments, open_sequence
 
 
 def register(sub: Any) -> None:
-    bench = sub.add_parser("bench", help="benchmarks: vo | probe | hydranet | dpc-net | sim | realism | fusion | soak | faults")
+    bench = sub.add_parser(
+        "bench", help="benchmarks: vo | probe | sun-bcnn | hydranet | dpc-net | sim | realism | fusion | soak | faults"
+    )
     kinds = bench.add_subparsers(dest="bench", required=True, metavar="WHAT")
     bvo = kinds.add_parser("vo", help="stereo VO per-stage timings and accuracy on a KITTI clip")
     bvo.set_defaults(handler=bench_vo)
@@ -40,6 +42,12 @@ def register(sub: Any) -> None:
     bp.add_argument("--image", type=Path, help="left image (default KITTI 06 frame 10 of the data directory)")
     bp.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
     bp.add_argument("--repeat", type=int, default=50, help="frames timed (default 50)")
+
+    bsun = kinds.add_parser("sun-bcnn", help="Sun-BCNN: one estimate per KITTI 06 image in every MC mode on one core")
+    bsun.set_defaults(handler=bench_sun_bcnn)
+    bsun.add_argument("--model", default="", help="Sun-BCNN model (default: the shipped one)")
+    bsun.add_argument("--samples", type=int, default=25, help="MC-dropout passes per estimate (default 25)")
+    bsun.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
 
     bh = kinds.add_parser("hydranet", help="HydraNet: resize, Farneback flow and the network per frame pair on one core")
     bh.set_defaults(handler=bench_hydranet)
@@ -166,6 +174,36 @@ def bench_probe(args: argparse.Namespace) -> int:
             stage()
             times.append(1e3 * (time.perf_counter() - tic))
         print(f"  {name:<28} median {np.median(times):6.2f} ms, p95 {np.percentile(times, 95):6.2f} ms")
+    return 0
+
+
+def bench_sun_bcnn(args: argparse.Namespace) -> int:
+    """Issue 14's budget: one estimate (resize, N passes, Method I/II) <= 30 ms per image on one core, in every
+    MC mode, over the KITTI 06 clip's full-size left images (what the node receives)."""
+    import time
+
+    import numpy as np
+    from pvo_core.imageio import read_image
+    from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
+    from pvo_pseudosensors.sun_bcnn.infer import DEFAULT_MODE, MODES
+
+    from ..paths import data_directory
+
+    paths = sorted((data_directory(args.data) / "kitti" / "sequences" / "06" / "image_0").glob("*.png"))
+    images = [read_image(p) for p in paths]
+    print(
+        f"pvo bench sun-bcnn: model {args.model or 'sun_bcnn (shipped)'}, {args.samples} passes, {len(images)} KITTI 06 "
+        f"images of {images[0].shape[1]}x{images[0].shape[0]}, one thread (default mode {DEFAULT_MODE})"
+    )
+    for mode in MODES:
+        sensor = SunBCNNSensor(SunBCNNSensorConfig(model=args.model, samples=args.samples, mode=mode, threads=1))
+        sensor.estimate(images[0])  # warm-up
+        times = []
+        for image in images:
+            tic = time.perf_counter()
+            sensor.estimate(image)
+            times.append(1e3 * (time.perf_counter() - tic))
+        print(f"  {mode:<14} median {np.median(times):6.1f} ms, p95 {np.percentile(times, 95):6.1f} ms per image")
     return 0
 
 
