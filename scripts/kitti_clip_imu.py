@@ -28,7 +28,12 @@ def main() -> None:
 
     from scipy.io import loadmat
 
-    tracks = read_klt_tracks(args.tracks)
+    try:
+        tracks = read_klt_tracks(args.tracks)
+    except ValueError as exc:  # DataFormatError: a missing or unreadable file, one line naming it
+        raise SystemExit(f"kitti_clip_imu: {exc}") from None
+    if not (args.clip / "image_0").is_dir():
+        raise SystemExit(f"{args.clip}: no image_0 directory (not a KITTI-layout clip)")
     frames = len(list((args.clip / "image_0").glob("*.png")))
     if frames == 0:
         raise SystemExit(f"{args.clip}/image_0: no images")

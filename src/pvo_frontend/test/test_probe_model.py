@@ -53,6 +53,24 @@ def test_a_saved_model_loads_to_the_same_noise(tmp_path: Path, kind: str) -> Non
         np.testing.assert_array_equal(a.keep, b.keep)
 
 
+def test_a_knn_model_with_imu_predictors_works_from_the_images_without_a_reading() -> None:
+    """The k-NN model's IMU-less form is its stored errors over the other predictors: the weights a model
+    built from those columns gives, which differ from the full model's where the IMU columns matter."""
+    with_imu = PredictorConfig(imu=True)
+    rng = np.random.default_rng(2)
+    phi = rng.normal(size=(400, len(with_imu.names)))
+    imu_columns = [with_imu.names.index(n) for n in ("specific_force", "angular_rate")]
+    errors = 0.05 + 0.1 * np.abs(phi[:, imu_columns[0]])  # the error grows with |specific force|
+    model = ProbeModel("knn", with_imu, KNNModel(with_imu.names, phi, errors))
+    without = model.without_imu()
+    assert without.predictors.names == PredictorConfig().names and model.without_imu() is without  # built once
+    kept = [with_imu.names.index(n) for n in without.predictors.names]
+    queries = rng.normal(size=(50, len(with_imu.names)))
+    direct = KNNModel(without.predictors.names, phi[:, kept], errors)
+    np.testing.assert_allclose(without.estimator.weights(queries[:, kept]), direct.weights(queries[:, kept]), rtol=1e-9)
+    assert not np.allclose(model.estimator.weights(queries), direct.weights(queries[:, kept]))
+
+
 def test_a_card_from_before_the_fitted_prior_loads_with_its_nominal_prior(tmp_path: Path) -> None:
     import yaml
 
