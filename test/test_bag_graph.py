@@ -165,10 +165,12 @@ def test_cli_against_a_live_publisher(ros_context, nodes, ros_env) -> None:
         hz = subprocess.run(
             ["pvo", "topic", "hz", "/chatter", "--duration", "3.5"], env=ros_env, capture_output=True, text=True, timeout=60
         )
-        listing = subprocess.run(["pvo", "topic", "list", "-t"], env=ros_env, capture_output=True, text=True, timeout=60)
+        listing = subprocess.run(
+            ["pvo", "topic", "list", "-t", "--wait", "8"], env=ros_env, capture_output=True, text=True, timeout=60
+        )
         info = subprocess.run(["pvo", "topic", "info", "/chatter"], env=ros_env, capture_output=True, text=True, timeout=60)
         node_list = subprocess.run(
-            ["pvo", "node", "list", "--wait", "4"], env=ros_env, capture_output=True, text=True, timeout=60
+            ["pvo", "node", "list", "--wait", "8"], env=ros_env, capture_output=True, text=True, timeout=60
         )
         missing = subprocess.run(
             ["pvo", "topic", "echo", "/nothing", "--wait", "0.5"], env=ros_env, capture_output=True, text=True, timeout=60
