@@ -21,7 +21,7 @@ from .vo import FrameResult, FrameStatus, StereoVO, VOConfig
 from .vo.pipeline import FeatureNoise
 
 Array = NDArray[np.float64]
-STAGES = ("tracking", "ransac", "gauss_newton", "detection", "stereo_matching", "total")
+STAGES = ("tracking", "feature_noise", "ransac", "gauss_newton", "detection", "stereo_matching", "total")
 
 
 @dataclass
