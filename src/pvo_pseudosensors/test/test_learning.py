@@ -420,6 +420,36 @@ def test_mirrored_mc_modes_pool_the_image_and_its_mirror() -> None:
         draw_samples(model, images, 4, seed=0, mode="sideways")
 
 
+@pytest.mark.parametrize("pass_batch", [1, 4, 128])
+def test_full_mode_passes_share_the_stem_and_draw_their_own_masks(monkeypatch: pytest.MonkeyPatch, pass_batch: int) -> None:
+    """The full mode runs the stem (everything before the first dropout) once and the passes as a batch of image
+    copies in chunks: without dropout every pass of every image is the network's output on that image; with it
+    the passes differ from each other, the same seed gives the same draws, and the chunking changes neither the
+    shapes nor the spread's scale."""
+    from pvo_pseudosensors.sun_bcnn import infer
+
+    monkeypatch.setattr(infer, "PASS_BATCH", pass_batch)
+    torch.manual_seed(0)
+    images = torch.rand(3, 1, *SIZE)
+    deterministic = SunBCNN(replace(TINY, dropout=0.0, aleatoric=True)).eval()
+    with torch.no_grad():
+        expected, kappa = deterministic.outputs(deterministic.pooled(images))
+        assert torch.allclose(deterministic.pooled_from_stem(deterministic.stem(images)), deterministic.pooled(images))
+    draws = infer.draw_samples(deterministic, images, 5, seed=0, mode="full")
+    assert draws.vectors.shape == (5, 3, 3) and draws.inverse_concentration is not None
+    for one_pass, inverse in zip(draws.vectors, draws.inverse_concentration, strict=True):
+        np.testing.assert_allclose(one_pass, expected.double().numpy(), atol=1e-6)
+        np.testing.assert_allclose(inverse, 1.0 / kappa.double().numpy(), rtol=1e-5)
+
+    model = SunBCNN(replace(TINY, dropout=0.3))
+    draws = infer.draw_samples(model, images, 6, seed=2, mode="full")
+    again = infer.draw_samples(model, images, 6, seed=2, mode="full")
+    np.testing.assert_array_equal(draws.vectors, again.vectors)
+    spread = np.linalg.norm(draws.vectors - draws.vectors.mean(axis=0), axis=2)  # (passes, images)
+    assert np.all(spread.max(axis=0) > 1e-4)  # every image's passes differ: each row its own masks
+    assert not model.training
+
+
 def test_the_model_parameter_names_a_shipped_model_or_a_path(tmp_path: Path) -> None:
     from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
 

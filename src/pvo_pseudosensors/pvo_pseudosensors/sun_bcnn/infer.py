@@ -125,6 +125,10 @@ class Draws:
     inverse_concentration: Array | None
 
 
+#: the most image copies one batch of full-mode MC passes holds (bounds memory: ~0.25 MB of stem features each)
+PASS_BATCH = 128
+
+
 def draw_samples(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, mode: str = DEFAULT_MODE) -> Draws:
     """``samples`` MC-dropout passes over images (B, C, H, W) in ``mode`` (:data:`MODES`); the global RNG is left
     as it was. A mirrored mode draws ceil(samples / 2) passes over the images (seed) and the rest over the images
@@ -143,17 +147,33 @@ def draw_samples(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, 
             inverse = np.concatenate([direct.inverse_concentration, mirror.inverse_concentration])
         return Draws(np.concatenate([direct.vectors, vectors]), inverse)
     state = torch.get_rng_state()
-    torch.manual_seed(seed)
+    # the CPU generator alone: torch.manual_seed also queues seeds for CUDA, MTIA and XPU, formatting a stack
+    # trace for each (~2 ms a call); the passes run on the CPU
+    torch.default_generator.manual_seed(seed)
+    count = len(images)
     try:
         with torch.no_grad():
+            model.eval()
+            # the passes as one batch of copies (each row its own dropout masks), in chunks of at most
+            # PASS_BATCH rows: the head mode copies the pooled features (the backbone once, deterministic), the
+            # full mode the stem's (everything before the first dropout, the same in every pass)
             if mode == "head":
-                model.eval()
-                pooled = model.pooled(images)  # once, deterministic
+                shared = model.pooled(images)
                 model.head.train()
-                passes = [model.outputs(pooled) for _ in range(samples)]
             else:
-                model.train()  # dropout on everywhere
-                passes = [model.outputs(model.pooled(images)) for _ in range(samples)]
+                shared = model.stem(images)
+                model.train()  # dropout on everywhere after the stem
+            per_chunk = max(1, PASS_BATCH // max(count, 1))
+            passes = []
+            for start in range(0, samples, per_chunk):
+                k = min(per_chunk, samples - start)
+                copies = torch.cat([shared] * k)  # pass-major rows: pass i holds rows i * count ... (i + 1) * count - 1
+                pooled = copies if mode == "head" else model.pooled_from_stem(copies)
+                vectors, kappa = model.outputs(pooled)
+                passes += [
+                    (vectors[i * count : (i + 1) * count], None if kappa is None else kappa[i * count : (i + 1) * count])
+                    for i in range(k)
+                ]
             vectors = torch.stack([v for v, _ in passes]).double().numpy()
             kappas = [k for _, k in passes]
             inverse = None if kappas[0] is None else (1.0 / torch.stack(kappas)).double().numpy()  # type: ignore[arg-type]

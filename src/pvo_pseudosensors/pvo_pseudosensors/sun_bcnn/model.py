@@ -54,10 +54,28 @@ class SunBCNN(nn.Module):
             else None
         )
 
+    @property
+    def stem_length(self) -> int:
+        """Layers of :attr:`features` before the first dropout: deterministic even in MC-dropout passes, so
+        computed once per image however many passes follow."""
+        return next(i for i, layer in enumerate(self.features) if isinstance(layer, nn.Dropout2d))
+
+    def stem(self, image: torch.Tensor) -> torch.Tensor:
+        """(B, C, H, W) in [0, 1] -> the first block's features, before its dropout."""
+        x = image - 0.5
+        for layer in self.features[: self.stem_length]:
+            x = layer(x)
+        return x
+
     def pooled(self, image: torch.Tensor) -> torch.Tensor:
         """The backbone: (B, C, H, W) in [0, 1] -> (B, (1 + grid cells) x last width): max-pooled features and
         features average-pooled over a grid of image regions."""
-        x = self.features(image - 0.5)
+        return self.pooled_from_stem(self.stem(image))
+
+    def pooled_from_stem(self, x: torch.Tensor) -> torch.Tensor:
+        """The backbone after :meth:`stem` (its dropouts live in training mode)."""
+        for layer in self.features[self.stem_length :]:
+            x = layer(x)
         regions = nn.functional.adaptive_avg_pool2d(x, self.config.grid).flatten(1)
         return torch.cat([x.amax(dim=(2, 3)), regions], dim=1)
 
