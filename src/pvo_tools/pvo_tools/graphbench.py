@@ -69,6 +69,7 @@ class SoakResult:
     rss: dict[str, list[tuple[float, float]]] = field(default_factory=dict)  # node -> (s, MB)
     latencies_ms: list[tuple[int, float]] = field(default_factory=list)  # (frame index, ms)
     exit_codes: dict[str, int] = field(default_factory=dict)
+    sun_bcnn: dict[str, int] = field(default_factory=dict)  # its last status's counters: images, published, rejected
 
 
 def run_soak(
@@ -83,7 +84,7 @@ def run_soak(
     """Loop ``bag`` until ``frames`` stereo frames were played at ``rate`` x real time through the graph;
     ``overrides``: node name -> parameters."""
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray  # noqa: F401 - the status topic type is known to rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
     from rclpy.context import Context
     from rclpy.node import Node
@@ -137,6 +138,12 @@ def run_soak(
     def on_vo(msg: RelativePose) -> None:
         counts["vo"] += 1
 
+    sun_counters: dict[str, int] = {}
+
+    def on_sun_status(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            sun_counters.update({kv.key: int(kv.value) for kv in status.values if kv.key in ("images", "published", "rejected")})
+
     def on_fused(msg: Odometry) -> None:
         counts["fused"] += 1
         seen = image_seen.pop(stamp(msg), None)
@@ -154,6 +161,7 @@ def run_soak(
         listener.create_subscription(Image, "/stereo/left/image_rect", on_image, every)
         listener.create_subscription(RelativePose, "/pvo/vo/relative", on_vo, every)
         listener.create_subscription(Odometry, "/pvo/fusion/odometry", on_fused, every)
+        listener.create_subscription(DiagnosticArray, "/pvo/sun_bcnn/status", on_sun_status, every)
         player = BagPlayer(player_node, bag, PlayOptions(rate=rate, loop=True, passes=passes, topics=INPUTS))
         with Spinner(context, listener):
             _wait_connected(player_node, group, listeners=2)
@@ -189,6 +197,7 @@ def run_soak(
         rss,
         latencies,
         codes,
+        dict(sun_counters),
     )
 
 

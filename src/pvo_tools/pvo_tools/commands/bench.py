@@ -560,6 +560,16 @@ def bench_soak(args: argparse.Namespace) -> int:
         "vo_messages": result.vo_messages,
         "fused": result.fused_messages,
     }
+    if result.sun_bcnn:
+        from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensorConfig
+
+        every_n = int(overrides.get("sun_bcnn", {}).get("every_n", SunBCNNSensorConfig().every_n))
+        due = f", one in {every_n}: {-(-result.sun_bcnn.get('images', 0) // every_n)} due"
+        print(
+            f"  sun_bcnn: {result.sun_bcnn.get('published', 0)} directions published from {result.sun_bcnn.get('images', 0)} "
+            f"images received{due} ({result.sun_bcnn.get('rejected', 0)} rejected)"
+        )
+        figures.update({f"sun_bcnn.{key}": value for key, value in result.sun_bcnn.items()})
     warm = 0.1 * result.seconds
     for name, samples in result.rss.items():
         after = [mb for t, mb in samples if t >= warm]
