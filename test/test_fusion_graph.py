@@ -159,7 +159,8 @@ def test_fusion_node_reports_bad_input_and_keeps_going(ros_context) -> None:
     assert keys["count.sun.rejected.no_gps_origin"] == "1"
     assert keys["factors.vo"] == "6" and keys["window_size"] == "7"
     assert keys["sun_reference"] == "EphemerisSunReference"
-    assert keys["arrivals"] == "sun,sun"  # what the node took since the frame before, in order (the demo replays it)
+    # what the node took since the frame before, in order, with each one's stamp (the demo replays it)
+    assert keys["arrivals"] == f"sun@{t0 + 5 * dt},sun@{t0 + 5 * dt}"
     # the odometry equals the ROS-free graph fed the same good messages; covariance in ROS order
     graph = FusionGraph(from_flat({}))
     from pvo_fusion import RelativeMeasurement

@@ -125,7 +125,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         # measurements other than VO handed to the graph, by kind: the status carries them so that an offline
         # replay can reproduce the order in which the node saw its inputs
         self.handled: Counter[str] = Counter()
-        self.arrivals: list[str] = []  # kinds of the measurements taken since the last VO frame, in order
+        self.arrivals: list[str] = []  # "kind@stamp_ns" of the measurements taken since the last VO frame, in order
         self._waiting_vo: list[RelativePose] = []
         self._ground_truth: dict[int, np.ndarray] = {}
         self._initial_known = self.config.prior.source == "identity"
@@ -273,7 +273,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
     def _other(self, name: str, add: Any, measurement: Any) -> None:
         outcome = add(measurement)
         self.handled[name] += 1
-        self.arrivals.append(name)
+        self.arrivals.append(f"{name}@{measurement.stamp}")
         if outcome not in (ACCEPTED, BUFFERED):
             self._publish_status(measurement.stamp, f"{name}: {outcome}")
 
@@ -318,8 +318,9 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         self.pub_path.publish(path)
 
     def _publish_status(self, stamp: int, message: str, arrivals: list[str] | None = None) -> None:
-        """The node's diagnostics; a VO frame's status also lists ``arrivals``: the kinds of the measurements
-        taken since the frame before, in the order taken (what replays the node's order exactly)."""
+        """The node's diagnostics; a VO frame's status also lists ``arrivals``: ``kind@stamp_ns`` of the
+        measurements taken since the frame before, in the order taken (what replays the node's input exactly: a
+        message the node never received - published before it subscribed - is not in it)."""
         problems = any(k.startswith(("solver.", "vo.gap", "vo.lost")) for k in self.graph.counts)
         level = WARN if (problems or message not in (ACCEPTED, BUFFERED)) else OK
         values: dict[str, Any] = {

@@ -109,18 +109,28 @@ def run_pipeline(
 
 def in_node_order(vo: list[RelativeMeasurement], others: list[Any], arrivals: dict[int, list[str]]) -> list[Any]:
     """The events as the fusion node took them: before each VO frame the measurements it reported taking since
-    the frame before (``arrivals``), each kind's in the order its sensor sent them. Those it took after its
-    last report reached no published estimate and are left out."""
+    the frame before (``arrivals``: ``kind@stamp_ns``, or a bare ``kind`` - then each kind's next in its
+    sensor's order). Those it never received (published before it subscribed) and those it took after its last
+    report (they reached no published estimate) are left out."""
     queues: dict[str, list[Any]] = {}
     for kind, m in others:
         queues.setdefault(kind, []).append(m)
-    taken = dict.fromkeys(queues, 0)
+    used: dict[str, set[int]] = {kind: set() for kind in queues}
     events: list[Any] = []
+
+    def take(kind: str, stamp: int | None) -> Any | None:
+        for position, m in enumerate(queues.get(kind, [])):
+            if position not in used[kind] and (stamp is None or int(m.stamp) == stamp):
+                used[kind].add(position)
+                return m
+        return None
+
     for m in vo:
-        for kind in arrivals.get(int(m.stamp), []):
-            if taken.get(kind, 0) < len(queues.get(kind, [])):
-                events.append((kind, queues[kind][taken[kind]]))
-                taken[kind] += 1
+        for entry in arrivals.get(int(m.stamp), []):
+            kind, sep, stamp = entry.partition("@")
+            taken = take(kind, int(stamp) if sep else None)
+            if taken is not None:
+                events.append((kind, taken))
         events.append(("vo", m))
     return events
 

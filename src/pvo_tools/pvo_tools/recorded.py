@@ -78,8 +78,8 @@ def read_recorded(bag: Path, topics: list[str]) -> dict[str, RecordedPoses]:
 
 
 def read_arrivals(bag: Path, topic: str = "/pvo/fusion/status") -> dict[int, list[str]]:
-    """VO frame stamp (ns) -> the kinds of the measurements the fusion node took since the frame before, in the
-    order it took them (its status's ``arrivals``); empty without such statuses."""
+    """VO frame stamp (ns) -> ``kind@stamp_ns`` of the measurements the fusion node took since the frame before,
+    in the order it took them (its status's ``arrivals``); empty without such statuses."""
     store = project_typestore()
     arrivals: dict[int, list[str]] = {}
     with open_bag(bag) as reader:

@@ -1,5 +1,6 @@
 """The demo's replay of the fusion node's input order: before each VO frame the measurements the node reported
-taking since the frame before, each kind in its sensor's order; what it took after its last report is left out."""
+taking since the frame before, by kind and stamp (or, for a bare kind, each kind in its sensor's order); what it
+never received and what it took after its last report are left out."""
 
 from __future__ import annotations
 
@@ -26,3 +27,23 @@ def test_events_follow_the_reported_arrivals() -> None:
         ("rotation", 30),
         ("vo", 30),
     ]  # sun 20, taken after the last report, reached no published estimate: left out
+
+
+def test_a_measurement_the_node_never_received_is_left_out() -> None:
+    """The sun node's first estimate was published before the fusion node subscribed: the node took sun 20 first.
+    Matched by stamp, the replay skips sun 0 (by kind alone it would have fed sun 0 in sun 20's place)."""
+    vo = [RelativeMeasurement(s, s - 10, np.eye(4), np.eye(6)) for s in (10, 20, 30)]
+    suns = [SunMeasurement(s, np.array([0.0, 0.0, 1.0]), np.eye(2)) for s in (0, 20)]
+    rotations = [RelativeMeasurement(s, s - 10, np.eye(4), np.eye(6), True) for s in (10, 20, 30)]
+    others = [("sun", m) for m in suns] + [("rotation", m) for m in rotations]
+    arrivals = {10: ["rotation@10", "sun@20"], 20: ["rotation@20"], 30: ["rotation@30", "sun@99"]}
+    events = in_node_order(vo, others, arrivals)
+    assert [(kind, int(m.stamp)) for kind, m in events] == [
+        ("rotation", 10),
+        ("sun", 20),
+        ("vo", 10),
+        ("rotation", 20),
+        ("vo", 20),
+        ("rotation", 30),
+        ("vo", 30),
+    ]  # sun 99 is no measurement the objects made: nothing to replay

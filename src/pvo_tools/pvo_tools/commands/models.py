@@ -107,7 +107,7 @@ def _predict_parser(actions: Any, entry: ModelEntry) -> None:
     predict.add_argument(
         "--mode",
         help="MC sampling: full (dropout everywhere, every pass) | head (backbone once), either with -mirrored "
-        "(half the passes over the image mirrored left-right); default full-mirrored",
+        "(half the passes over the image mirrored left-right); default head-mirrored",
     )
 
 
@@ -117,7 +117,7 @@ def _calibrate_parser(actions: Any, entry: ModelEntry) -> None:
     calibrate.add_argument("--model", type=Path, required=True, help="model directory; its model.yaml gets the result")
     calibrate.add_argument("--corpus", type=Path, required=True, help="corpus whose validation split to use")
     calibrate.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
-    calibrate.add_argument("--mode", help="MC sampling: full | head | full-mirrored | head-mirrored (default full-mirrored)")
+    calibrate.add_argument("--mode", help="MC sampling: full | head | full-mirrored | head-mirrored (default head-mirrored)")
     calibrate.add_argument("--max-sequences", type=int, default=0, help="at most this many sequences (0: all)")
 
 
