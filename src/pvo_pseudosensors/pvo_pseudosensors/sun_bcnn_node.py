@@ -32,7 +32,8 @@ class SunBCNNNode(PvoNode[SunBCNNSensorConfig, None]):
             card = self.sensor.card
             self.get_logger().info(
                 f"Sun-BCNN {self.sensor.height}x{self.sensor.width}, every {self.config.every_n} image(s), "
-                f"{self.config.samples} {self.config.mode} MC samples, tau {card.calibration.get('tau', 'uncalibrated')}"
+                f"{self.config.samples} {self.sensor.mode} MC samples, tau {card.calibration.get('tau', 'uncalibrated')} "
+                f"(calibrated in {card.calibration.get('mode', 'an unrecorded mode')})"
             )
 
     def _on_image(self, msg: Image) -> None:

@@ -12,7 +12,7 @@ from pvo_core.sun import unit_zenith_azimuth
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import SHIPPED
-from .infer import DEFAULT_MODE, MODES, combine, draw_samples, load_sun_bcnn
+from .infer import MODES, combine, draw_samples, load_sun_bcnn, model_mode
 
 Array = NDArray[np.float64]
 
@@ -22,20 +22,21 @@ class SunBCNNSensorConfig:
     """model: the model directory ("" = the model shipped in the package, trained on the synthetic corpus;
     "sun_bcnn_kitti" = the shipped one fine-tuned on KITTI); every_n: one estimate every N
     images (the thesis used every 10th); samples: MC-dropout passes; mode: full | head | full-mirrored |
-    head-mirrored (see `infer.MODES`; default `infer.DEFAULT_MODE`); seed: of the dropout samples; threads: torch threads."""
+    head-mirrored (see `infer.MODES`), "" = the one the model's τ was calibrated in (its card; the shipped
+    ``sun_bcnn``: `infer.DEFAULT_MODE`); seed: of the dropout samples; threads: torch threads."""
 
     model: str = ""
     every_n: int = 10
     samples: int = 25
-    mode: str = DEFAULT_MODE
+    mode: str = ""
     seed: int = 0
     threads: int = 1
 
     def __post_init__(self) -> None:
         if self.every_n < 1 or self.samples < 2 or self.threads < 1:
             raise ValueError("every_n and threads must be >= 1 and samples >= 2")
-        if self.mode not in MODES:
-            raise ValueError(f"unknown mode {self.mode!r}: choose one of {', '.join(MODES)}")
+        if self.mode and self.mode not in MODES:
+            raise ValueError(f"unknown mode {self.mode!r}: choose one of {', '.join(MODES)} (or '' for the model's own)")
 
 
 def resolve_model(model: str) -> Path:
@@ -66,6 +67,7 @@ class SunBCNNSensor:
         self.height, self.width = (int(v) for v in self.card.input["size"])
         self.colour = bool(self.card.input.get("colour", False))
         self.tau = float(self.card.calibration.get("tau", np.inf))
+        self.mode = model_mode(self.card, self.config.mode)
         self.count = 0
 
     def estimate(self, image: NDArray[np.uint8]) -> SunEstimate:
@@ -83,7 +85,7 @@ class SunBCNNSensor:
         tensor = tensor.permute(2, 0, 1)[None] if tensor.ndim == 3 else tensor[None, None]
         seed = self.config.seed + self.count
         self.count += 1
-        draws = draw_samples(self.model, tensor, self.config.samples, seed, self.config.mode)
+        draws = draw_samples(self.model, tensor, self.config.samples, seed, self.mode)
         mean, covariance = combine(draws, self.tau)
         zenith, azimuth = unit_zenith_azimuth(mean)
         return SunEstimate(mean[0], float(zenith[0]), float(azimuth[0]), covariance[0])

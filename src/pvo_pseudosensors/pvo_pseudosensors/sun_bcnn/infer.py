@@ -63,6 +63,15 @@ MIRRORED = "-mirrored"
 DEFAULT_MODE = "head-mirrored"
 
 
+def model_mode(card: ModelCard, mode: str | None = None) -> str:
+    """The MC mode to run a model in: ``mode`` when given, else the one its card's τ was calibrated in (the
+    covariance is only calibrated for that one), else :data:`DEFAULT_MODE`."""
+    chosen = mode or str(card.calibration.get("mode") or DEFAULT_MODE)
+    if chosen not in MODES:
+        raise ValueError(f"unknown MC mode {chosen!r}: choose one of {', '.join(MODES)}")
+    return chosen
+
+
 def predict_sequence(
     model: SunBCNN,
     card: ModelCard,
