@@ -466,6 +466,9 @@ def test_the_sensor_runs_in_the_mode_its_model_was_calibrated_in_unless_told(tmp
     assert SunBCNNSensor(SunBCNNSensorConfig(model="sun_bcnn_kitti", mode="head")).mode == "head"
     with pytest.raises(ValueError, match="unknown mode 'sideways'"):
         SunBCNNSensorConfig(mode="sideways")
+    card.calibration = {"tau": 4.0, "mode": "sideways"}
+    with pytest.raises(ValueError, match="model card's calibration.mode: unknown MC mode 'sideways'"):
+        model_mode(card)
 
 
 def test_the_model_parameter_names_a_shipped_model_or_a_path(tmp_path: Path) -> None:

@@ -68,7 +68,8 @@ def model_mode(card: ModelCard, mode: str | None = None) -> str:
     covariance is only calibrated for that one), else :data:`DEFAULT_MODE`."""
     chosen = mode or str(card.calibration.get("mode") or DEFAULT_MODE)
     if chosen not in MODES:
-        raise ValueError(f"unknown MC mode {chosen!r}: choose one of {', '.join(MODES)}")
+        source = "" if mode else "the model card's calibration.mode: "
+        raise ValueError(f"{source}unknown MC mode {chosen!r}: choose one of {', '.join(MODES)}")
     return chosen
 
 
