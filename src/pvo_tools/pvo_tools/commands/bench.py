@@ -185,15 +185,16 @@ def bench_sun_bcnn(args: argparse.Namespace) -> int:
     import numpy as np
     from pvo_core.imageio import read_image
     from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
-    from pvo_pseudosensors.sun_bcnn.infer import DEFAULT_MODE, MODES
+    from pvo_pseudosensors.sun_bcnn.infer import MODES
 
     from ..paths import data_directory
 
     paths = sorted((data_directory(args.data) / "kitti" / "sequences" / "06" / "image_0").glob("*.png"))
     images = [read_image(p) for p in paths]
+    own = SunBCNNSensor(SunBCNNSensorConfig(model=args.model, samples=args.samples, threads=1)).mode
     print(
         f"pvo bench sun-bcnn: model {args.model or 'sun_bcnn (shipped)'}, {args.samples} passes, {len(images)} KITTI 06 "
-        f"images of {images[0].shape[1]}x{images[0].shape[0]}, one thread (default mode {DEFAULT_MODE})"
+        f"images of {images[0].shape[1]}x{images[0].shape[0]}, one thread (the node's mode for this model: {own})"
     )
     for mode in MODES:
         sensor = SunBCNNSensor(SunBCNNSensorConfig(model=args.model, samples=args.samples, mode=mode, threads=1))
