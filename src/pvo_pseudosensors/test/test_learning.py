@@ -450,17 +450,21 @@ def test_full_mode_passes_share_the_stem_and_draw_their_own_masks(monkeypatch: p
     assert not model.training
 
 
-def test_the_sensor_runs_in_the_mode_its_model_was_calibrated_in_unless_told(tmp_path: Path) -> None:
+def test_the_sensor_runs_in_the_mode_its_model_was_calibrated_in_unless_told(sequences, tmp_path: Path) -> None:
     """mode "" is the card's calibrated mode (the covariance's tau holds for that one), else the default; a
-    given mode wins; the shipped models' cards name theirs."""
+    given mode wins; a sequence's predictions do the same; the shipped models' cards name theirs."""
     from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
-    from pvo_pseudosensors.sun_bcnn.infer import DEFAULT_MODE, model_mode
+    from pvo_pseudosensors.sun_bcnn.infer import DEFAULT_MODE, model_mode, sample_sequence
 
-    card = SunTask(TINY).card()
-    save_model(tmp_path / "model", SunBCNN(TINY), card)
+    model, card = SunBCNN(TINY), SunTask(TINY).card()
+    save_model(tmp_path / "model", model, card)
     assert SunBCNNSensor(SunBCNNSensorConfig(model=str(tmp_path / "model"))).mode == DEFAULT_MODE  # no calibration yet
     card.calibration = {"tau": 4.0, "mode": "full"}
     assert model_mode(card) == "full" and model_mode(card, "head") == "head"
+    root = sequences["validation"][0].root
+    _, own = sample_sequence(model, card, root, samples=4)
+    np.testing.assert_array_equal(own.vectors, sample_sequence(model, card, root, samples=4, mode="full")[1].vectors)
+    assert not np.allclose(own.vectors, sample_sequence(model, card, root, samples=4, mode="head-mirrored")[1].vectors)
     assert SunBCNNSensor(SunBCNNSensorConfig(model="sun_bcnn")).mode == "head-mirrored"
     assert SunBCNNSensor(SunBCNNSensorConfig(model="sun_bcnn_kitti")).mode == "full"
     assert SunBCNNSensor(SunBCNNSensorConfig(model="sun_bcnn_kitti", mode="head")).mode == "head"

@@ -221,10 +221,10 @@ def flow_variance_score(reference: Array, current: Array, small: float, large: f
         return np.zeros(0)
     flow = current - reference
     flow = flow - flow.mean(axis=0)  # centred, so that the variance by sums of squares keeps its digits
-    # sums over square windows as masked matrix products, in float32 and in place (fresh N x N float64 arrays
-    # cost more in page faults than in arithmetic); with the flow centred, float32 sums keep the windows'
-    # variances to ~1e-6 relative
-    moments = np.column_stack([np.ones(n), flow, flow * flow]).astype(np.float32)  # (N, 5)
+    # sums over square windows as masked matrix products; the Chebyshev distances in float32 and in place (fresh
+    # N x N float64 arrays cost more in page faults than in arithmetic), the moments' sums in float64 (a small
+    # window's variance is a difference of sums that float32 would round)
+    moments = np.column_stack([np.ones(n), flow, flow * flow])  # (N, 5)
     position = current.astype(np.float32)
     offset = np.subtract.outer(position[:, 0], position[:, 0])
     np.abs(offset, out=offset)
@@ -232,7 +232,7 @@ def flow_variance_score(reference: Array, current: Array, small: float, large: f
     np.maximum(offset, np.abs(rows, out=rows), out=offset)
     scores = []
     for half in (small, large):
-        sums = ((offset <= half).astype(np.float32) @ moments).astype(np.float64)
+        sums = (offset <= half).astype(np.float64) @ moments
         count = sums[:, 0]
         mean = sums[:, 1:3] / count[:, None]
         variance = np.maximum(sums[:, 3:5] / count[:, None] - mean * mean, 0.0).mean(axis=1)

@@ -81,13 +81,12 @@ def predict_sequence(
     batch: int = 32,
     seed: int = 0,
     cache_dir: Path | None = None,
-    mode: str = DEFAULT_MODE,
+    mode: str | None = None,
     tau: float | None = None,
 ) -> SunPredictions:
-    """Every left image of ``sequence`` through ``samples`` dropout passes (seeded). mode "full": dropout in
-    the backbone and the head, every pass through the whole network (the thesis); "head": the backbone once
-    without dropout, the passes through the head only. tau: the model precision added to the covariance
-    (default: the card's ``calibration.tau``, infinite until calibrated)."""
+    """Every left image of ``sequence`` through ``samples`` dropout passes (seeded) in ``mode`` (:data:`MODES`;
+    default: the one the card's τ was calibrated in, :func:`model_mode`). tau: the model precision added to the
+    covariance (default: the card's ``calibration.tau``, infinite until calibrated)."""
     frames, draws = sample_sequence(model, card, sequence, samples, batch, seed, cache_dir, mode)
     return predictions_from_draws(frames, draws, float(card.calibration.get("tau", np.inf)) if tau is None else tau)
 
@@ -107,11 +106,11 @@ def sample_sequence(
     batch: int = 32,
     seed: int = 0,
     cache_dir: Path | None = None,
-    mode: str = DEFAULT_MODE,
+    mode: str | None = None,
 ) -> tuple[NDArray[np.int64], Draws]:
-    """The frame numbers (N,) of ``sequence``'s left images and their MC-dropout draws (samples, N, ...)."""
-    if mode not in MODES:
-        raise ValueError(f"unknown MC mode {mode!r}: choose one of {', '.join(MODES)}")
+    """The frame numbers (N,) of ``sequence``'s left images and their MC-dropout draws (samples, N, ...), in
+    ``mode`` (default: the card's calibrated one, :func:`model_mode`)."""
+    mode = model_mode(card, mode)
     spec = SunBCNNConfig.from_card(card).spec
     data = FrameDataset([Source(Path(sequence), Path(sequence).name)], DataSpec(spec.size, colour=spec.colour), cache_dir)
     vectors, inverse, frames = [], [], []

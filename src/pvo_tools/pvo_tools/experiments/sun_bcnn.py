@@ -256,6 +256,7 @@ def run(args: argparse.Namespace) -> int:
         Draws,
         calibrate,
         load_sun_bcnn,
+        model_mode,
         predict_sequence,
         predictions_from_draws,
         sample_sequence,
@@ -338,7 +339,8 @@ def run(args: argparse.Namespace) -> int:
     model, card = loaded["aleatoric"]
     say("the other MC modes and timing ...")
     other_modes: dict[str, Any] = {}
-    for mode in (m for m in MODES if m != DEFAULT_MODE):
+    own_mode = model_mode(card)  # the mode the rows above ran in: the one its tau was calibrated in
+    for mode in (m for m in MODES if m != own_mode):
         mode_rows, mode_truth = [], []
         for sequence in test:
             p = predict_sequence(model, card, sequence.root, args.samples, cache_dir=cache, mode=mode)
@@ -360,12 +362,12 @@ def run(args: argparse.Namespace) -> int:
         report += ["```", ""]
     report += [
         f"MC modes of the aleatoric model (N = {args.samples}; full: dropout everywhere, head: the backbone once, "
-        "-mirrored: half the passes over the mirrored image; the default above is "
-        f"{DEFAULT_MODE}):",
+        "-mirrored: half the passes over the mirrored image; the rows above ran in the model's calibrated mode, "
+        f"{own_mode}):",
         "",
         "```",
     ]
-    mode_results = {DEFAULT_MODE: default["overall"], **other_modes}
+    mode_results = {own_mode: default["overall"], **other_modes}
     report.append(format_table([replace(mode_results[m], label=m) for m in MODES]))
     report += ["```", "", "Time per image, one thread, batch 1: " + ", ".join(f"{m} {timing[m]:.1f} ms" for m in MODES) + ".", ""]
 
@@ -496,9 +498,9 @@ def run(args: argparse.Namespace) -> int:
         )
         for directory in (tuned, alone):
             m, c = load_sun_bcnn(directory)
-            c.calibration = {
-                **calibrate(m, c, [validation], samples=args.samples, cache_dir=out / ".cache"),
-                "mode": "full",
+            c.calibration = {  # the mode calibrated in is the mode the card names: the one it then runs in
+                **calibrate(m, c, [validation], samples=args.samples, mode=DEFAULT_MODE, cache_dir=out / ".cache"),
+                "mode": DEFAULT_MODE,
                 "on": "KITTI 07 frames 128-159",
             }
             from pvo_pseudosensors.learning.checkpoint import write_card
