@@ -189,7 +189,10 @@ def bench_sun_bcnn(args: argparse.Namespace) -> int:
 
     from ..paths import data_directory
 
-    paths = sorted((data_directory(args.data) / "kitti" / "sequences" / "06" / "image_0").glob("*.png"))
+    folder = data_directory(args.data) / "kitti" / "sequences" / "06" / "image_0"
+    paths = sorted(folder.glob("*.png"))
+    if not paths:
+        raise PvoError(f"{folder}: no KITTI 06 left images to time Sun-BCNN on")
     images = [read_image(p) for p in paths]
     own = SunBCNNSensor(SunBCNNSensorConfig(model=args.model, samples=args.samples, threads=1)).mode
     print(
