@@ -42,7 +42,9 @@ OUTPUT_TOPICS = [
     "/pvo/fusion/status",
 ]
 AGREEMENT_M = 1e-6  # node graph vs ROS-free objects: the largest position difference allowed
-GRAPH_SETTLE_S = 1.5  # after discovery, for every publisher/subscriber pair to match
+# after discovery, for every publisher/subscriber pair to match: on a loaded CI machine the fusion node's
+# subscriptions once matched over 2 s late (hydranet's first five rotations lost, DPC-Net's windows shifted)
+GRAPH_SETTLE_S = 5.0
 
 
 def register(sub: Any) -> None:
