@@ -56,7 +56,7 @@ def run_pipeline(
     rotation_config: Any = None,
     arrivals: dict[int, list[str]] | None = None,
     correction_config: Any = None,
-    correction_stamps: list[int] | None = None,
+    correction_windows: list[tuple[int, int]] | None = None,
 ) -> PipelineResult:
     """Every stereo pair through :class:`StereoVO`; the sun from every ground-truth sun vector through the
     simulated sun sensor (``sun_config``: a :class:`SimulatedSunConfig`) or from every left image through
@@ -67,8 +67,8 @@ def run_pipeline(
     :class:`~pvo_pseudosensors.hydranet.estimator.HydraNetSensorConfig` adds HydraNet's rotations between
     consecutive left images, each reaching the fusion before the VO of its frame (HydraNet is the faster);
     ``correction_config``: a :class:`~pvo_pseudosensors.dpc_net.estimator.DPCNetSensorConfig` adds DPC-Net's
-    corrections of the VO over Δp frames (``correction_stamps``: only those ending at these frames, the ones a
-    ``dpc_net`` node published).
+    corrections of the VO over Δp frames (``correction_windows``: exactly the (first, last) frame windows a
+    ``dpc_net`` node published; one that missed a VO transform starts its windows elsewhere).
     ``arrivals`` (VO frame stamp -> the kinds of the measurements the fusion node took since the frame before,
     in order: its status's ``arrivals``): every measurement is taken in the order the node took it instead (the
     sensors race the VO for each image; load decides who wins)."""
@@ -93,9 +93,7 @@ def run_pipeline(
     rotations = learned_rotations(sample, rotation_config) if rotation_config is not None else []
     corrections = []
     if correction_config is not None:
-        corrections = learned_corrections(sample, correction_config, measurements)
-        if correction_stamps is not None:
-            corrections = [m for m in corrections if m.stamp in set(correction_stamps)]
+        corrections = learned_corrections(sample, correction_config, measurements, correction_windows)
     graph = FusionGraph(fusion_config, sun_reference)
     graph.set_initial_pose(initial_pose)
     others = [*sun_events(sun), *(("rotation", m) for m in rotations), *(("correction", m) for m in corrections)]
@@ -152,13 +150,20 @@ def learned_rotations(sample: StereoSample, config: Any) -> list[RelativeMeasure
     return rotations
 
 
-def learned_corrections(sample: StereoSample, config: Any, vo: list[RelativeMeasurement]) -> list[RelativeMeasurement]:
+def learned_corrections(
+    sample: StereoSample, config: Any, vo: list[RelativeMeasurement], windows: list[tuple[int, int]] | None = None
+) -> list[RelativeMeasurement]:
     """What ``dpc_net`` publishes for the sample's stereo pairs and the VO's transforms ``vo`` (each frame's pair
-    before the VO that ends there, as on the robot), as the fusion reads it."""
+    before the VO that ends there, as on the robot), as the fusion reads it. ``windows``: only these (first, last)
+    frame windows, each from its own first frame (the sensor is fed only the VO transforms inside them, so its
+    windows start where a node's did whatever that node missed before)."""
     from pvo_pseudosensors.dpc_net.estimator import DPCNetSensor
 
     sensor = DPCNetSensor(config)
     by_stamp = {int(m.stamp): m for m in vo}
+    if windows is not None:
+        inside = {int(m.stamp) for m in vo for first, last in windows if first < int(m.stamp) <= last}
+        by_stamp = {stamp: m for stamp, m in by_stamp.items() if stamp in inside}
     corrections = []
     for stamp in sample.frame_stamps:
         left, right = sample.pairs[int(stamp)]
@@ -171,6 +176,9 @@ def learned_corrections(sample: StereoSample, config: Any, vo: list[RelativeMeas
             corrections.append(
                 RelativeMeasurement(correction.stamp, correction.reference_stamp, correction.transform, correction.covariance)
             )
+    if windows is not None:
+        wanted = set(windows)
+        corrections = [m for m in corrections if (int(m.reference_stamp), int(m.stamp)) in wanted]
     return corrections
 
 

@@ -103,3 +103,16 @@ def read_header_stamps(bag: Path, topic: str) -> list[int]:
             if connection.topic == topic:
                 stamps.append(stamp_to_nanoseconds(store.deserialize_cdr(raw, connection.msgtype).header.stamp))
     return stamps
+
+
+def read_windows(bag: Path, topic: str) -> list[tuple[int, int]]:
+    """(reference_stamp, header stamp) in ns of every ``RelativePose`` on ``topic``, in recording order: the frames
+    each measurement spans."""
+    store = project_typestore()
+    windows = []
+    with open_bag(bag) as reader:
+        for connection, _, raw in iter_messages(reader):
+            if connection.topic == topic:
+                msg = store.deserialize_cdr(raw, connection.msgtype)
+                windows.append((stamp_to_nanoseconds(msg.reference_stamp), stamp_to_nanoseconds(msg.header.stamp)))
+    return windows

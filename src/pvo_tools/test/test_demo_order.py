@@ -48,3 +48,49 @@ def test_a_measurement_the_node_never_received_is_left_out() -> None:
         ("rotation", 30),
         ("vo", 30),
     ]  # sun 99 is no measurement the objects made: nothing to replay
+
+
+def test_corrections_replay_the_windows_a_node_published() -> None:
+    """A ``dpc_net`` node that missed the VO's first transform starts its Δp windows one frame later than the
+    objects would from the first frame: given the node's windows, the objects compute exactly those, each equal to
+    a sensor fed only that window."""
+    from types import SimpleNamespace
+
+    from pvo_pseudosensors.dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
+    from pvo_tools.pipeline import learned_corrections
+    from pvo_tools.samples import StereoSample
+
+    rng = np.random.default_rng(3)
+
+    def image(seed: int) -> SimpleNamespace:
+        pixels = np.random.default_rng(seed).integers(0, 256, (188, 620), dtype=np.uint8)
+        return SimpleNamespace(encoding="mono8", height=188, width=620, step=620, data=pixels.tobytes())
+
+    stamps = [100 * (k + 1) for k in range(12)]
+    sample = StereoSample(None, {s: (image(s), image(s + 1)) for s in stamps}, None, None)  # type: ignore[arg-type]
+    vo = []
+    for earlier, later in zip(stamps, stamps[1:]):
+        transform = np.eye(4)
+        transform[:3, 3] = [0.01 * rng.standard_normal(), 0.0, -1.0]
+        vo.append(RelativeMeasurement(later, earlier, transform, 1e-4 * np.eye(6)))
+    config = DPCNetSensorConfig()
+    delta = DPCNetSensor(config).delta
+    from_first = learned_corrections(sample, config, vo)
+    assert [(m.reference_stamp, m.stamp) for m in from_first][:2] == [
+        (stamps[0], stamps[delta]),
+        (stamps[delta], stamps[2 * delta]),
+    ]
+    node_windows = [(stamps[1], stamps[1 + delta]), (stamps[1 + delta], stamps[1 + 2 * delta])]
+    replayed = learned_corrections(sample, config, vo, node_windows)
+    assert [(m.reference_stamp, m.stamp) for m in replayed] == node_windows
+    for m, (first, last) in zip(replayed, node_windows):
+        alone = DPCNetSensor(config)
+        for stamp in (first, last):
+            alone.add_images(stamp, *(np.frombuffer(side.data, np.uint8).reshape(188, 620) for side in sample.pairs[stamp]))
+        correction = None
+        for step in vo:
+            if first < step.stamp <= last:
+                correction = alone.add_vo(step.reference_stamp, step.stamp, step.transform, step.covariance)
+        assert correction is not None
+        np.testing.assert_allclose(m.transform, correction.transform, atol=1e-12)
+        assert not np.allclose(m.transform, from_first[0].transform)  # another window, another correction

@@ -254,7 +254,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     from pvo_frontend.vo import VOConfig, from_flat
 
     from ..pipeline import run_pipeline
-    from ..recorded import read_arrivals, read_header_stamps
+    from ..recorded import read_arrivals, read_header_stamps, read_windows
 
     fusion_config: FusionConfig = fusion_from_flat(fusion_overrides)
     sun_stamps = read_header_stamps(recorded_bag, "/pvo/sun/direction")
@@ -273,7 +273,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         # the order the fusion node did (its status lists what it took before each frame)
         arrivals=read_arrivals(recorded_bag),
         correction_config=correction_config,
-        correction_stamps=read_header_stamps(recorded_bag, "/pvo/dpc/correction") if dpc_net else None,
+        correction_windows=read_windows(recorded_bag, "/pvo/dpc/correction") if dpc_net else None,
     )
     result = evaluate_sample(bag.name, recorded_bag, stamps, ground_truth, ros_free, out, sun_node)
     result.seconds = time.perf_counter() - start
