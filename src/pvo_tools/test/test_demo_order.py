@@ -4,6 +4,8 @@ never received and what it took after its last report are left out."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from pvo_tools.pipeline import in_node_order
 
@@ -69,7 +71,7 @@ def test_corrections_replay_the_windows_a_node_published() -> None:
     stamps = [100 * (k + 1) for k in range(12)]
     sample = StereoSample(None, {s: (image(s), image(s + 1)) for s in stamps}, None, None)  # type: ignore[arg-type]
     vo = []
-    for earlier, later in zip(stamps, stamps[1:]):
+    for earlier, later in itertools.pairwise(stamps):
         transform = np.eye(4)
         transform[:3, 3] = [0.01 * rng.standard_normal(), 0.0, -1.0]
         vo.append(RelativeMeasurement(later, earlier, transform, 1e-4 * np.eye(6)))
@@ -83,7 +85,7 @@ def test_corrections_replay_the_windows_a_node_published() -> None:
     node_windows = [(stamps[1], stamps[1 + delta]), (stamps[1 + delta], stamps[1 + 2 * delta])]
     replayed = learned_corrections(sample, config, vo, node_windows)
     assert [(m.reference_stamp, m.stamp) for m in replayed] == node_windows
-    for m, (first, last) in zip(replayed, node_windows):
+    for m, (first, last) in zip(replayed, node_windows, strict=True):
         alone = DPCNetSensor(config)
         for stamp in (first, last):
             alone.add_images(stamp, *(np.frombuffer(side.data, np.uint8).reshape(188, 620) for side in sample.pairs[stamp]))
