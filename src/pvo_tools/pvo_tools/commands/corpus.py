@@ -53,7 +53,7 @@ def register(sub: Any) -> None:
             default=1.0,
             metavar="S",
             help=f"one wrong calibration for every sequence: calib.txt written with the {what} times S (images unchanged; "
-            "DPC-Net's Table 6.1 rig, e.g. --calib-focal-scale 1.03)",
+            f"DPC-Net's Table 6.1 rig, e.g. --calib-{name}-scale 1.03)",
         )
     kitti = corpus.add_argument_group("real vehicle motion (each sequence drives a window of a KITTI drive)")
     kitti.add_argument(

@@ -39,7 +39,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calib-rotation", type=Path, help="rotation-variant model of that rig (Table 6.1)")
     parser.add_argument("--calib-yaw", type=Path, help="yaw-variant model of that rig (Table 6.1)")
     parser.add_argument("--lens-model", type=Path, help="pose model trained on the distorted rig (Table 6.2; default shipped)")
-    parser.add_argument("--clean-model", type=Path, help="pose model trained on the clean rig (no harm)")
+    parser.add_argument("--clean-model", type=Path, help="pose model trained on the clean rig (no harm; a directory or a shipped name, e.g. dpc_net_clean)")
     parser.add_argument("--sequences", type=int, default=5, help=f"long sequences per rig (1-{len(SEQUENCES)}, default 5)")
     parser.add_argument("--frames", type=int, default=1000, help="frames per sequence (default 1000)")
     parser.add_argument("--sequence-dir", type=Path, help="where the sequences are rendered (default OUT/sequences)")
@@ -260,6 +260,10 @@ def run(args: argparse.Namespace) -> int:
     session = ExperimentRun.start(args)
     say, out = session.say, session.out
     data = args.data or data_directory()
+    # a model argument may name a shipped model (dpc_net, dpc_net_clean) as the node's parameter does
+    for name in ("lens_model", "calib_model", "calib_rotation", "calib_yaw", "clean_model"):
+        if getattr(args, name):
+            setattr(args, name, resolve_model(str(getattr(args, name))))
     lens_dir = args.lens_model or resolve_model("")
     loaded = {"lens": load_dpc_net(lens_dir)}
     for key, path in (("calib", args.calib_model), ("calib rotation", args.calib_rotation), ("calib yaw", args.calib_yaw)):
