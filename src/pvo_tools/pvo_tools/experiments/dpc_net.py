@@ -39,7 +39,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calib-rotation", type=Path, help="rotation-variant model of that rig (Table 6.1)")
     parser.add_argument("--calib-yaw", type=Path, help="yaw-variant model of that rig (Table 6.1)")
     parser.add_argument("--lens-model", type=Path, help="pose model trained on the distorted rig (Table 6.2; default shipped)")
-    parser.add_argument("--clean-model", type=Path, help="pose model trained on the clean rig (no harm; a directory or a shipped name, e.g. dpc_net_clean)")
+    parser.add_argument("--clean-model", type=Path, help="pose model trained on the clean rig (no harm; e.g. dpc_net_clean)")
     parser.add_argument("--sequences", type=int, default=5, help=f"long sequences per rig (1-{len(SEQUENCES)}, default 5)")
     parser.add_argument("--frames", type=int, default=1000, help="frames per sequence (default 1000)")
     parser.add_argument("--sequence-dir", type=Path, help="where the sequences are rendered (default OUT/sequences)")
