@@ -252,6 +252,7 @@ def _dpc_net() -> ModelEntry:
             "variant": "pose (SE(3) from stereo) | rotation (SO(3) from the left images) | yaw",
             "deltas": "frame spans of the training windows, comma-separated (thesis 3,4,5; 2,3,4 for distorted images)",
             "test_delta": "frame span at prediction and validation",
+            "vo_input": "also feed the VO's estimate of the window, log(T̂), through a linear map (beyond the thesis)",
         },
     )
 

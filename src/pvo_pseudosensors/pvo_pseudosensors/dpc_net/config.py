@@ -16,7 +16,10 @@ class DPCNetConfig:
     two stems' concatenated maps; dropout: after every convolution (with PReLU, no pooling, no batch norm, as
     the thesis); variant: pose (a 6-vector ξ from both stereo pairs), rotation (3-vector φ from the left
     images) or yaw (one angle); deltas: the frame spans Δp of the training windows (thesis {3, 4, 5}; {2, 3,
-    4} for distorted images), test_delta: the span at prediction (4, or 3)."""
+    4} for distorted images), test_delta: the span at prediction (4, or 3); vo_input (beyond the thesis): the
+    VO's own estimate of the window, log(T̂_last,first) = [ρ; φ], also goes in, through a linear map added to the
+    image head's output (zero at the start) — a wrong calibration biases the VO in proportion to its motion,
+    which the images alone show only as well as a second VO would."""
 
     height: int = 64
     width: int = 208
@@ -26,6 +29,7 @@ class DPCNetConfig:
     variant: str = "pose"
     deltas: tuple[int, ...] = (3, 4, 5)
     test_delta: int = 4
+    vo_input: bool = False
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:

@@ -20,6 +20,7 @@ from pvo_core.lie import so3_log
 
 from ..learning.data import Source, cached_images
 from .config import DPCNetConfig
+from .model import estimate_input
 from .rig import Rig, sequence_rig
 
 Array = NDArray[np.float64]
@@ -60,16 +61,21 @@ def window_targets(ground_truth: Array, estimates: Array, first: NDArray[np.int6
     """T* = T_gt T̂^-1 (N, 4, 4) for windows from ``first`` to ``last`` (frame indices), T = T_last,first of
     camera-to-world poses: the left correction that turns the VO's transform into the true one."""
     truth = np.linalg.inv(ground_truth[last]) @ ground_truth[first]
-    estimate = np.linalg.inv(estimates[last]) @ estimates[first]
-    return truth @ np.linalg.inv(estimate)
+    return truth @ np.linalg.inv(window_estimates(estimates, first, last))
+
+
+def window_estimates(estimates: Array, first: NDArray[np.int64], last: NDArray[np.int64]) -> Array:
+    """The VO's T̂_last,first (N, 4, 4) from its camera-to-world poses ``estimates``."""
+    return np.linalg.inv(estimates[last]) @ estimates[first]
 
 
 @dataclass
 class DPCWindows(torch.utils.data.Dataset):
     """Samples, one per window (k - Δp, k) of every sequence and every Δp in ``config.deltas`` (``deltas`` to
     override, e.g. the test span): ``first``, ``last`` (C, H, W) float32 in [0, 1] (left and right stacked for
-    the pose variant); ``target`` (4, 4) T*; ``target_yaw`` its rotation about the camera's y axis (rad);
-    ``sequence``, ``frame`` (k), ``delta``; ``rigs``: each sequence's camera (:mod:`.rig`)."""
+    the pose variant); ``target`` (4, 4) T*; ``estimate`` (6,) the VO's log(T̂_last,first); ``target_yaw`` its
+    rotation about the camera's y axis (rad); ``sequence``, ``frame`` (k), ``delta``; ``rigs``: each sequence's
+    camera (:mod:`.rig`)."""
 
     sources: Sequence[Source]
     config: DPCNetConfig
@@ -79,13 +85,14 @@ class DPCWindows(torch.utils.data.Dataset):
     images: list[tuple[NDArray[np.uint8], NDArray[np.uint8] | None]] = field(init=False, default_factory=list)
     index: NDArray[np.int64] = field(init=False)
     targets: Array = field(init=False)
+    estimates: torch.Tensor = field(init=False)
     rigs: list[Rig] = field(init=False, default_factory=list)
 
     def __post_init__(self) -> None:
         from pvo_core.trajectory import read_kitti_poses
 
         size = (self.config.height, self.config.width)
-        rows, targets = [], []
+        rows, targets, window_logs = [], [], []
         for number, source in enumerate(self.sources):
             poses_file = source.root / "poses.txt"
             if not poses_file.is_file():
@@ -106,10 +113,12 @@ class DPCWindows(torch.utils.data.Dataset):
                 last = np.arange(delta, len(truth))
                 rows.append(np.column_stack([np.full(len(last), number), last, np.full(len(last), delta)]))
                 targets.append(window_targets(truth, estimates, last - delta, last))
+                window_logs.append(estimate_input(window_estimates(estimates, last - delta, last)))
         if not rows or sum(len(r) for r in rows) == 0:
             raise ValueError("the dataset holds no window (every sequence shorter than its span)")
         self.index = np.vstack(rows)
         self.targets = np.concatenate(targets)
+        self.estimates = torch.cat(window_logs)
 
     def __len__(self) -> int:
         return len(self.index)
@@ -126,6 +135,7 @@ class DPCWindows(torch.utils.data.Dataset):
             "first": self.frame(number, k - delta),
             "last": self.frame(number, k),
             "target": torch.from_numpy(target.astype(np.float32)),
+            "estimate": self.estimates[item],
             "target_yaw": torch.tensor(float(so3_log(target[:3, :3])[1]), dtype=torch.float32),
             "sequence": torch.tensor(number),
             "frame": torch.tensor(k),

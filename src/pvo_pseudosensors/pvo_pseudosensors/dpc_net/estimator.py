@@ -15,6 +15,7 @@ from pvo_core.lie import se3_exp
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import DPCNetConfig
 from .infer import UNMEASURED, load_dpc_net, measurement_covariance
+from .model import estimate_input
 from .rig import Rig, rig_problems
 
 Array = NDArray[np.float64]
@@ -169,5 +170,5 @@ class DPCNetSensor:
             return None
         frames = [torch.from_numpy(self.images[s].astype(np.float32)[None] / 255.0) for s in (first, last)]
         with torch.no_grad():
-            xi = self.model(frames[0], frames[1]).double().numpy()[0]
+            xi = self.model(frames[0], frames[1], estimate_input(estimate[None])).double().numpy()[0]
         return Correction(first, last, se3_exp(xi) @ estimate, self.covariance.copy())

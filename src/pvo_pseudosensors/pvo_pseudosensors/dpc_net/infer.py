@@ -16,7 +16,7 @@ from pvo_core.lie import se3_exp
 from ..learning.checkpoint import ModelCard, load_model
 from ..learning.data import Source, cached_images
 from .config import ARCHITECTURE, DPCNetConfig
-from .model import DPCNet
+from .model import DPCNet, estimate_input
 
 Array = NDArray[np.float64]
 CORRECTIONS_HEADER = (
@@ -112,10 +112,14 @@ def predict_corrections(model: DPCNet, card: ModelCard, sequence: Path, vo: Arra
         stacked = np.concatenate([left[index], right[index]], axis=1) if right is not None else np.asarray(left[index])
         return torch.from_numpy(stacked.astype(np.float32) / 255.0)
 
-    with torch.no_grad():
-        output = model(frames(first), frames(last)).double().numpy() if len(last) else np.zeros((0, config.outputs))
-    xi = correction_vectors(config, output)
     estimate = np.linalg.inv(vo[last]) @ vo[first]
+    with torch.no_grad():
+        output = (
+            model(frames(first), frames(last), estimate_input(estimate)).double().numpy()
+            if len(last)
+            else np.zeros((0, config.outputs))
+        )
+    xi = correction_vectors(config, output)
     transforms = np.stack([se3_exp(x) @ t for x, t in zip(xi, estimate, strict=True)]) if len(last) else np.zeros((0, 4, 4))
     covariance = measurement_covariance(config, card.calibration)
     return Corrections(first, last, transforms, np.broadcast_to(covariance, (len(last), 6, 6)).copy())
@@ -174,7 +178,7 @@ def residual_covariance(
     with torch.no_grad():
         for start in range(0, len(windows), batch_size):
             batch = [windows[i] for i in range(start, min(start + batch_size, len(windows)))]
-            output = model(torch.stack([b["first"] for b in batch]), torch.stack([b["last"] for b in batch]))
+            output = model(*(torch.stack([b[key] for b in batch]) for key in ("first", "last", "estimate")))
             for xi, sample in zip(correction_vectors(config, output.double().numpy()), batch, strict=True):
                 target = sample["target"].double().numpy()
                 residuals.append(se3_log(target @ se3_exp(-xi)))

@@ -45,13 +45,32 @@ class DPCNet(nn.Module):
         self.head = nn.Conv2d(channels, config.outputs, tuple(size))
         nn.init.zeros_(self.head.weight)
         nn.init.zeros_(self.head.bias)
+        self.vo_head: nn.Linear | None = None
+        if config.vo_input:
+            self.vo_head = nn.Linear(6, config.outputs, bias=False)
+            nn.init.zeros_(self.vo_head.weight)
 
-    def forward(self, first: torch.Tensor, last: torch.Tensor) -> torch.Tensor:
+    def forward(self, first: torch.Tensor, last: torch.Tensor, estimate: torch.Tensor | None = None) -> torch.Tensor:
         """The images (B, C, H, W) in [0, 1] of the window's first and last frame (C = 2: left and right, or 1:
-        left) -> the correction (B, 6) ξ = [ρ; φ], (B, 3) φ or (B, 1) yaw, applied on the left of the VO's
-        transform T_last,first."""
+        left) and, for a ``vo_input`` model, the VO's estimate (B, 6) log(T̂_last,first) = [ρ (m); φ (rad)] ->
+        the correction (B, 6) ξ = [ρ; φ], (B, 3) φ or (B, 1) yaw, applied on the left of the VO's transform
+        T_last,first."""
         maps = torch.cat([self.stem(first - 0.5), self.stem(last - 0.5)], dim=1)
-        return self.head(self.body(maps)).flatten(1)
+        correction = self.head(self.body(maps)).flatten(1)
+        if self.vo_head is None:
+            return correction
+        if estimate is None:
+            raise ValueError("this DPC-Net model takes the VO's estimate of the window as input (vo_input), and none was given")
+        return correction + self.vo_head(estimate.to(correction.dtype))
+
+
+def estimate_input(transforms: np.ndarray) -> torch.Tensor:
+    """The VO's window transforms T̂_last,first (N, 4, 4) as a ``vo_input`` network takes them: (N, 6) float32
+    log(T̂) = [ρ; φ]."""
+    from pvo_core.lie import se3_log
+
+    logs = np.array([se3_log(t) for t in np.asarray(transforms, dtype=float)]).reshape(-1, 6)
+    return torch.from_numpy(logs.astype(np.float32))
 
 
 @dataclass
@@ -70,7 +89,7 @@ class DPCTask:
         return DPCNet(self.config)
 
     def loss(self, model: nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        correction = model(batch["first"], batch["last"])
+        correction = model(batch["first"], batch["last"], batch.get("estimate"))
         target = batch["target"].double()
         if self.config.variant == "pose":
             return se3_loss(correction.double(), target, torch.from_numpy(self.covariance)).to(correction.dtype)
@@ -87,9 +106,12 @@ class DPCTask:
             input={
                 "size": [self.config.height, self.config.width],
                 "colour": False,
-                "normalisation": "grey levels / 255, minus 0.5; left and right stacked per frame"
-                if self.config.stereo
-                else "grey levels / 255, minus 0.5; left image",
+                "normalisation": (
+                    "grey levels / 255, minus 0.5; left and right stacked per frame"
+                    if self.config.stereo
+                    else "grey levels / 255, minus 0.5; left image"
+                )
+                + ("; and the VO's log(T̂_last,first) = [ρ (m); φ (rad)]" if self.config.vo_input else ""),
             }
             | ({"rig": self.rig} if self.rig else {}),
             calibration={"target_covariance": self.covariance.tolist()},

@@ -225,7 +225,7 @@ def speed(model_dir: Path, data: Path, figures: dict[str, float]) -> list[str]:
             ]
             first = torch.from_numpy(np.stack(planes[:2])[None].astype(np.float32) / 255.0)
             last = torch.from_numpy(np.stack(planes[2:])[None].astype(np.float32) / 255.0)
-            model(first, last)
+            model(first, last, torch.zeros(1, 6) if config.vo_input else None)
             times.append(1e3 * (time.perf_counter() - tic))
     times = np.asarray(times[5:])
     figures["speed.correction_ms"], figures["speed.correction_p95_ms"] = float(np.median(times)), float(np.percentile(times, 95))
