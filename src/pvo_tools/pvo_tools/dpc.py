@@ -84,20 +84,31 @@ def rig_sequences(manifest: Any, card: Any, split: str = "validation") -> list[A
 
 
 def render_drives(
-    drives: Sequence[Drive], data: Path, out: Path, frames: int | None = None, jobs: int = 2, say: Any = print
+    drives: Sequence[Drive],
+    data: Path,
+    out: Path,
+    frames: int | None = None,
+    jobs: int = 2,
+    say: Any = print,
+    rigs: Sequence[str] = RIGS,
 ) -> dict[str, list[Path]]:
     """``drives`` rendered clean and through :data:`LENS` into ``out/clean`` and ``out/lens`` (urban, 1x, KITTI
     geometry at 620x188; `pvo sim` in ``jobs`` parallel processes; complete ones of this renderer revision kept),
     and the clean ones with calib.txt's focal length x :data:`FOCAL_SCALE` in ``out/calib`` (:func:`miscalibrate`).
-    ``frames``: for a drive whose own is None. Returns the folders per rig (:data:`RIGS`)."""
+    ``frames``: for a drive whose own is None; ``rigs``: the rigs wanted (:data:`RIGS`; ``calib`` needs the clean
+    renders, so it renders them too). Returns the folders per rig asked for."""
     from .experiments.common import rendered_by_this_revision
 
+    unknown = sorted(set(rigs) - set(RIGS))
+    if unknown or not rigs:
+        raise ValueError(f"rigs must be some of {', '.join(RIGS)}, got {', '.join(rigs) or 'none'}")
+    rendered = [rig for rig in ("clean", "lens") if rig in rigs or (rig == "clean" and "calib" in rigs)]
     commands, folders = [], {rig: [] for rig in RIGS}
     for drive in drives:
         count = drive.frames or frames
         if not count:
             raise ValueError(f"drive {drive.name}: no frame count")
-        for rig in ("clean", "lens"):
+        for rig in rendered:
             folder = out / rig / drive.name
             folders[rig].append(folder)
             if rendered_by_this_revision(folder):
@@ -121,9 +132,10 @@ def render_drives(
 
     with ThreadPoolExecutor(max(1, jobs)) as pool:
         list(pool.map(render, commands))
-    for folder in folders["clean"]:
-        folders["calib"].append(miscalibrate(folder, out / "calib" / folder.name, FOCAL_SCALE))
-    return folders
+    if "calib" in rigs:
+        for folder in folders["clean"]:
+            folders["calib"].append(miscalibrate(folder, out / "calib" / folder.name, FOCAL_SCALE))
+    return {rig: paths for rig, paths in folders.items() if rig in rigs}
 
 
 def miscalibrate(source: Path, out: Path, focal_scale: float) -> Path:

@@ -218,3 +218,30 @@ def test_a_fusion_is_chosen_only_where_it_lowered_every_drive() -> None:
 def test_drives_refuses_a_short_test_drive(tmp_path: Path, capsys) -> None:
     assert main(["dpc-net", "drives", str(tmp_path / "d"), "--split", "test", "--frames", "50"]) == 2
     assert "--frames must be >= 100 (segment errors need 100 m and more), got 50" in capsys.readouterr().err
+
+
+def test_drives_render_only_the_rigs_asked_for(tmp_path: Path, monkeypatch) -> None:
+    import subprocess
+
+    from pvo_tools import dpc
+
+    commands: list[list[str]] = []
+
+    def fake_render(command: list[str], **_: object) -> subprocess.CompletedProcess:
+        commands.append(command)
+        return subprocess.CompletedProcess(command, 0, "", "")
+
+    monkeypatch.setattr(dpc.subprocess, "run", fake_render)
+    drives = dpc.VALIDATION_DRIVES[:2]
+    folders = dpc.render_drives(drives, Path("data"), tmp_path, jobs=1, say=lambda _: None, rigs=("lens",))
+    assert folders == {"lens": [tmp_path / "lens" / d.name for d in drives]}
+    assert len(commands) == 2 and all("--distortion" in c for c in commands)
+    assert [c[c.index("sim") + 1] for c in commands] == [str(tmp_path / "lens" / d.name) for d in drives]
+    with pytest.raises(ValueError, match="rigs must be some of clean, lens, calib, got fisheye"):
+        dpc.render_drives(drives, Path("data"), tmp_path, rigs=("fisheye",))
+
+
+def test_drives_refuses_an_unknown_rig(tmp_path: Path, capsys) -> None:
+    with pytest.raises(SystemExit):
+        main(["dpc-net", "drives", str(tmp_path / "d"), "--rigs", "lens,fisheye"])
+    assert "unknown rig(s) fisheye: choose from clean, lens, calib" in capsys.readouterr().err

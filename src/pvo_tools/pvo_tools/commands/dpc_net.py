@@ -64,12 +64,26 @@ def register_actions(actions: Any, entry: Any) -> None:
     )
     drives.add_argument("--data", type=Path, help="the shared data directory (default ../shared/data)")
     drives.add_argument("--jobs", "-j", type=int, default=2, help="sequences rendered in parallel (default 2)")
+    drives.add_argument(
+        "--rigs", type=rig_list, default=None, help="only these rigs, comma-separated (clean,lens,calib; default all)"
+    )
     evaluate = actions.add_parser("eval", help="m-ATE and mean segment errors, corrected vs uncorrected")
     evaluate.set_defaults(handler=run_eval)
     evaluate.add_argument("--gt", type=Path, required=True, help="true poses (KITTI)")
     evaluate.add_argument("--est", type=Path, required=True, help="corrected trajectory (KITTI)")
     evaluate.add_argument("--vo", type=Path, help="the uncorrected VO trajectory, for the comparison")
     evaluate.add_argument("--json", type=Path, help="also write the figures as a run-result record here")
+
+
+def rig_list(text: str) -> list[str]:
+    """``--rigs``: comma-separated rig names (:data:`pvo_tools.dpc.RIGS`)."""
+    from ..dpc import RIGS
+
+    rigs = [rig.strip() for rig in text.split(",") if rig.strip()]
+    unknown = [rig for rig in rigs if rig not in RIGS]
+    if unknown or not rigs:
+        raise argparse.ArgumentTypeError(f"unknown rig(s) {', '.join(unknown) or '(none)'}: choose from {', '.join(RIGS)}")
+    return rigs
 
 
 def span_list(text: str) -> list[int]:
@@ -252,14 +266,20 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
 
 
 def run_drives(args: argparse.Namespace) -> int:
-    from ..dpc import TEST_DRIVES, VALIDATION_DRIVES, render_drives
+    from ..dpc import RIGS, TEST_DRIVES, VALIDATION_DRIVES, render_drives
     from ..paths import data_directory
 
     if args.frames < 100:
         raise ValueError(f"--frames must be >= 100 (segment errors need 100 m and more), got {args.frames}")
     drives = VALIDATION_DRIVES if args.split == "validation" else TEST_DRIVES
     folders = render_drives(
-        drives, args.data or data_directory(), args.out, args.frames, args.jobs, lambda line: print(line, file=sys.stderr)
+        drives,
+        args.data or data_directory(),
+        args.out,
+        args.frames,
+        args.jobs,
+        lambda line: print(line, file=sys.stderr),
+        args.rigs or RIGS,
     )
     for rig, paths in folders.items():
         print(f"{rig}: " + " ".join(str(p) for p in paths))

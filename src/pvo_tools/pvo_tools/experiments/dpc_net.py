@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..dpc import TEST_DRIVES, render_drives
+from ..dpc import RIGS, TEST_DRIVES, render_drives
 from ..paths import data_directory
 from .common import TRAJECTORY_METRICS, ExperimentRun, fusion_figures, trajectory_tables
 
@@ -74,10 +74,12 @@ def fusion_summary(card: Any) -> str:
     return f"calibrated on validation windows: axes {axes}, VO span {span}"
 
 
-def render_sequences(data: Path, count: int, frames: int, out: Path, jobs: int, say: Any) -> dict[str, list[Path]]:
+def render_sequences(
+    data: Path, count: int, frames: int, out: Path, jobs: int, say: Any, rigs: tuple[str, ...] = RIGS
+) -> dict[str, list[Path]]:
     """The first ``count`` of :data:`pvo_tools.dpc.TEST_DRIVES`, ``frames`` each, rendered clean, through the
-    thesis's lens and with a miscalibrated calib.txt (:func:`pvo_tools.dpc.render_drives`)."""
-    return render_drives(TEST_DRIVES[:count], data, out, frames, jobs, say)
+    thesis's lens and with a miscalibrated calib.txt — those of ``rigs`` (:func:`pvo_tools.dpc.render_drives`)."""
+    return render_drives(TEST_DRIVES[:count], data, out, frames, jobs, say, rigs)
 
 
 def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
@@ -271,7 +273,9 @@ def run(args: argparse.Namespace) -> int:
             loaded[key] = load_dpc_net(path)
     if args.clean_model:
         loaded["clean"] = load_dpc_net(args.clean_model)
-    folders = render_sequences(data, args.sequences, args.frames, args.sequence_dir or out / "sequences", args.jobs, say)
+    # only the rigs some model is tested on are rendered (the calib rig is the clean renders with another calib.txt)
+    tested = tuple(rig for rig in RIGS if any(name.split()[0] == rig for name in loaded))
+    folders = render_sequences(data, args.sequences, args.frames, args.sequence_dir or out / "sequences", args.jobs, say, tested)
     report = ["# pvo experiment dpc-net", "", f"Command: `{session.command}`", ""]
     report += [
         f"{args.sequences} sequences of {args.frames} frames (620x188, KITTI geometry) driven along KITTI's test drives "
@@ -331,10 +335,10 @@ def run(args: argparse.Namespace) -> int:
             f"(worst {100 * max(changes):+.1f} %).",
             "",
         ]
-    # the rig check: each model against each rig's first sequence
+    # the rig check: each model against each rendered rig's first sequence
     report += ["### The model card's rig check", "", "| model | sequence | verdict |", "|---|---|---|"]
     for name, (_, card) in loaded.items():
-        for rig in ("clean", "calib", "lens"):
+        for rig in (rig for rig in ("clean", "calib", "lens") if folders.get(rig)):
             refusals, warnings = rig_problems(card.input.get("rig"), sequence_rig(folders[rig][0]), vo_signature())
             verdict = (
                 "refused: " + "; ".join(refusals)
