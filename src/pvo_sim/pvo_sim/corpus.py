@@ -70,6 +70,9 @@ class CorpusConfig:
     # angle over the window, plus a floor of a straight window's share), not uniformly: a drive is mostly
     # straight, and a frame-to-frame rotation model sees its sharp turns too rarely to learn them
     kitti_turning: bool = False
+    # each window levelled over this many frames of its drive around it (``kitti_path``'s ``level_frames``), so
+    # the short windows pitch against the flat ground as a long drive along the same road does (0: on itself)
+    kitti_level_frames: int = 0
     # one lens for the whole corpus (the rig DPC-Net learns to correct): plumb-bob k1 [k2 k3] on every sequence,
     # instead of the drawn distortion
     lens_distortion: tuple[float, ...] = ()
@@ -103,6 +106,8 @@ class CorpusConfig:
                 raise ValueError(
                     f"--{name.replace('_', '-')} must be in [0.5, 2] (a calibration error), got {getattr(self, name)}"
                 )
+        if self.kitti_level_frames < 0:
+            raise ValueError(f"--kitti-level-frames must be >= 0 (0: each window on itself), got {self.kitti_level_frames}")
         if self.kitti_poses:
             if set(self.kitti_train) & set(self.kitti_test) or set(self.kitti_validation) & set(self.kitti_test):
                 raise ValueError("a KITTI drive is in the test split and another split: keep the test drives apart")
@@ -243,7 +248,9 @@ def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
         else:
             poses = sum(1 for _ in file.open())
             start = int(rng.integers(0, poses - corpus.frames + 1))
-        config = replace(config, path="kitti", poses_file=str(file.resolve()), start_frame=start)
+        config = replace(
+            config, path="kitti", poses_file=str(file.resolve()), start_frame=start, level_frames=corpus.kitti_level_frames
+        )
         conditions.append(f"KITTI {drive} from frame {start}")
     return SequencePlan(index, f"{index:04d}", split, config, tuple(conditions))
 

@@ -95,10 +95,21 @@ def _rounded_rectangle(s: Array, width: float, height: float, radius: float) -> 
     return out
 
 
-def kitti_path(poses_file: Path, frames: int | None, start: int, camera_height: float, heading_deg: float = 0.0) -> Array:
+def kitti_path(
+    poses_file: Path,
+    frames: int | None,
+    start: int,
+    camera_height: float,
+    heading_deg: float = 0.0,
+    level_frames: int = 0,
+) -> Array:
     """A real KITTI ground-truth trajectory placed on the world's flat ground, facing ``heading_deg`` (from
     north) at the start: KITTI's poses relative to the first camera, tilted so that the cameras' mean up
     direction over the window is the world's up, and every camera at ``camera_height`` above the ground.
+    ``level_frames``: the mean up taken over that many frames of the drive centred on the window instead (clipped
+    to the drive; never fewer than the window's own), so that a short window pitches and rolls against the ground
+    as the same stretch of a long one does — levelled on itself, a 60-frame window loses the drive's slopes and
+    its cameras stay within 3 deg of level, where a 1000-frame drive's pitch reaches 10 deg.
 
     The world is flat; KITTI's drives are not, and their first camera is not level: replayed as they are, a
     1000-frame window climbed 12 m above the ground or sank 4 m under it, where the cameras see the inside of
@@ -111,9 +122,15 @@ def kitti_path(poses_file: Path, frames: int | None, start: int, camera_height: 
     if start < 0 or start >= len(poses) - 1:
         raise ValueError(f"{poses_file}: start frame {start} outside its {len(poses)} poses")
     end = len(poses) if frames is None else min(len(poses), start + frames)
+    if level_frames < 0:
+        raise ValueError(f"level_frames must be >= 0, got {level_frames}")
     relative = np.linalg.inv(poses[start]) @ poses[start:end]
+    context = relative
+    if level_frames > end - start:
+        first = max(0, min(len(poses) - level_frames, (start + end - level_frames) // 2))
+        context = np.linalg.inv(poses[start]) @ poses[first : first + level_frames]
     level = np.eye(4)
-    level[:3, :3] = _rotation_between(-relative[:, :3, 1].mean(axis=0), np.array([0.0, -1.0, 0.0]))
+    level[:3, :3] = _rotation_between(-context[:, :3, 1].mean(axis=0), np.array([0.0, -1.0, 0.0]))
     anchor = np.eye(4)
     anchor[:3, :3] = heading_rotation(heading_deg) @ ENU_FROM_LEVEL_CAMERA
     placed = anchor @ level @ relative

@@ -58,6 +58,7 @@ class SimConfig:
     path: str = "loop"  # loop | straight | s-curve, or a KITTI pose file via poses_file
     poses_file: str = ""
     start_frame: int = 0
+    level_frames: int = 0  # a KITTI window levelled over this many frames of its drive around it (0: itself)
     speed: float = 8.0
     camera_height: float = 1.65
     heading_deg: float = 0.0
@@ -110,7 +111,14 @@ def camera_trajectory(config: SimConfig) -> Array:
     """T_world,cam (N, 4, 4) of the left camera: the path (a procedural one turned clockwise by the heading),
     the camera pitched down by ``pitch_deg`` about its x axis."""
     if config.poses_file:
-        poses = kitti_path(Path(config.poses_file), config.frames, config.start_frame, config.camera_height, config.heading_deg)
+        poses = kitti_path(
+            Path(config.poses_file),
+            config.frames,
+            config.start_frame,
+            config.camera_height,
+            config.heading_deg,
+            config.level_frames,
+        )
     else:
         poses = procedural_path(config.path, config.frames, config.rate, config.speed, config.camera_height, config.seed)
         if config.heading_deg:

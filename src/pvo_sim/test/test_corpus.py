@@ -71,6 +71,17 @@ def test_kitti_drives_give_each_split_its_own_windows(tmp_path: Path) -> None:
         CorpusConfig(kitti_poses=str(drives), kitti_train=("00",), kitti_validation=("04",), kitti_test=("05",), frames=100)
 
 
+def test_kitti_windows_can_be_levelled_over_their_drive(tmp_path: Path) -> None:
+    drives = write_drives(tmp_path, ("00", "02", "04", "05"), 60)
+    plans = [plan_sequence(kitti_corpus(drives, 8, 20, kitti_level_frames=50), i) for i in range(8)]
+    assert {p.config.level_frames for p in plans} == {50}
+    before = [plan_sequence(kitti_corpus(drives, 8, 20), i) for i in range(8)]
+    assert [p.config.start_frame for p in plans] == [p.config.start_frame for p in before]  # the same windows
+    assert {p.config.level_frames for p in before} == {0}
+    with pytest.raises(ValueError, match="--kitti-level-frames must be >= 0"):
+        kitti_corpus(drives, 8, 20, kitti_level_frames=-5)
+
+
 def test_turning_windows_are_drawn_in_proportion_to_their_turning(tmp_path: Path) -> None:
     """A drive straight for 100 poses, then turning 1 degree per frame for 20: a 10-pose window's weight is its
     total turn plus a tenth of the mean's, and the turning draw lands in the turn far more often."""

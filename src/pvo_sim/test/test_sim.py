@@ -298,6 +298,32 @@ def test_a_long_kitti_drive_stays_on_the_ground(pvo_data: Path) -> None:
     np.testing.assert_allclose((np.linalg.inv(poses[:-1]) @ poses[1:])[:, :3, :3], true_steps[:, :3, :3], atol=1e-9)
 
 
+def test_a_short_window_levelled_over_its_drive_pitches_as_the_long_drive_does(pvo_data: Path) -> None:
+    """KITTI 10's frames 500-600 go down a slope: levelled on itself, a 60-frame window there stays within a few
+    degrees of level; levelled over the 1000 frames around it (``level_frames``), each camera's pitch against the
+    flat ground is the 1000-frame drive's at the same frame."""
+    from pvo_sim.paths import kitti_path
+
+    drive = pvo_data / "kitti" / "poses" / "10.txt"
+
+    def pitch(poses: np.ndarray) -> np.ndarray:  # the optical axis above the horizon (ENU: z up), degrees
+        return np.degrees(np.arcsin(poses[:, 2, 2]))
+
+    long = kitti_path(drive, 1000, 40, 1.65)  # frames 40-1039: centred on the window below
+    alone = kitti_path(drive, 60, 510, 1.65)
+    levelled = kitti_path(drive, 60, 510, 1.65, level_frames=1000)
+    assert np.abs(pitch(alone)).max() < 3.0 and pitch(long)[470:530].min() < -6.0
+    np.testing.assert_allclose(pitch(levelled), pitch(long)[470:530], atol=1e-4)  # poses to 12 digits
+    np.testing.assert_allclose(levelled[:, 2, 3], 1.65)
+    steps = np.linalg.inv(levelled[:-1]) @ levelled[1:]  # the motion itself is KITTI's either way
+    np.testing.assert_allclose(steps[:, :3, :3], (np.linalg.inv(alone[:-1]) @ alone[1:])[:, :3, :3], atol=1e-9)
+    # near the drive's end the stretch is clipped to the drive, never shorter than asked
+    end = kitti_path(drive, 60, 1140, 1.65, level_frames=1000)  # frames 1140-1199 of 1201, levelled over 201-1200
+    np.testing.assert_allclose(pitch(end), pitch(kitti_path(drive, 1000, 201, 1.65))[939:999], atol=1e-4)
+    with pytest.raises(ValueError, match="level_frames must be >= 0"):
+        kitti_path(drive, 60, 510, 1.65, level_frames=-1)
+
+
 def test_a_failed_render_keeps_the_previous_output(tmp_path: Path, monkeypatch) -> None:
     import pvo_sim.render as sim
 

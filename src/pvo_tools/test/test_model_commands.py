@@ -171,6 +171,24 @@ def test_training_on_two_corpora_joins_their_splits(corpus: Path, tmp_path: Path
     assert card["commands"]["corpus"].count("pvo sim corpus") == 2
 
 
+def test_init_fine_tunes_from_a_trained_model(corpus: Path, tmp_path: Path, capsys) -> None:
+    import torch
+    from safetensors.torch import load_file
+
+    first, tuned = tmp_path / "first", tmp_path / "tuned"
+    args = ["sun-bcnn", "train", "--corpus", str(corpus), "--epochs", "1", "--batch-size", "16", *TINY]
+    assert main([*args, "-o", str(first), "--learning-rate", "0.01"]) == 0
+    # a vanishing learning rate: the fine-tuned weights are the initial ones, not a fresh initialisation
+    assert main([*args, "-o", str(tuned), "--learning-rate", "1e-12", "--init", str(first)]) == 0
+    start, end = load_file(first / "weights.safetensors"), load_file(tuned / "weights.safetensors")
+    learned = [k for k in start if "running_" not in k and start[k].is_floating_point()]  # batch norm's statistics move
+    assert learned and all(torch.allclose(start[k], end[k], atol=1e-8) for k in learned)
+    assert f"fine-tuned from {first}" in yaml.safe_load((tuned / "model.yaml").read_text())["notes"]
+    capsys.readouterr()
+    assert main([*args, "-o", str(tmp_path / "x"), "--init", str(tmp_path / "nowhere")]) == 2
+    assert "--init" in capsys.readouterr().err.strip().splitlines()[-1]
+
+
 def test_an_extra_corpus_without_validation_sequences_adds_training_samples_only(corpus: Path, tmp_path: Path, capsys) -> None:
     import shutil
 

@@ -67,6 +67,14 @@ def register(sub: Any) -> None:
         action="store_true",
         help="draw windows in proportion to how much the vehicle turns in them (default: uniformly)",
     )
+    kitti.add_argument(
+        "--kitti-level-frames",
+        type=int,
+        default=0,
+        metavar="N",
+        help="level each window over N frames of its drive around it, so that short windows pitch against the flat "
+        "ground as long drives do (e.g. 1000, the long drives' length; default 0: each window on itself)",
+    )
 
 
 def _drives(text: str) -> tuple[str, ...]:
@@ -96,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
         kitti_validation=_drives(args.kitti_validation),
         kitti_test=_drives(args.kitti_test),
         kitti_turning=args.kitti_turning,
+        kitti_level_frames=args.kitti_level_frames,
         lens_distortion=tuple(args.lens_distortion),
         calib_focal_scale=args.calib_focal_scale,
         calib_baseline_scale=args.calib_baseline_scale,

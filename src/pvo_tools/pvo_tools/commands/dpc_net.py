@@ -54,7 +54,7 @@ def register_actions(actions: Any, entry: Any) -> None:
         "the choice that lowers every drive's translational and rotational m-ATE most, else nothing is fused",
     )
     drives = actions.add_parser(
-        "drives", help="render the long drives a fusion is chosen on (KITTI 04, 10) or tested on (05, 06, 07), each rig"
+        "drives", help="render the long drives a fusion is chosen on (KITTI 03, 04, 10) or tested on (05, 06, 07), each rig"
     )
     drives.set_defaults(handler=run_drives)
     drives.add_argument("out", type=Path, help="output folder: OUT/clean, OUT/lens, OUT/calib (the clean ones, calib.txt x1.03)")

@@ -68,6 +68,12 @@ def _train_parser(actions: Any, entry: ModelEntry) -> None:
     )
     train.add_argument("--out", "-o", type=Path, required=True, help="model directory (weights, card, history, plots)")
     train.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    train.add_argument(
+        "--init",
+        type=Path,
+        metavar="MODEL",
+        help="fine-tune: start from this model directory's weights (the same settings; its card says which)",
+    )
     train.add_argument("--cache", type=Path, help="decoded-image cache (default CORPUS/.cache of each corpus)")
     train.add_argument("--max-sequences", type=int, default=0, help="use at most this many sequences per split (0: all)")
     train.add_argument(
@@ -168,6 +174,8 @@ def _corpus_command(manifest: Any) -> str:
         )
         if data.get("kitti_turning"):
             colour += " --kitti-turning"
+        if data.get("kitti_level_frames"):
+            colour += f" --kitti-level-frames {data['kitti_level_frames']}"
     return (
         f"pvo sim corpus {manifest.path.parent} --sequences {data['sequences']} --frames {data['frames']} --size {size} "
         f"--presets {presets} --seed {data['seed']}{colour}"
@@ -260,8 +268,15 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
             "train": "pvo " + shlex.join(getattr(args, "argv", sys.argv[1:])),
         },
     }
+    task = entry.task(config) if entry.fit_task is None else entry.fit_task(config, sets["train"])
+    if args.init is not None:
+        from pvo_pseudosensors.learning.training import FineTune
+
+        if not (args.init / "model.yaml").is_file():
+            raise ValueError(f"--init {args.init}: not a model directory (no model.yaml)")
+        task = FineTune(task, args.init)
     result = fit(
-        entry.task(config) if entry.fit_task is None else entry.fit_task(config, sets["train"]),
+        task,
         sets["train"],
         sets["validation"],
         loop,

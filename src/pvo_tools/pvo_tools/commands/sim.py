@@ -26,6 +26,14 @@ def register(sub: Any) -> None:
     sim.add_argument("--path", default="loop", help="procedural path: loop | straight | s-curve (default loop)")
     sim.add_argument("--poses", type=Path, help="replay a KITTI ground-truth pose file instead of a procedural path")
     sim.add_argument("--start", type=int, default=0, help="with --poses: first pose")
+    sim.add_argument(
+        "--level-frames",
+        type=int,
+        default=0,
+        metavar="N",
+        help="with --poses: level the drive onto the flat ground over N of its frames around the window (default 0: "
+        "over the window itself)",
+    )
     sim.add_argument("--speed", type=float, default=8.0, help="procedural path speed in m/s (default 8)")
     sim.add_argument("--heading", type=float, default=0.0, help="heading, degrees clockwise from north (turns the path)")
     sim.add_argument("--pitch", type=float, default=0.0, help="cameras pitched down by this many degrees (default 0)")
@@ -118,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
         path=args.path,
         poses_file=str(args.poses) if args.poses else "",
         start_frame=args.start,
+        level_frames=args.level_frames,
         speed=args.speed,
         heading_deg=args.heading,
         pitch_deg=args.pitch,

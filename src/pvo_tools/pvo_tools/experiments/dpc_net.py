@@ -281,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
         f"{args.sequences} sequences of {args.frames} frames (620x188, KITTI geometry) driven along KITTI's test drives "
         f"({', '.join(f'{d} from {s}' for _, d, s in SEQUENCES[: args.sequences])}); the VO is this project's stereo VO "
         "with its defaults. Each model's corrections are weighed against the VO as its card's calibration says: "
-        "chosen on long validation drives of its rig rendered like these (KITTI 04 and 10, `pvo dpc-net drives`; "
+        "chosen on long validation drives of its rig rendered like these (along KITTI 03, 04 and 10, `pvo dpc-net drives`; "
         "`pvo dpc-net calibrate --drives`: the VO span and the fused axes that lowered every drive's m-ATE, else nothing "
         "fused) when it has that, else the VO's covariances scaled on the validation split its corrections were "
         "calibrated on over "
