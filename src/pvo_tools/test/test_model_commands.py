@@ -183,7 +183,12 @@ def test_init_fine_tunes_from_a_trained_model(corpus: Path, tmp_path: Path, caps
     start, end = load_file(first / "weights.safetensors"), load_file(tuned / "weights.safetensors")
     learned = [k for k in start if "running_" not in k and start[k].is_floating_point()]  # batch norm's statistics move
     assert learned and all(torch.allclose(start[k], end[k], atol=1e-8) for k in learned)
-    assert f"fine-tuned from {first}" in yaml.safe_load((tuned / "model.yaml").read_text())["notes"]
+    card = yaml.safe_load((tuned / "model.yaml").read_text())
+    assert f"fine-tuned from {first}" in card["notes"]
+    # the card remakes the weights from nothing: the initial model's commands, then the fine-tuning's
+    made = yaml.safe_load((first / "model.yaml").read_text())["commands"]
+    assert card["commands"]["initial_train"] == made["train"] and card["commands"]["initial_corpus"] == made["corpus"]
+    assert f"--init {first}" in card["commands"]["train"]
     capsys.readouterr()
     assert main([*args, "-o", str(tmp_path / "x"), "--init", str(tmp_path / "nowhere")]) == 2
     assert "--init" in capsys.readouterr().err.strip().splitlines()[-1]

@@ -270,11 +270,15 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
     }
     task = entry.task(config) if entry.fit_task is None else entry.fit_task(config, sets["train"])
     if args.init is not None:
+        from pvo_pseudosensors.learning.checkpoint import read_card
         from pvo_pseudosensors.learning.training import FineTune
 
         if not (args.init / "model.yaml").is_file():
             raise ValueError(f"--init {args.init}: not a model directory (no model.yaml)")
         task = FineTune(task, args.init)
+        # the card remakes the weights from nothing: the commands that made the initial model come first
+        initial = read_card(args.init).commands
+        extra["commands"] = {f"initial_{k}": v for k, v in initial.items()} | extra["commands"]
     result = fit(
         task,
         sets["train"],
