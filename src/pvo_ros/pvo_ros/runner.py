@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import faulthandler
+import signal
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -23,6 +25,9 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
     from rclpy.signals import SignalHandlerOptions
 
     keep_large_blocks()  # per-frame numpy temporaries reuse the heap instead of faulting in fresh pages
+    # SIGUSR1 writes every thread's Python stack to stderr (the node's log): what a launcher sends a node that
+    # did not stop on SIGINT, before it escalates, so that a hang leaves its place behind
+    faulthandler.register(signal.SIGUSR1, all_threads=True, chain=False)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.ALL)
     try:
         node = factory()

@@ -43,6 +43,7 @@ class NodeGroup:
     nodes: list[NodeProcess] = field(default_factory=list)
     packages: dict[str, str] = field(default_factory=dict)
     killed: list[str] = field(default_factory=list)  # nodes the last stop() had to kill
+    escalated: list[str] = field(default_factory=list)  # nodes the last stop() sent SIGTERM (SIGINT not obeyed)
 
     def start(
         self, package: str, executable: str, params_file: Path | None, log_dir: Path, env: Mapping[str, str], suffix: str = ""
@@ -85,16 +86,29 @@ class NodeGroup:
             if code is not None and not node.expected_dead:
                 raise PvoError(f"node {node.name} died (exit status {code}): {node.tail() or 'no output'} (log {node.log})")
 
-    def stop(self, timeout_s: float = STOP_TIMEOUT_S) -> dict[str, int]:
-        """SIGINT to every node still running, then wait (SIGKILL after ``timeout_s``, the node then named in
-        ``killed``); exit status per node."""
-        self.killed = []
+    def stop(self, timeout_s: float = STOP_TIMEOUT_S, sigterm_after_s: float | None = None) -> dict[str, int]:
+        """SIGINT to every node still running, then wait; as ros2 launch does, a node still running after
+        ``sigterm_after_s`` (default half of ``timeout_s``) gets SIGUSR1 (pvo nodes write their threads' stacks
+        to their log) and SIGTERM (named in ``escalated``), and SIGKILL after ``timeout_s`` (named in ``killed``).
+        Exit status per node."""
+        self.killed, self.escalated = [], []
         for node in self.nodes:
             if node.process.poll() is None:
                 node.process.send_signal(signal.SIGINT)
-        deadline = time.monotonic() + timeout_s
+        start = time.monotonic()
+        term_at = start + (timeout_s / 2 if sigterm_after_s is None else min(sigterm_after_s, timeout_s))
+        deadline = start + timeout_s
         codes: dict[str, int] = {}
         for node in self.nodes:
+            try:
+                codes[node.name] = node.process.wait(timeout=max(term_at - time.monotonic(), 0.1))
+                continue
+            except subprocess.TimeoutExpired:
+                pass
+            self.escalated.append(node.name)
+            node.process.send_signal(signal.SIGUSR1)
+            time.sleep(0.2)  # the stacks written before the handlers start shutting down
+            node.process.send_signal(signal.SIGTERM)
             try:
                 codes[node.name] = node.process.wait(timeout=max(deadline - time.monotonic(), 0.1))
             except subprocess.TimeoutExpired:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -372,8 +373,15 @@ def run_graph(
         codes = nodes.stop()
         rclpy.shutdown(context=context)
     died = {name: code for name, code in codes.items() if code != 0}
+    for name in nodes.escalated:
+        if name not in died:  # stopped, but not by SIGINT: say so, and where its stacks at that moment are
+            print(
+                f"pvo demo: warning: {name} did not stop within {STOP_TIMEOUT_S / 2:g} s of SIGINT; SIGTERM stopped it "
+                f"(its threads' stacks when it hung: {log_dir / (name + '.log')})",
+                file=sys.stderr,
+            )
     if died:
-        killed = f"killed: still running {STOP_TIMEOUT_S:g} s after SIGINT"
+        killed = f"killed: still running {STOP_TIMEOUT_S:g} s after SIGINT, SIGTERM at {STOP_TIMEOUT_S / 2:g} s"
         raise PvoError(
             "node(s) did not exit cleanly: "
             + ", ".join(
