@@ -39,6 +39,11 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # a signal that shuts the context down between the executor's check and its next wait set makes rcl
+        # raise "the given context is not valid": a shutdown, not a failure; anything while still running is
+        if rclpy.ok():
+            raise
     finally:
         close = getattr(node, "close", None)
         if callable(close):
