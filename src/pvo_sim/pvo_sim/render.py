@@ -87,6 +87,8 @@ class SimConfig:
             raise ValueError(f"--pitch must be in [-60, 60] degrees, got {self.pitch_deg}")
         if self.frames < 2:
             raise ValueError(f"--frames must be >= 2, got {self.frames}")
+        if self.level_frames < 0:
+            raise ValueError(f"--level-frames must be >= 0 (0: the window levelled on itself), got {self.level_frames}")
         if self.width < 16 or self.height < 16 or self.focal <= 0 or self.baseline <= 0 or self.rate <= 0:
             raise ValueError("image size >= 16 px, focal length, baseline and rate must be positive")
 

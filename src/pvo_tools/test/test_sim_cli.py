@@ -112,3 +112,14 @@ def test_camera_and_pitch_options_reach_the_configuration(tmp_path: Path) -> Non
     config = yaml.safe_load((out / "sim.yaml").read_text())["config"]
     assert config["pitch_deg"] == 15.0 and config["camera"]["gamma"] == 1.5 and config["camera"]["jpeg_quality"] == 80
     assert main(["sim", str(tmp_path / "bad"), "--pitch", "80", "-q"]) == 2
+
+
+def test_a_negative_level_frames_is_one_line_naming_the_option(tmp_path, capsys, pvo_data) -> None:
+    from pvo_tools.cli import main
+
+    poses = str(pvo_data / "kitti" / "poses" / "04.txt")
+    assert main(["sim", str(tmp_path / "bad"), "--poses", poses, "--frames", "3", "--level-frames", "-1", "-q"]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        "pvo: error: --level-frames must be >= 0 (0: the window levelled on itself), got -1"
+    )
+    assert not (tmp_path / "bad" / "image_0").exists()
