@@ -1,11 +1,12 @@
 """Errors binned by the camera's pitch against the synthetic world's flat ground (stop 33's diagnosis: short corpus
 windows levelled on themselves never pitch beyond +-3 deg, long drives do).
 
-    # DPC-Net: per Δp-window yaw error of the VO and of the corrected transform, four lens validation drives
+    # DPC-Net: per Δp-window yaw error of the VO and of the corrected transform (by pitch, then by speed),
+    # four lens validation drives
     python scripts/pitch_errors.py dpc --model runs/dpc/lensvo runs/dpc/vlong/lens/{10a,10b,04,03}
     # HydraNet: per-pair angular error of `pvo hydranet predict` output, pairs turning < 0.5 deg
     python scripts/pitch_errors.py hydranet runs/dpc/vlong/clean/10a runs/dpc/hydra-10a.csv
-    # a corpus's training frames: how often they pitch beyond +-3 deg
+    # a corpus's training frames: how often they pitch beyond +-3 deg, how fast they go
     python scripts/pitch_errors.py corpus data/corpus-dpc-lens150lv
 
 A sequence's pitch is taken against the mean up direction of its poses.txt, as `pvo_sim.paths.kitti_path` levels a
@@ -25,6 +26,8 @@ from pvo_core.trajectory import read_kitti_poses
 
 Array = NDArray[np.float64]
 BINS = ((-20, -6), (-6, -3), (-3, 0), (0, 3), (3, 6), (6, 20))
+SPEED_BINS = ((0, 5), (5, 10), (10, 15), (15, 40))  # m/s
+FRAME_RATE_HZ = 10.0  # KITTI's and every corpus's
 
 
 def sequence_pitch(poses: Array) -> Array:
@@ -51,17 +54,20 @@ def dpc(model_dir: Path, drives: list[Path]) -> None:
             estimate = np.linalg.inv(vo[b]) @ vo[a]
             yaw_vo = se3_log(true @ np.linalg.inv(estimate))[4]  # ROS order x y z rx ry rz: ry is yaw (optical y down)
             yaw_corrected = se3_log(true @ np.linalg.inv(corrected))[4]
-            rows.append((pitch[a], np.degrees(yaw_vo), np.degrees(yaw_corrected)))
+            speed = np.linalg.norm(true[:3, 3]) * FRAME_RATE_HZ / (b - a)
+            rows.append((pitch[a], np.degrees(yaw_vo), np.degrees(yaw_corrected), speed))
     table = np.asarray(rows)
-    for lo, hi in BINS:
-        inside = table[(table[:, 0] >= lo) & (table[:, 0] < hi)]
-        if len(inside):
-            vo_err, corrected = inside[:, 1], inside[:, 2]
-            print(
-                f"pitch [{lo:+d},{hi:+d}) deg, {len(inside):4d} windows: yaw error VO mean {vo_err.mean():+.4f} rms "
-                f"{np.sqrt(np.mean(vo_err**2)):.4f} | corrected mean {corrected.mean():+.4f} rms "
-                f"{np.sqrt(np.mean(corrected**2)):.4f} deg"
-            )
+    for column, unit, bins in ((0, "pitch", BINS), (3, "speed", SPEED_BINS)):
+        for lo, hi in bins:
+            inside = table[(table[:, column] >= lo) & (table[:, column] < hi)]
+            if len(inside):
+                vo_err, corrected = inside[:, 1], inside[:, 2]
+                label = f"pitch [{lo:+d},{hi:+d}) deg" if unit == "pitch" else f"speed [{lo:d},{hi:d}) m/s"
+                print(
+                    f"{label}, {len(inside):4d} windows: yaw error VO mean {vo_err.mean():+.4f} rms "
+                    f"{np.sqrt(np.mean(vo_err**2)):.4f} | corrected mean {corrected.mean():+.4f} rms "
+                    f"{np.sqrt(np.mean(corrected**2)):.4f} deg"
+                )
 
 
 def hydranet(root: Path, predictions: Path, turning_below_deg: float = 0.5) -> None:
@@ -94,25 +100,29 @@ def corpus(root: Path, split: str) -> None:
 
     manifest = yaml.safe_load((root / "manifest.yaml").read_text())
     fields = {f.name for f in dataclasses.fields(SimConfig)}
-    pitches = []
+    pitches, speeds = [], []
     for name in manifest["splits"][split]:
         values = yaml.safe_load((root / name / "sim.yaml").read_text())["config"]
         config = SimConfig(
             **{k: tuple(v) if isinstance(v, list) else v for k, v in values.items() if k in fields and k != "degradations"}
         )
-        pitches.append(np.degrees(np.arcsin(camera_trajectory(config)[:, 2, 2])))  # ENU: z up
+        cameras = camera_trajectory(config)
+        pitches.append(np.degrees(np.arcsin(cameras[:, 2, 2])))  # ENU: z up
+        speeds.append(np.linalg.norm(np.diff(cameras[:, :3, 3], axis=0), axis=1) * FRAME_RATE_HZ)
     p = np.concatenate(pitches)
+    v = np.concatenate(speeds)
     print(
         f"{root} ({split}, {len(pitches)} sequences, {len(p)} frames): pitch p1 {np.percentile(p, 1):+.2f}, median "
         f"{np.median(p):+.2f}, p99 {np.percentile(p, 99):+.2f} deg; beyond -3 deg {np.mean(p < -3):.3f}, beyond +3 deg "
-        f"{np.mean(p > 3):.3f}, beyond +-3 deg {np.mean(np.abs(p) > 3):.3f}"
+        f"{np.mean(p > 3):.3f}, beyond +-3 deg {np.mean(np.abs(p) > 3):.3f}; speed median {np.median(v):.1f}, p90 "
+        f"{np.percentile(v, 90):.1f} m/s, above 10 m/s {np.mean(v > 10):.3f}, above 15 m/s {np.mean(v > 15):.3f}"
     )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     kinds = parser.add_subparsers(dest="kind", required=True)
-    a = kinds.add_parser("dpc", help="DPC-Net's per-window yaw error, VO vs corrected")
+    a = kinds.add_parser("dpc", help="DPC-Net's per-window yaw error, VO vs corrected, by pitch and by speed")
     a.add_argument("--model", type=Path, required=True)
     a.add_argument("drives", type=Path, nargs="+")
     b = kinds.add_parser("hydranet", help="HydraNet's per-pair angular error from its predictions CSV")
