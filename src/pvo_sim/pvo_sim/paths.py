@@ -102,6 +102,7 @@ def kitti_path(
     camera_height: float,
     heading_deg: float = 0.0,
     level_frames: int = 0,
+    speed_scale: float = 1.0,
 ) -> Array:
     """A real KITTI ground-truth trajectory placed on the world's flat ground, facing ``heading_deg`` (from
     north) at the start: KITTI's poses relative to the first camera, tilted so that the cameras' mean up
@@ -110,6 +111,10 @@ def kitti_path(
     to the drive; never fewer than the window's own), so that a short window pitches and rolls against the ground
     as the same stretch of a long one does — levelled on itself, a 60-frame window loses the drive's slopes and
     its cameras stay within 3 deg of level, where a 1000-frame drive's pitch reaches 10 deg.
+    ``speed_scale``: the drive replayed this many times faster — camera k at the drive's frame ``start + k *
+    speed_scale`` (positions interpolated linearly, rotations by slerp between the two nearest poses), so the
+    window covers that many times the road at the same frame rate: KITTI's urban drives rarely exceed 15 m/s, its
+    highway stretches do.
 
     The world is flat; KITTI's drives are not, and their first camera is not level: replayed as they are, a
     1000-frame window climbed 12 m above the ground or sank 4 m under it, where the cameras see the inside of
@@ -121,11 +126,19 @@ def kitti_path(
         raise ValueError(f"{poses_file}: not a KITTI pose file ({exc})") from None
     if start < 0 or start >= len(poses) - 1:
         raise ValueError(f"{poses_file}: start frame {start} outside its {len(poses)} poses")
-    end = len(poses) if frames is None else min(len(poses), start + frames)
+    if not np.isfinite(speed_scale) or speed_scale <= 0.0:
+        raise ValueError(f"speed_scale must be positive, got {speed_scale}")
+    spanned = len(poses) - start if frames is None else int(np.ceil((frames - 1) * speed_scale - 1e-9)) + 1
+    end = min(len(poses), start + spanned)
     if level_frames < 0:
         raise ValueError(f"level_frames must be >= 0, got {level_frames}")
     relative = np.linalg.inv(poses[start]) @ poses[start:end]
-    context = relative
+    context = relative  # the stretch of road driven, levelled as the drive's own poses whatever the replay speed
+    if speed_scale != 1.0:
+        count = int(np.floor((end - 1 - start) / speed_scale + 1e-9)) + 1
+        if frames is not None:
+            count = min(count, frames)
+        relative = resample_poses(relative, np.arange(count) * speed_scale)
     if level_frames > end - start:
         first = max(0, min(len(poses) - level_frames, (start + end - level_frames) // 2))
         context = np.linalg.inv(poses[start]) @ poses[first : first + level_frames]
@@ -136,6 +149,25 @@ def kitti_path(
     placed = anchor @ level @ relative
     placed[:, 2, 3] = camera_height
     return placed
+
+
+def resample_poses(poses: Array, times: Array) -> Array:
+    """Poses (N, 4, 4) at fractional indices ``times`` (M,) in [0, N - 1]: translation interpolated linearly,
+    rotation by slerp between the two poses around each time (exact at whole indices)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    times = np.asarray(times, dtype=float)
+    if times.size and (times.min() < 0.0 or times.max() > len(poses) - 1 + 1e-9):
+        raise ValueError(f"resample times must lie in [0, {len(poses) - 1}], got [{times.min()}, {times.max()}]")
+    times = np.clip(times, 0.0, len(poses) - 1)
+    index = np.arange(len(poses), dtype=float)
+    out = np.tile(np.eye(4), (len(times), 1, 1))
+    out[:, :3, :3] = Slerp(index, Rotation.from_matrix(poses[:, :3, :3]))(times).as_matrix()
+    whole = np.abs(times - np.round(times)) < 1e-12  # the drive's own rotations there, not a quaternion round trip
+    out[whole, :3, :3] = poses[np.round(times[whole]).astype(int), :3, :3]
+    for axis in range(3):
+        out[:, axis, 3] = np.interp(times, index, poses[:, axis, 3])
+    return out
 
 
 def _rotation_between(a: Array, b: Array) -> Array:

@@ -59,6 +59,7 @@ class SimConfig:
     poses_file: str = ""
     start_frame: int = 0
     level_frames: int = 0  # a KITTI window levelled over this many frames of its drive around it (0: itself)
+    speed_scale: float = 1.0  # a KITTI drive replayed this many times faster (frame k at the drive's start + k * s)
     speed: float = 8.0
     camera_height: float = 1.65
     heading_deg: float = 0.0
@@ -89,6 +90,10 @@ class SimConfig:
             raise ValueError(f"--frames must be >= 2, got {self.frames}")
         if self.level_frames < 0:
             raise ValueError(f"--level-frames must be >= 0 (0: the window levelled on itself), got {self.level_frames}")
+        if not self.speed_scale > 0.0 or not np.isfinite(self.speed_scale):
+            raise ValueError(f"--speed-scale must be positive (1: the drive as driven), got {self.speed_scale}")
+        if self.speed_scale != 1.0 and not self.poses_file:
+            raise ValueError("--speed-scale replays a KITTI drive faster: give the drive with --poses")
         if self.width < 16 or self.height < 16 or self.focal <= 0 or self.baseline <= 0 or self.rate <= 0:
             raise ValueError("image size >= 16 px, focal length, baseline and rate must be positive")
 
@@ -120,6 +125,7 @@ def camera_trajectory(config: SimConfig) -> Array:
             config.camera_height,
             config.heading_deg,
             config.level_frames,
+            config.speed_scale,
         )
     else:
         poses = procedural_path(config.path, config.frames, config.rate, config.speed, config.camera_height, config.seed)

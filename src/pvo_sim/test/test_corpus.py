@@ -67,7 +67,7 @@ def test_kitti_drives_give_each_split_its_own_windows(tmp_path: Path) -> None:
         CorpusConfig(kitti_poses=str(drives), kitti_train=("00", "05"), kitti_test=("05",), frames=20)
     with pytest.raises(ValueError, match=r"07.txt not found \(drive 07 of the test split\)"):
         CorpusConfig(kitti_poses=str(drives), kitti_train=("00",), kitti_validation=("04",), kitti_test=("07",), frames=20)
-    with pytest.raises(ValueError, match="holds fewer than 100 poses"):
+    with pytest.raises(ValueError, match="holds fewer than the 100 poses a window of 100 frames spans"):
         CorpusConfig(kitti_poses=str(drives), kitti_train=("00",), kitti_validation=("04",), kitti_test=("05",), frames=100)
 
 
@@ -80,6 +80,41 @@ def test_kitti_windows_can_be_levelled_over_their_drive(tmp_path: Path) -> None:
     assert {p.config.level_frames for p in before} == {0}
     with pytest.raises(ValueError, match="--kitti-level-frames must be >= 0"):
         kitti_corpus(drives, 8, 20, kitti_level_frames=-5)
+
+
+def test_kitti_windows_can_be_replayed_faster(tmp_path: Path) -> None:
+    """Each window's factor drawn from the range, its start leaving room for the longer stretch of road it spans;
+    without the option nothing is drawn (the same plans as before); a bad range or a drive too short is one line."""
+    drives = write_drives(tmp_path, ("00", "02", "04", "05"), 60)
+    plans = [plan_sequence(kitti_corpus(drives, 30, 20, kitti_speed_scale=(1.0, 2.5)), i) for i in range(30)]
+    scales = np.array([p.config.speed_scale for p in plans])
+    assert scales.min() >= 1.0 and scales.max() <= 2.5 and np.ptp(scales) > 0.8
+    for plan in plans:
+        spanned = int(np.ceil(19 * plan.config.speed_scale - 1e-9)) + 1
+        assert plan.config.start_frame + spanned <= 60
+        assert f"at {plan.config.speed_scale:.2f}x" in plan.conditions[-1]
+    before = [plan_sequence(kitti_corpus(drives, 30, 20), i) for i in range(30)]
+    assert {p.config.speed_scale for p in before} == {1.0}
+    assert [p.split for p in plans] == [p.split for p in before]
+    with pytest.raises(ValueError, match="--kitti-speed-scale must be two factors LO HI"):
+        kitti_corpus(drives, 8, 20, kitti_speed_scale=(2.0, 1.0))
+    with pytest.raises(ValueError, match="holds fewer than the 77 poses a window of 20 frames spans"):
+        kitti_corpus(drives, 8, 20, kitti_speed_scale=(1.0, 4.0))
+
+
+def test_a_corpus_made_before_a_new_option_is_kept(tmp_path: Path) -> None:
+    """A manifest recorded before a field was added to SimConfig still matches plans that leave it at its default
+    (nothing re-rendered); a plan that sets it does not match."""
+    from dataclasses import asdict
+
+    from pvo_sim.corpus import _plain, _same_config
+
+    planned = _plain(asdict(plan_sequence(TINY, 0).config))
+    recorded = {k: v for k, v in planned.items() if k != "speed_scale"}
+    assert _same_config(recorded, planned)
+    assert not _same_config(recorded, {**planned, "speed_scale": 1.5})
+    assert not _same_config({**recorded, "frames": 3}, planned)
+    assert not _same_config(None, planned)
 
 
 def test_turning_windows_are_drawn_in_proportion_to_their_turning(tmp_path: Path) -> None:

@@ -324,6 +324,38 @@ def test_a_short_window_levelled_over_its_drive_pitches_as_the_long_drive_does(p
         kitti_path(drive, 60, 510, 1.65, level_frames=-1)
 
 
+def test_a_drive_replayed_faster_covers_more_road_at_the_same_frame_rate(pvo_data: Path) -> None:
+    """``speed_scale`` 2 is every second pose of the drive exactly; 1.5 puts every other camera halfway between two
+    poses (position the mean, rotation the slerp midpoint); the speed scales with it; bad factors are one line."""
+    from pvo_core.lie import so3_log
+    from pvo_sim.paths import kitti_path, resample_poses
+
+    drive = pvo_data / "kitti" / "poses" / "04.txt"
+    true = read_kitti_poses(drive)
+    as_driven = kitti_path(drive, 121, 20, 1.65)
+    doubled = kitti_path(drive, 61, 20, 1.65, speed_scale=2.0)
+    assert len(doubled) == 61
+    np.testing.assert_allclose(doubled, as_driven[::2], atol=1e-9)  # whole indices: the drive's own poses
+    faster = kitti_path(drive, 41, 20, 1.65, speed_scale=1.5)
+    stretch = kitti_path(drive, 61, 20, 1.65)  # the same 61 poses of road, levelled alike
+    np.testing.assert_allclose(faster[::2], stretch[::3], atol=1e-9)
+    middle = faster[1]  # the drive's frame 21.5 (start 20): between its poses 1 and 2 of the window
+    np.testing.assert_allclose(middle[:3, 3], (stretch[1, :3, 3] + stretch[2, :3, 3]) / 2, atol=1e-9)
+    half = so3_log(stretch[1, :3, :3].T @ middle[:3, :3])
+    np.testing.assert_allclose(half, so3_log(stretch[1, :3, :3].T @ stretch[2, :3, :3]) / 2, atol=1e-9)
+    speed = np.linalg.norm(np.diff(faster[:, :3, 3], axis=0), axis=1).mean() * 10.0
+    driven = np.linalg.norm(np.diff(true[20:81, :3, 3], axis=0), axis=1).mean() * 10.0
+    assert speed == pytest.approx(1.5 * driven, rel=0.01)  # 04 at about 14 m/s becomes about 21 m/s
+    end = kitti_path(drive, 200, len(true) - 31, 1.65, speed_scale=3.0)  # clipped at the drive's end, as before
+    assert len(end) == 11
+    with pytest.raises(ValueError, match="speed_scale must be positive"):
+        kitti_path(drive, 60, 20, 1.65, speed_scale=0.0)
+    with pytest.raises(ValueError, match="resample times must lie in"):
+        resample_poses(true[:5], np.array([0.0, 4.5]))
+    with pytest.raises(ValueError, match="--speed-scale must be positive"):
+        SimConfig(speed_scale=-1.0)
+
+
 def test_a_failed_render_keeps_the_previous_output(tmp_path: Path, monkeypatch) -> None:
     import pvo_sim.render as sim
 

@@ -92,6 +92,7 @@ def test_sim_corpus_command_renders_resumes_and_reports(tmp_path: Path, capsys) 
         (["--presets", "lunar"], "--presets lunar: choose from urban, planetary"),
         (["--split", "0.5,0.5"], "--split '0.5,0.5' must be three numbers"),
         (["--jobs", "0"], "--jobs must be >= 1"),
+        (["--kitti-speed-scale", "2", "1"], "--kitti-speed-scale must be two factors LO HI with 0.25 <= LO <= HI <= 4"),
     ],
 )
 def test_sim_corpus_bad_options_are_one_line(tmp_path: Path, capsys, extra: list[str], message: str) -> None:
@@ -123,3 +124,27 @@ def test_a_negative_level_frames_is_one_line_naming_the_option(tmp_path, capsys,
         "pvo: error: --level-frames must be >= 0 (0: the window levelled on itself), got -1"
     )
     assert not (tmp_path / "bad" / "image_0").exists()
+
+
+def test_a_drive_replayed_faster_from_the_command_line(tmp_path, capsys, pvo_data) -> None:
+    """`pvo sim --poses 04.txt --speed-scale 2` records the factor and its poses.txt is every second pose of the
+    drive replayed as driven; a factor without a drive, or a non-positive one, is one line."""
+    import yaml
+    from pvo_core.trajectory import read_kitti_poses
+    from pvo_tools.cli import main
+
+    poses = str(pvo_data / "kitti" / "poses" / "04.txt")
+    common = ["--poses", poses, "--start", "10", "--size", "96x48", "-q"]
+    if main(["sim", str(tmp_path / "fast"), "--frames", "3", "--speed-scale", "2", *common]) != 0:
+        pytest.skip("pvo sim could not render here (no offscreen renderer)")
+    assert main(["sim", str(tmp_path / "driven"), "--frames", "5", *common]) == 0
+    assert yaml.safe_load((tmp_path / "fast" / "sim.yaml").read_text())["config"]["speed_scale"] == 2.0
+    fast, driven = (read_kitti_poses(tmp_path / name / "poses.txt") for name in ("fast", "driven"))
+    np.testing.assert_allclose(fast, driven[::2], atol=1e-6)  # poses.txt written to 9 digits
+    capsys.readouterr()
+    assert main(["sim", str(tmp_path / "bad"), "--frames", "3", "--speed-scale", "2", "-q"]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        "pvo: error: --speed-scale replays a KITTI drive faster: give the drive with --poses"
+    )
+    assert main(["sim", str(tmp_path / "bad"), "--frames", "3", "--speed-scale", "0", *common]) == 2
+    assert "--speed-scale must be positive" in capsys.readouterr().err

@@ -75,6 +75,15 @@ def register(sub: Any) -> None:
         help="level each window over N frames of its drive around it, so that short windows pitch against the flat "
         "ground as long drives do (e.g. 1000, the long drives' length; default 0: each window on itself)",
     )
+    kitti.add_argument(
+        "--kitti-speed-scale",
+        type=float,
+        nargs=2,
+        default=(1.0, 1.0),
+        metavar=("LO", "HI"),
+        help="replay each window's drive faster by a factor drawn uniformly from [LO, HI] (e.g. 1 1.6: KITTI's urban "
+        "drives rarely exceed 15 m/s; default 1 1: as driven)",
+    )
 
 
 def _drives(text: str) -> tuple[str, ...]:
@@ -105,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
         kitti_test=_drives(args.kitti_test),
         kitti_turning=args.kitti_turning,
         kitti_level_frames=args.kitti_level_frames,
+        kitti_speed_scale=tuple(args.kitti_speed_scale),  # type: ignore[arg-type]
         lens_distortion=tuple(args.lens_distortion),
         calib_focal_scale=args.calib_focal_scale,
         calib_baseline_scale=args.calib_baseline_scale,

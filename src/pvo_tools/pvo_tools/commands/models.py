@@ -176,6 +176,8 @@ def _corpus_command(manifest: Any) -> str:
             colour += " --kitti-turning"
         if data.get("kitti_level_frames"):
             colour += f" --kitti-level-frames {data['kitti_level_frames']}"
+        if data.get("kitti_speed_scale") and [float(v) for v in data["kitti_speed_scale"]] != [1.0, 1.0]:
+            colour += " --kitti-speed-scale " + " ".join(f"{float(v):g}" for v in data["kitti_speed_scale"])
     return (
         f"pvo sim corpus {manifest.path.parent} --sequences {data['sequences']} --frames {data['frames']} --size {size} "
         f"--presets {presets} --seed {data['seed']}{colour}"

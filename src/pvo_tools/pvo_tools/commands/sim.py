@@ -34,6 +34,13 @@ def register(sub: Any) -> None:
         help="with --poses: level the drive onto the flat ground over N of its frames around the window (default 0: "
         "over the window itself)",
     )
+    sim.add_argument(
+        "--speed-scale",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="with --poses: replay the drive S times faster (frame k at the drive's pose start + k*S; default 1)",
+    )
     sim.add_argument("--speed", type=float, default=8.0, help="procedural path speed in m/s (default 8)")
     sim.add_argument("--heading", type=float, default=0.0, help="heading, degrees clockwise from north (turns the path)")
     sim.add_argument("--pitch", type=float, default=0.0, help="cameras pitched down by this many degrees (default 0)")
@@ -127,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
         poses_file=str(args.poses) if args.poses else "",
         start_frame=args.start,
         level_frames=args.level_frames,
+        speed_scale=args.speed_scale,
         speed=args.speed,
         heading_deg=args.heading,
         pitch_deg=args.pitch,
