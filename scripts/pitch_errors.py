@@ -1,7 +1,8 @@
 """Errors binned by the camera's pitch against the synthetic world's flat ground (stop 33's diagnosis: short corpus
 windows levelled on themselves never pitch beyond +-3 deg, long drives do).
 
-    # DPC-Net: per Δp-window yaw error of the VO and of the corrected transform (by pitch, then by speed),
+    # DPC-Net: per Δp-window yaw error of the VO and of the corrected transform (by pitch, by speed, by yaw rate,
+    # and its slope on the yaw turned: a focal length written 3 % long shortens every turn by ~3 %),
     # four lens validation drives
     python scripts/pitch_errors.py dpc --model runs/dpc/lensvo runs/dpc/vlong/lens/{10a,10b,04,03}
     # HydraNet: per-pair angular error of `pvo hydranet predict` output, pairs turning < 0.5 deg
@@ -27,6 +28,7 @@ from pvo_core.trajectory import read_kitti_poses
 Array = NDArray[np.float64]
 BINS = ((-20, -6), (-6, -3), (-3, 0), (0, 3), (3, 6), (6, 20))
 SPEED_BINS = ((0, 5), (5, 10), (10, 15), (15, 40))  # m/s
+TURN_BINS = ((-60, -10), (-10, -3), (-3, 3), (3, 10), (10, 60))  # deg/s, the true yaw rate (optical y down: + turns right)
 FRAME_RATE_HZ = 10.0  # KITTI's and every corpus's
 
 
@@ -55,19 +57,30 @@ def dpc(model_dir: Path, drives: list[Path]) -> None:
             yaw_vo = se3_log(true @ np.linalg.inv(estimate))[4]  # ROS order x y z rx ry rz: ry is yaw (optical y down)
             yaw_corrected = se3_log(true @ np.linalg.inv(corrected))[4]
             speed = np.linalg.norm(true[:3, 3]) * FRAME_RATE_HZ / (b - a)
-            rows.append((pitch[a], np.degrees(yaw_vo), np.degrees(yaw_corrected), speed))
+            yaw_true = np.degrees(se3_log(true)[4])
+            turn = yaw_true * FRAME_RATE_HZ / (b - a)
+            rows.append((pitch[a], np.degrees(yaw_vo), np.degrees(yaw_corrected), speed, turn, yaw_true))
     table = np.asarray(rows)
-    for column, unit, bins in ((0, "pitch", BINS), (3, "speed", SPEED_BINS)):
+    for column, unit, bins in ((0, "pitch", BINS), (3, "speed", SPEED_BINS), (4, "turn", TURN_BINS)):
         for lo, hi in bins:
             inside = table[(table[:, column] >= lo) & (table[:, column] < hi)]
             if len(inside):
                 vo_err, corrected = inside[:, 1], inside[:, 2]
-                label = f"pitch [{lo:+d},{hi:+d}) deg" if unit == "pitch" else f"speed [{lo:d},{hi:d}) m/s"
+                label = {
+                    "pitch": f"pitch [{lo:+d},{hi:+d}) deg",
+                    "speed": f"speed [{lo:d},{hi:d}) m/s",
+                    "turn": f"yaw rate [{lo:+d},{hi:+d}) deg/s",
+                }[unit]
                 print(
                     f"{label}, {len(inside):4d} windows: yaw error VO mean {vo_err.mean():+.4f} rms "
                     f"{np.sqrt(np.mean(vo_err**2)):.4f} | corrected mean {corrected.mean():+.4f} rms "
                     f"{np.sqrt(np.mean(corrected**2)):.4f} deg"
                 )
+    # a focal length written too long shortens every turn by the same fraction: the yaw error's slope on the true yaw
+    yaw_true = table[:, 5]
+    for name, column in (("VO", 1), ("corrected", 2)):
+        slope = float(yaw_true @ table[:, column] / (yaw_true @ yaw_true))
+        print(f"yaw error per degree turned, {name} (least squares through 0): {slope:+.5f}")
 
 
 def hydranet(root: Path, predictions: Path, turning_below_deg: float = 0.5) -> None:

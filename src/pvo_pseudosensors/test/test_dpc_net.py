@@ -189,6 +189,33 @@ def test_every_variant_becomes_a_left_correction_with_unmeasured_axes() -> None:
     assert np.diag(measurement_covariance(pose, worse | {"fused_axes": []})).tolist() == [UNMEASURED] * 6
 
 
+def test_the_validation_mean_error_is_removed_only_where_the_card_chose_it() -> None:
+    from pvo_core.lie import se3_exp, se3_log
+    from pvo_pseudosensors.dpc_net.infer import AXES, measurement_covariance, remove_residual_mean, residual_mean
+
+    mean = np.array([0.01, -0.02, 0.03, 1e-4, -4.5e-4, 2e-4])  # a constant yaw offset the network learned, and more
+    second_moment = np.diag([0.02, 0.03, 0.04, 1e-6, 2e-6, 3e-6]) + np.outer(mean, mean)
+    calibration = {
+        "target_covariance": np.eye(6),
+        "residual_covariance": second_moment,
+        "residual": {f"bias_{axis}_after": float(v) for axis, v in zip(AXES, mean, strict=True)},
+    }
+    rng = np.random.default_rng(3)
+    transforms = np.stack([se3_exp(rng.normal(scale=0.1, size=6)) for _ in range(4)])
+    # not chosen (the shipped cards before the choice existed): the corrections and their covariance as they were
+    np.testing.assert_array_equal(residual_mean(calibration), np.zeros(6))
+    assert remove_residual_mean(transforms, calibration) is transforms
+    np.testing.assert_array_equal(measurement_covariance(TINY, calibration), second_moment)
+    chosen = calibration | {"remove_mean": True}
+    np.testing.assert_array_equal(residual_mean(chosen), mean)
+    removed = remove_residual_mean(transforms, chosen)
+    for before, after in zip(transforms, removed, strict=True):  # exp(b^) T: the left error's mean taken off
+        np.testing.assert_allclose(se3_log(after @ np.linalg.inv(before)), mean, atol=1e-12)
+    # the covariance left is the spread about that mean, not the second moment
+    np.testing.assert_allclose(measurement_covariance(TINY, chosen), second_moment - np.outer(mean, mean), atol=1e-15)
+    assert remove_residual_mean(np.zeros((0, 4, 4)), chosen).shape == (0, 4, 4)
+
+
 def test_the_residual_covariance_of_no_correction_is_the_targets_second_moment(miscalibrated: Path, tmp_path: Path) -> None:
     from pvo_core.lie import se3_log
     from pvo_pseudosensors.dpc_net.infer import residual_covariance

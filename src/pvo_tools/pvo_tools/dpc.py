@@ -340,18 +340,20 @@ class FusionChoice:
     candidates: dict[str, dict[str, Any]]
     drives: list[str]
     vo_calibration: Any = None
+    remove_mean: bool = False
 
 
 def choose_fusion(
     model: Any, card: Any, drives: Sequence[Path], spans: Sequence[int] = DRIVE_SPANS, say: Any = None
 ) -> FusionChoice:
-    """The VO span and the fused axes (:data:`AXIS_SETS` x ``spans``) for ``model``'s corrections, chosen on long
-    validation ``drives`` (sequence directories with poses.txt, of the model's rig) by :func:`select_fusion`. The
-    VO's scales for a drive are learned on the other drives (leave one drive out; in sample with one drive), so
-    no drive judges a weighing learned on itself."""
+    """The VO span and the fused axes (:data:`AXIS_SETS` x ``spans``, each with the corrections as predicted and
+    with their validation-split mean error removed, :func:`~pvo_pseudosensors.dpc_net.infer.remove_residual_mean`)
+    for ``model``'s corrections, chosen on long validation ``drives`` (sequence directories with poses.txt, of the
+    model's rig) by :func:`select_fusion`. The VO's scales for a drive are learned on the other drives (leave one
+    drive out; in sample with one drive), so no drive judges a weighing learned on itself."""
     from pvo_core.trajectory import read_kitti_poses
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
-    from pvo_pseudosensors.dpc_net.infer import AXES, measurement_covariance, predict_corrections
+    from pvo_pseudosensors.dpc_net.infer import AXES, measurement_covariance, predict_corrections, remove_residual_mean
     from pvo_pseudosensors.dpc_net.rig import check_rig
 
     from pvo_fusion import CalibrationSequence, calibrate_vo
@@ -383,20 +385,31 @@ def choose_fusion(
         relative = run.relative()
         alone = fusion_figures(truth, truth[0] @ run.poses)
         sequence = CalibrationSequence(root.name, truth, relative["transforms"], relative["covariances"])
-        # the network's corrections do not depend on how they are weighed: predicted once, reweighed per candidate
-        prepared[root.name] = (root, run, truth, alone, sequence, predict_corrections(model, card, root, run.poses))
+        # the network's corrections do not depend on how they are weighed: predicted once (as the network gives
+        # them), reweighed per candidate
+        as_predicted = copy.deepcopy(card)
+        as_predicted.calibration["remove_mean"] = False
+        prepared[root.name] = (root, run, truth, alone, sequence, predict_corrections(model, as_predicted, root, run.poses))
     names = list(prepared)
+    means = (False, True) if (card.calibration or {}).get("residual") else (False,)
+    labels = [(label, mean) for mean in means for label in axis_sets]
     changes: dict[tuple[int, str], Array] = {}
     for span in spans:
         scales = {name: calibrate_vo([prepared[o][4] for o in names if o != name] or [prepared[name][4]], span) for name in names}
-        for label, axes in axis_sets.items():
+        for axes_label, remove_mean in labels:
+            label = axes_label + (", mean removed" if remove_mean else "")
             candidate = copy.deepcopy(card)
-            candidate.calibration["fused_axes"] = list(axes)
+            candidate.calibration["fused_axes"] = list(axis_sets[axes_label])
+            candidate.calibration["remove_mean"] = remove_mean
             covariance = measurement_covariance(DPCNetConfig.from_card(candidate), candidate.calibration)
             rows = []
             for name in names:
                 root, run, truth, alone, _, predicted = prepared[name]
-                weighed = replace(predicted, covariances=np.broadcast_to(covariance, predicted.covariances.shape).copy())
+                weighed = replace(
+                    predicted,
+                    transforms=remove_residual_mean(predicted.transforms, candidate.calibration),
+                    covariances=np.broadcast_to(covariance, predicted.covariances.shape).copy(),
+                )
                 fused = correct_sequence(root, model, candidate, "fusion", scales[name], run=run, corrections=weighed)
                 figures = fusion_figures(truth, truth[0] @ fused.corrected_online)
                 rows.append(
@@ -408,12 +421,13 @@ def choose_fusion(
             changes[(span, label)] = np.asarray(rows)
             if say is not None:
                 mean = 100 * changes[(span, label)].mean(axis=0)
-                say(f"  span {span:4d}, {label:<11} axes: m-ATE {mean[0]:+6.1f} % translation, {mean[1]:+6.1f} % rotation")
+                say(f"  span {span:4d}, {label:<25} axes: m-ATE {mean[0]:+6.1f} % translation, {mean[1]:+6.1f} % rotation")
     best = select_fusion(changes)
     candidates = {
         f"span {span}, {label}": {
             "span": span,
-            "axes": list(axis_sets[label]),
+            "axes": list(axis_sets[label.removesuffix(", mean removed")]),
+            "remove_mean": label.endswith(", mean removed"),
             "per_drive": {name: [round(float(v), 4) for v in row] for name, row in zip(names, c, strict=True)},
             "mean": [round(float(v), 4) for v in c.mean(axis=0)],
             "accepted": bool(np.all(c < 0.0)),
@@ -424,4 +438,5 @@ def choose_fusion(
         return FusionChoice(None, [], candidates, names)
     span, label = best
     calibration = calibrate_vo([prepared[n][4] for n in names], span)
-    return FusionChoice(span, list(axis_sets[label]), candidates, names, calibration)
+    axes_label = label.removesuffix(", mean removed")
+    return FusionChoice(span, list(axis_sets[axes_label]), candidates, names, calibration, label != axes_label)

@@ -105,6 +105,8 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     drive_card = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
     candidates = drive_card["drive_calibration"]["candidates"]
     assert {c["span"] for c in candidates.values()} == {3, 6} and all(len(c["per_drive"]) == 2 for c in candidates.values())
+    # each weighing tried with the corrections as predicted and with the validation split's mean error taken off
+    assert sum(c["remove_mean"] for c in candidates.values()) == sum(not c["remove_mean"] for c in candidates.values()) > 0
     chosen = select_fusion({label: list(c["per_drive"].values()) for label, c in candidates.items()})
     if chosen is None:
         assert drive_card["fused_axes"] == [] and drive_card["drive_calibration"]["chosen"] is None
@@ -113,6 +115,7 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         assert "fuses no axis" in capsys.readouterr().err
     else:
         assert drive_card["fused_axes"] == candidates[chosen]["axes"] and drive_card["vo_span"] == candidates[chosen]["span"]
+        assert drive_card["remove_mean"] == candidates[chosen]["remove_mean"]
         assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
     assert main([*calibrate, "--drives", str(tmp_path / "nowhere")]) == 2
     assert "nowhere: not a sequence with poses.txt nor a folder of them" in capsys.readouterr().err

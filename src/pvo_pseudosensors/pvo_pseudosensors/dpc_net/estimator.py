@@ -14,7 +14,7 @@ from pvo_core.lie import se3_exp
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import DPCNetConfig
-from .infer import UNMEASURED, load_dpc_net, measurement_covariance
+from .infer import UNMEASURED, load_dpc_net, measurement_covariance, remove_residual_mean
 from .model import estimate_input
 from .rig import Rig, rig_problems
 
@@ -171,4 +171,5 @@ class DPCNetSensor:
         frames = [torch.from_numpy(self.images[s].astype(np.float32)[None] / 255.0) for s in (first, last)]
         with torch.no_grad():
             xi = self.model(frames[0], frames[1], estimate_input(estimate[None])).double().numpy()[0]
-        return Correction(first, last, se3_exp(xi) @ estimate, self.covariance.copy())
+        corrected = remove_residual_mean((se3_exp(xi) @ estimate)[None], self.card.calibration)[0]
+        return Correction(first, last, corrected, self.covariance.copy())

@@ -73,6 +73,27 @@ def correction_vectors(config: DPCNetConfig, output: Array) -> Array:
     return xi
 
 
+def residual_mean(calibration: dict) -> Array:
+    """The mean left error (6,) ROS order, g = log(T* exp(-ξ^)), the corrected transforms kept on the validation
+    split (``residual.bias_*_after``, `pvo dpc-net calibrate`) when the card's drive calibration chose to remove it
+    (``remove_mean: true``), else zeros. A correction that learned a constant the validation split does not share
+    (a yaw offset from training drives that turn one way more than the other) adds it to every window, and over a
+    drive of hundreds of windows that offset is the drift."""
+    residual = calibration.get("residual") or {}
+    if not calibration.get("remove_mean") or not residual:
+        return np.zeros(6)
+    return np.asarray([float(residual[f"bias_{axis}_after"]) for axis in AXES])
+
+
+def remove_residual_mean(transforms: Array, calibration: dict) -> Array:
+    """Corrected transforms (N, 4, 4) with the card's validation mean error removed: exp(b^) T (:func:`residual_mean`;
+    unchanged without it)."""
+    mean = residual_mean(calibration)
+    if not np.any(mean) or not len(transforms):
+        return transforms
+    return se3_exp(mean) @ transforms
+
+
 def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
     """The corrected transform's covariance (6, 6), ROS order, on the axes the variant corrects (:data:`UNMEASURED`
     on the others, uncorrelated): the corrected transforms' own residual covariance on the validation split when
@@ -81,6 +102,9 @@ def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
     long validation drives chose (``fused_axes``, `calibrate --drives`; none when no choice lowered every drive's
     m-ATE), else those whose error the correction lowered on the validation windows (``residual.corrected_*``)."""
     covariance = np.asarray(calibration.get("residual_covariance", calibration["target_covariance"]), dtype=float)
+    if "residual_covariance" in calibration:
+        mean = residual_mean(calibration)  # removed from the corrections: the spread about it is what is left
+        covariance = covariance - np.outer(mean, mean)
     axes = {"pose": range(6), "rotation": range(3, 6), "yaw": [4]}[config.variant]
     if calibration.get("fused_axes") is not None:
         axes = [a for a in axes if AXES[a] in calibration["fused_axes"]]
@@ -96,7 +120,8 @@ def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
 def predict_corrections(model: DPCNet, card: ModelCard, sequence: Path, vo: Array, cache_dir: Path | None = None) -> Corrections:
     """Corrections of the VO's transforms (camera-to-odom poses ``vo`` (N, 4, 4)) over consecutive windows of
     the card's ``test_delta`` frames (0 → Δp, Δp → 2Δp, ...), any variant (:func:`correction_vectors`), with
-    :func:`measurement_covariance`."""
+    :func:`measurement_covariance`; the validation mean error removed where the card says so
+    (:func:`remove_residual_mean`)."""
     config = DPCNetConfig.from_card(card)
     source = Source(Path(sequence), Path(sequence).name)
     size = (config.height, config.width)
@@ -121,6 +146,7 @@ def predict_corrections(model: DPCNet, card: ModelCard, sequence: Path, vo: Arra
         )
     xi = correction_vectors(config, output)
     transforms = np.stack([se3_exp(x) @ t for x, t in zip(xi, estimate, strict=True)]) if len(last) else np.zeros((0, 4, 4))
+    transforms = remove_residual_mean(transforms, card.calibration)
     covariance = measurement_covariance(config, card.calibration)
     return Corrections(first, last, transforms, np.broadcast_to(covariance, (len(last), 6, 6)).copy())
 

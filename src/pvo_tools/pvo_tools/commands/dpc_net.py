@@ -239,8 +239,13 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
         flush=True,
     )
     choice = choose_fusion(model, card, roots, spans, say=lambda line: print(line, file=sys.stderr, flush=True))
-    chosen = f"span {choice.span}, axes {' '.join(choice.axes)}" if choice.axes else None
+    chosen = (
+        f"span {choice.span}, axes {' '.join(choice.axes)}" + (", mean removed" if choice.remove_mean else "")
+        if choice.axes
+        else None
+    )
     card.calibration["fused_axes"] = choice.axes
+    card.calibration["remove_mean"] = choice.remove_mean
     card.calibration["drive_calibration"] = {
         "drives": [str(r) for r in roots],
         "rule": "lowers the translational and the rotational m-ATE on every drive; the lowest mean sum",
@@ -256,10 +261,16 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
         print(f"{args.model}: no choice lowered every drive's m-ATE: nothing is fused (the VO alone)")
     else:
         mean = 100 * np.asarray(
-            next(c["mean"] for c in choice.candidates.values() if c["span"] == choice.span and c["axes"] == choice.axes)
+            next(
+                c["mean"]
+                for c in choice.candidates.values()
+                if c["span"] == choice.span and c["axes"] == choice.axes and c["remove_mean"] == choice.remove_mean
+            )
         )
         print(
-            f"{args.model}: fused axes {' '.join(choice.axes)}, VO span {choice.span} frames ({len(roots)} validation "
+            f"{args.model}: fused axes {' '.join(choice.axes)}"
+            + (" (the validation mean error removed)" if choice.remove_mean else "")
+            + f", VO span {choice.span} frames ({len(roots)} validation "
             f"drives; m-ATE {mean[0]:+.1f} % translation, {mean[1]:+.1f} % rotation)"
         )
     return 0
