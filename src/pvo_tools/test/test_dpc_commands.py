@@ -218,6 +218,22 @@ def test_a_fusion_is_chosen_only_where_it_lowered_every_drive() -> None:
     assert select_fusion({}) is None
 
 
+def test_the_report_says_how_a_card_weighs_its_corrections() -> None:
+    from types import SimpleNamespace
+
+    from pvo_tools.experiments.dpc_net import fusion_summary
+
+    chosen = {"drive_calibration": {"drives": ["v/03", "v/04"]}, "fused_axes": ["x", "rz"], "vo_span": 250}
+    assert fusion_summary(SimpleNamespace(calibration=chosen)) == (
+        "chosen on the validation drives 03, 04: axes x rz, VO span 250 frames"
+    )
+    assert fusion_summary(SimpleNamespace(calibration=chosen | {"remove_mean": True})).endswith(
+        "VO span 250 frames; the validation split's mean residual removed from the corrections"
+    )
+    refused = chosen | {"fused_axes": []}
+    assert "nothing fused" in fusion_summary(SimpleNamespace(calibration=refused))
+
+
 def test_drives_refuses_a_short_test_drive(tmp_path: Path, capsys) -> None:
     assert main(["dpc-net", "drives", str(tmp_path / "d"), "--split", "test", "--frames", "50"]) == 2
     assert "--frames must be >= 100 (segment errors need 100 m and more), got 50" in capsys.readouterr().err

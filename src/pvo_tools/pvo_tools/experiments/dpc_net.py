@@ -67,6 +67,7 @@ def fusion_summary(card: Any) -> str:
         return (
             f"chosen on the validation drives {names}: axes {' '.join(calibration['fused_axes'])}, VO span "
             f"{calibration.get('vo_span')} frames"
+            + ("; the validation split's mean residual removed from the corrections" if calibration.get("remove_mean") else "")
         )
     residual = calibration.get("residual") or {}
     axes = " ".join(a for a in ("x", "y", "z", "rx", "ry", "rz") if residual.get(f"corrected_{a}", 1.0))
