@@ -50,8 +50,9 @@ def register_actions(actions: Any, entry: Any) -> None:
         type=Path,
         nargs="+",
         help="long validation drives of the model's rig (sequence directories, or folders of them: `pvo dpc-net drives "
-        "OUT`, then OUT/<rig>): the VO span (--vo-spans, default 3,30,100,250) and the fused axes are chosen on them — "
-        "the choice that lowers every drive's translational and rotational m-ATE most, else nothing is fused",
+        "OUT`, then OUT/<rig>): the VO span (--vo-spans, default 3,30,100,250), the fused axes and whether the "
+        "validation split's mean residual is removed from the corrections are chosen on them — the choice that lowers "
+        "every drive's translational and rotational m-ATE most, else nothing is fused",
     )
     drives = actions.add_parser(
         "drives", help="render the long drives a fusion is chosen on (KITTI 03, 04, 10) or tested on (05, 06, 07), each rig"
