@@ -177,6 +177,38 @@ def test_a_broken_chain_starts_a_new_window_and_a_bad_pair_is_reported(ros_conte
     assert "left and right images differ in size" in statuses[-1].status[0].message
 
 
+def test_the_sensor_takes_the_cards_validation_mean_off_every_correction(tiny_model: Path, tmp_path: Path) -> None:
+    import shutil
+
+    import yaml
+    from pvo_pseudosensors.dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
+
+    mean = np.array([0.01, -0.02, 0.03, 1e-4, -4.5e-4, 2e-4])
+    removing = tmp_path / "removing"
+    shutil.copytree(tiny_model, removing)
+    card = yaml.safe_load((removing / "model.yaml").read_text())
+    axes = ("x", "y", "z", "rx", "ry", "rz")
+    card["calibration"]["residual"] = {f"bias_{a}_after": float(v) for a, v in zip(axes, mean, strict=True)}
+    card["calibration"]["remove_mean"] = True
+    (removing / "model.yaml").write_text(yaml.safe_dump(card))
+    image = np.random.default_rng(0).integers(0, 255, (64, 208), dtype=np.uint8)
+    step = se3_exp(np.array([0.01, 0.0, 0.8, 0.0, 0.01, 0.0]))
+    corrections = []
+    for model in (tiny_model, removing):
+        sensor = DPCNetSensor(DPCNetSensorConfig(model=str(model)))
+        for k in range(1, 5):
+            sensor.add_images(k * STEP, image, image)
+        results = [sensor.add_vo(k * STEP, (k + 1) * STEP, step) for k in range(1, 4)]
+        corrections.append(results[-1])
+    assert corrections[0] is not None and corrections[1] is not None
+    np.testing.assert_allclose(corrections[1].transform, se3_exp(mean) @ corrections[0].transform, atol=1e-12)
+    # asking for the removal without the figures stops the sensor at start-up, in one line
+    del card["calibration"]["residual"]["bias_ry_after"]
+    (removing / "model.yaml").write_text(yaml.safe_dump(card))
+    with pytest.raises(ValueError, match="remove_mean but its residual has no bias_ry_after figures"):
+        DPCNetSensor(DPCNetSensorConfig(model=str(removing)))
+
+
 def test_a_camera_of_another_rig_is_refused(ros_context, tmp_path: Path) -> None:
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
     from pvo_pseudosensors.dpc_net.model import DPCNet, DPCTask

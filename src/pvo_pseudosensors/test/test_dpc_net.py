@@ -214,6 +214,14 @@ def test_the_validation_mean_error_is_removed_only_where_the_card_chose_it() -> 
     # the covariance left is the spread about that mean, not the second moment
     np.testing.assert_allclose(measurement_covariance(TINY, chosen), second_moment - np.outer(mean, mean), atol=1e-15)
     assert remove_residual_mean(np.zeros((0, 4, 4)), chosen).shape == (0, 4, 4)
+    # a card that asks for the removal without the figures is one clear line, not zeros or a KeyError
+    partial = chosen | {"residual": {k: v for k, v in chosen["residual"].items() if k != "bias_ry_after"}}
+    with pytest.raises(ValueError, match="remove_mean but its residual has no bias_ry_after figures"):
+        remove_residual_mean(transforms, partial)
+    with pytest.raises(ValueError, match="has no bias_x/y/z/rx/ry/rz_after figures"):
+        measurement_covariance(TINY, chosen | {"residual": None})
+    with pytest.raises(ValueError, match="residual mean must be finite"):
+        residual_mean(chosen | {"residual": chosen["residual"] | {"bias_x_after": float("nan")}})
 
 
 def test_the_residual_covariance_of_no_correction_is_the_targets_second_moment(miscalibrated: Path, tmp_path: Path) -> None:

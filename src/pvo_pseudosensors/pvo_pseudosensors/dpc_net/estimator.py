@@ -14,7 +14,7 @@ from pvo_core.lie import se3_exp
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import DPCNetConfig
-from .infer import UNMEASURED, load_dpc_net, measurement_covariance, remove_residual_mean
+from .infer import UNMEASURED, load_dpc_net, measurement_covariance, residual_mean
 from .model import estimate_input
 from .rig import Rig, rig_problems
 
@@ -75,6 +75,8 @@ class DPCNetSensor:
             raise ValueError(f"the dpc_net sensor needs a pose model; this one is {self.settings.variant!r}")
         self.delta = self.settings.test_delta
         self.covariance = measurement_covariance(self.settings, self.card.calibration)
+        # exp(b^): the validation mean error taken off every correction where the card chose it (identity otherwise)
+        self.mean_removal = se3_exp(residual_mean(self.card.calibration))
         self.images: dict[int, NDArray[np.uint8]] = {}
         self.sizes: dict[int, tuple[int, ...]] = {}
         self.chain: deque[tuple[int, Array]] = deque()  # (stamp, T_k,k-1) since the window's first frame
@@ -171,5 +173,4 @@ class DPCNetSensor:
         frames = [torch.from_numpy(self.images[s].astype(np.float32)[None] / 255.0) for s in (first, last)]
         with torch.no_grad():
             xi = self.model(frames[0], frames[1], estimate_input(estimate[None])).double().numpy()[0]
-        corrected = remove_residual_mean((se3_exp(xi) @ estimate)[None], self.card.calibration)[0]
-        return Correction(first, last, corrected, self.covariance.copy())
+        return Correction(first, last, self.mean_removal @ se3_exp(xi) @ estimate, self.covariance.copy())

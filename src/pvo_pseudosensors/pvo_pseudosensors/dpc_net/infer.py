@@ -79,10 +79,19 @@ def residual_mean(calibration: dict) -> Array:
     (``remove_mean: true``), else zeros. A correction that learned a constant the validation split does not share
     (a yaw offset from training drives that turn one way more than the other) adds it to every window, and over a
     drive of hundreds of windows that offset is the drift."""
-    residual = calibration.get("residual") or {}
-    if not calibration.get("remove_mean") or not residual:
+    if not calibration.get("remove_mean"):
         return np.zeros(6)
-    return np.asarray([float(residual[f"bias_{axis}_after"]) for axis in AXES])
+    residual = calibration.get("residual") or {}
+    missing = [axis for axis in AXES if f"bias_{axis}_after" not in residual]
+    if missing:
+        raise ValueError(
+            "the model card's calibration says remove_mean but its residual has no bias_"
+            f"{'/'.join(missing)}_after figures: run `pvo dpc-net calibrate` on it again"
+        )
+    mean = np.asarray([float(residual[f"bias_{axis}_after"]) for axis in AXES])
+    if not np.all(np.isfinite(mean)):
+        raise ValueError(f"the model card's residual mean must be finite, got {mean.tolist()}")
+    return mean
 
 
 def remove_residual_mean(transforms: Array, calibration: dict) -> Array:
