@@ -393,11 +393,14 @@ def choose_fusion(
     names = list(prepared)
     means = (False, True) if (card.calibration or {}).get("residual") else (False,)
     labels = [(label, mean) for mean in means for label in axis_sets]
-    changes: dict[tuple[int, str], Array] = {}
+    changes: dict[tuple[int, str, bool], Array] = {}  # (span, axis set, mean removed) -> per-drive changes
+
+    def named(axes_label: str, remove_mean: bool) -> str:
+        return axes_label + (", mean removed" if remove_mean else "")
+
     for span in spans:
         scales = {name: calibrate_vo([prepared[o][4] for o in names if o != name] or [prepared[name][4]], span) for name in names}
         for axes_label, remove_mean in labels:
-            label = axes_label + (", mean removed" if remove_mean else "")
             candidate = copy.deepcopy(card)
             candidate.calibration["fused_axes"] = list(axis_sets[axes_label])
             candidate.calibration["remove_mean"] = remove_mean
@@ -418,25 +421,27 @@ def choose_fusion(
                         figures["m_ate_rot_deg"] / max(alone["m_ate_rot_deg"], 1e-12) - 1.0,
                     ]
                 )
-            changes[(span, label)] = np.asarray(rows)
+            changes[(span, axes_label, remove_mean)] = np.asarray(rows)
             if say is not None:
-                mean = 100 * changes[(span, label)].mean(axis=0)
-                say(f"  span {span:4d}, {label:<25} axes: m-ATE {mean[0]:+6.1f} % translation, {mean[1]:+6.1f} % rotation")
+                mean = 100 * changes[(span, axes_label, remove_mean)].mean(axis=0)
+                say(
+                    f"  span {span:4d}, {named(axes_label, remove_mean):<25} axes: m-ATE {mean[0]:+6.1f} % translation, "
+                    f"{mean[1]:+6.1f} % rotation"
+                )
     best = select_fusion(changes)
     candidates = {
-        f"span {span}, {label}": {
+        f"span {span}, {named(axes_label, remove_mean)}": {
             "span": span,
-            "axes": list(axis_sets[label.removesuffix(", mean removed")]),
-            "remove_mean": label.endswith(", mean removed"),
+            "axes": list(axis_sets[axes_label]),
+            "remove_mean": remove_mean,
             "per_drive": {name: [round(float(v), 4) for v in row] for name, row in zip(names, c, strict=True)},
             "mean": [round(float(v), 4) for v in c.mean(axis=0)],
             "accepted": bool(np.all(c < 0.0)),
         }
-        for (span, label), c in changes.items()
+        for (span, axes_label, remove_mean), c in changes.items()
     }
     if best is None:
         return FusionChoice(None, [], candidates, names)
-    span, label = best
+    span, axes_label, remove_mean = best
     calibration = calibrate_vo([prepared[n][4] for n in names], span)
-    axes_label = label.removesuffix(", mean removed")
-    return FusionChoice(span, list(axis_sets[axes_label]), candidates, names, calibration, label != axes_label)
+    return FusionChoice(span, list(axis_sets[axes_label]), candidates, names, calibration, remove_mean)
