@@ -126,6 +126,38 @@ def test_runner_shuts_down_cleanly_on_sigterm(ros_env) -> None:
     assert out.strip() == "closed"
 
 
+def test_a_signal_only_asks_the_callback_in_progress_finishes_and_close_still_publishes(ros_env) -> None:
+    """SIGTERM inside a callback: the callback completes (its publish after the signal succeeds), the spin ends
+    after it, and close() publishes on a context that is still valid; rclpy's own handler would have shut the
+    context down from another thread, failing both publishes (and, racing the executor's wait set, sometimes
+    leaving the node waiting forever)."""
+    code = (
+        "import os, signal, time\n"
+        "from pvo_ros import run_node\n"
+        "from rclpy.node import Node\n"
+        "from std_msgs.msg import String\n"
+        "class Toy(Node):\n"
+        "    def __init__(self):\n"
+        "        super().__init__('toy')\n"
+        "        self.said = self.create_publisher(String, 'said', 10)\n"
+        "        self.create_timer(0.05, self.tick)\n"
+        "        self.ticks = 0\n"
+        "    def tick(self):\n"
+        "        self.ticks += 1\n"
+        "        os.kill(os.getpid(), signal.SIGTERM)\n"
+        "        time.sleep(0.3)\n"
+        "        self.said.publish(String(data='after the signal'))\n"
+        "        print('published', flush=True)\n"
+        "    def close(self):\n"
+        "        self.said.publish(String(data='closing'))\n"
+        "        print('closed after', self.ticks, 'tick(s)', flush=True)\n"
+        "run_node(Toy, 'toy')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr[-1500:]
+    assert done.stdout.split("\n")[:2] == ["published", "closed after 1 tick(s)"], done.stdout + done.stderr[-1500:]
+
+
 def test_no_exception_escapes_a_callback_and_it_is_counted_and_reported(ros_context) -> None:
     from diagnostic_msgs.msg import DiagnosticArray
     from pvo_tools.testing import Spinner, wait_for
