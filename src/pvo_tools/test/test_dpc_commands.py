@@ -117,6 +117,14 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         assert drive_card["fused_axes"] == candidates[chosen]["axes"] and drive_card["vo_span"] == candidates[chosen]["span"]
         assert drive_card["remove_mean"] == candidates[chosen]["remove_mean"]
         assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
+    # a new residual without drives: what the drives chose with the old one (axes, mean removal) goes with it
+    stale = yaml.safe_load((drove / "model.yaml").read_text())
+    stale["calibration"]["remove_mean"] = True
+    (drove / "model.yaml").write_text(yaml.safe_dump(stale))
+    assert main(["dpc-net", "calibrate", "--model", str(drove), "--corpus", str(corpus)]) == 0
+    capsys.readouterr()
+    recalibrated = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
+    assert not {"remove_mean", "fused_axes", "drive_calibration", "vo_scale"} & set(recalibrated)
     assert main([*calibrate, "--drives", str(tmp_path / "nowhere")]) == 2
     assert "nowhere: not a sequence with poses.txt nor a folder of them" in capsys.readouterr().err
     assert main([*calibrate, "--drives", str(corpus / "0001"), str(corpus / "0001")]) == 2

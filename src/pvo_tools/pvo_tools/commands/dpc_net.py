@@ -174,7 +174,15 @@ def run_calibrate(args: argparse.Namespace) -> int:
     covariance, figures = residual_covariance(model, card, windows)
     if card.input.get("rig"):  # calibrated for this VO
         card.input["rig"]["vo"] = vo_signature()
-    for stale in ("fused_axes", "drive_calibration", "vo_span", "vo_scale", "vo_static_covariance", "vo_span_changes"):
+    for stale in (
+        "fused_axes",
+        "remove_mean",
+        "drive_calibration",
+        "vo_span",
+        "vo_scale",
+        "vo_static_covariance",
+        "vo_span_changes",
+    ):
         card.calibration.pop(stale, None)  # a new residual: what was chosen with the old one goes
     card.calibration["residual_covariance"] = covariance.tolist()
     card.calibration["residual"] = figures | {"corpus": str(args.corpus), "sequences": len(sources)}
