@@ -33,7 +33,8 @@ RIGS = ("clean", "lens", "calib")
 class Drive:
     """A long sequence rendered along a KITTI drive: its name, the drive, the drive's first frame used, frames
     (None: the caller's choice), and the renderer's seed and heading (deg) — a different world along the same
-    motion."""
+    motion. ``mirror_of``: not rendered but the named drive (of the same list) mirrored left-right
+    (:mod:`pvo_sim.mirror`), its every right turn a left turn."""
 
     name: str
     drive: str
@@ -41,6 +42,7 @@ class Drive:
     frames: int | None
     seed: int
     heading: float
+    mirror_of: str = ""
 
 
 #: the experiment's test drives (KITTI 05, 06, 07: no training or validation sequence drove them; windows of one
@@ -52,12 +54,17 @@ TEST_DRIVES: tuple[Drive, ...] = tuple(
 #: long drives rendered like the test drives: what the fusion's weighing is chosen on (`pvo dpc-net calibrate
 #: --drives`), at the length the test figures are measured over — along the corpora's validation drives (KITTI 04,
 #: 10) and along KITTI 03, which no corpus split drives: a country road at 7 m/s that turns through 276 deg in
-#: 80 s, where 10's turns are a few tight ones across an empty square and 04 is straight
-VALIDATION_DRIVES: tuple[Drive, ...] = (
+#: 80 s, where 10's turns are a few tight ones across an empty square and 04 is straight. All three turn right on
+#: the whole, so each is also mirrored left-right ("m"): a correction that helps one turn direction and harms the
+#: other is seen on validation, not first on the test drives.
+_VALIDATION_RENDERED = (
     Drive("10a", "10", 0, 1000, 950, 200),
     Drive("10b", "10", 201, 1000, 951, 311),
     Drive("04", "04", 0, 271, 952, 77),
     Drive("03", "03", 0, 801, 953, 142),
+)
+VALIDATION_DRIVES: tuple[Drive, ...] = _VALIDATION_RENDERED + tuple(
+    replace(d, name=f"{d.name}m", mirror_of=d.name) for d in _VALIDATION_RENDERED
 )
 
 
@@ -99,7 +106,10 @@ def render_drives(
     geometry at 620x188; `pvo sim` in ``jobs`` parallel processes; complete ones of this renderer revision kept),
     and the clean ones with calib.txt's focal length x :data:`FOCAL_SCALE` in ``out/calib`` (:func:`miscalibrate`).
     ``frames``: for a drive whose own is None; ``rigs``: the rigs wanted (:data:`RIGS`; ``calib`` needs the clean
-    renders, so it renders them too). Returns the folders per rig asked for."""
+    renders, so it renders them too). A drive with ``mirror_of`` is that drive's folder mirrored (made again when
+    its source was rendered since). Returns the folders per rig asked for."""
+    from pvo_sim.mirror import mirror_sequence
+
     from .experiments.common import rendered_by_this_revision
 
     unknown = sorted(set(rigs) - set(RIGS))
@@ -107,7 +117,13 @@ def render_drives(
         raise ValueError(f"rigs must be some of {', '.join(RIGS)}, got {', '.join(rigs) or 'none'}")
     rendered = [rig for rig in ("clean", "lens") if rig in rigs or (rig == "clean" and "calib" in rigs)]
     commands, folders = [], {rig: [] for rig in RIGS}
+    names = {d.name for d in drives if not d.mirror_of}
     for drive in drives:
+        if drive.mirror_of:
+            if drive.mirror_of not in names:
+                raise ValueError(f"drive {drive.name} mirrors {drive.mirror_of}, which is not among the drives rendered")
+            folders.update({rig: [*folders[rig], out / rig / drive.name] for rig in rendered})
+            continue
         count = drive.frames or frames
         if not count:
             raise ValueError(f"drive {drive.name}: no frame count")
@@ -135,6 +151,13 @@ def render_drives(
 
     with ThreadPoolExecutor(max(1, jobs)) as pool:
         list(pool.map(render, commands))
+    for drive in (d for d in drives if d.mirror_of):
+        for rig in rendered:
+            source, mirrored = out / rig / drive.mirror_of, out / rig / drive.name
+            done = mirrored / "poses.txt"
+            if not done.is_file() or done.stat().st_mtime < (source / "poses.txt").stat().st_mtime:
+                mirror_sequence(source, mirrored, overwrite=True)
+                say(f"  {rig}/{drive.name} mirrored from {drive.mirror_of}")
     if "calib" in rigs:
         for folder in folders["clean"]:
             folders["calib"].append(miscalibrate(folder, out / "calib" / folder.name, FOCAL_SCALE))

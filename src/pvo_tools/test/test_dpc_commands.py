@@ -5,6 +5,7 @@ the overwritten VO; another rig's sequence is left out of training and refused a
 from __future__ import annotations
 
 import hashlib
+import os
 import shutil
 from pathlib import Path
 
@@ -272,3 +273,67 @@ def test_drives_refuses_an_unknown_rig(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit):
         main(["dpc-net", "drives", str(tmp_path / "d"), "--rigs", "lens,fisheye"])
     assert "unknown rig(s) fisheye: choose from clean, lens, calib" in capsys.readouterr().err
+
+
+def _fake_sequence(folder: Path, frames: int = 3, width: int = 40, height: int = 20) -> None:
+    """What `pvo sim` leaves: images (noise), a centred calib.txt, poses moving forward and right, times."""
+    import cv2
+
+    rng = np.random.default_rng(len(folder.name))
+    for side in ("image_0", "image_1"):
+        (folder / side).mkdir(parents=True)
+        for k in range(frames):
+            cv2.imwrite(str(folder / side / f"{k:06d}.png"), rng.integers(0, 255, (height, width), dtype=np.uint8))
+    f, cx, cy = 30.0, (width - 1) / 2, (height - 1) / 2
+    rows = [[f, 0, cx, 0, 0, f, cy, 0, 0, 0, 1, 0], [f, 0, cx, -f * 0.54, 0, f, cy, 0, 0, 0, 1, 0]]
+    (folder / "calib.txt").write_text("".join(f"P{i}: " + " ".join(f"{v:.12e}" for v in r) + "\n" for i, r in enumerate(rows)))
+    poses = np.tile(np.eye(4)[:3].reshape(12), (frames, 1))
+    poses[:, 3], poses[:, 11] = 0.2 * np.arange(frames), np.arange(frames)
+    np.savetxt(folder / "poses.txt", poses)
+    (folder / "times.txt").write_text("".join(f"{0.1 * k:e}\n" for k in range(frames)))
+    from pvo_sim.render import RENDERER_REVISION
+
+    meta = {"renderer_revision": RENDERER_REVISION, "config": {"baseline": 0.54, "degradations": {}}}
+    (folder / "sim.yaml").write_text(yaml.safe_dump(meta))
+
+
+def test_mirrored_validation_drives_are_their_drives_through_a_mirror(tmp_path: Path, monkeypatch) -> None:
+    import subprocess
+
+    import cv2
+
+    from pvo_tools import dpc
+
+    rendered: list[str] = []
+
+    def fake_render(command: list[str], **_: object) -> subprocess.CompletedProcess:
+        folder = Path(command[command.index("sim") + 1])
+        rendered.append(folder.name)
+        if folder.exists():
+            shutil.rmtree(folder)
+        _fake_sequence(folder)
+        return subprocess.CompletedProcess(command, 0, "", "")
+
+    monkeypatch.setattr(dpc.subprocess, "run", fake_render)
+    # every validation drive turns right on the whole; each has its mirror, made from it and not rendered
+    mirrored = [d for d in dpc.VALIDATION_DRIVES if d.mirror_of]
+    assert sorted(d.mirror_of for d in mirrored) == sorted(d.name for d in dpc.VALIDATION_DRIVES if not d.mirror_of)
+    drives = (dpc.VALIDATION_DRIVES[0], next(d for d in mirrored if d.mirror_of == dpc.VALIDATION_DRIVES[0].name))
+    folders = dpc.render_drives(drives, Path("data"), tmp_path, jobs=1, say=lambda _: None, rigs=("calib",))
+    assert rendered == ["10a"]
+    assert folders == {"calib": [tmp_path / "calib" / "10a", tmp_path / "calib" / "10am"]}
+    source, mirror = tmp_path / "clean" / "10a", tmp_path / "calib" / "10am"
+    left = cv2.imread(str(source / "image_1" / "000001.png"), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(cv2.imread(str(mirror / "image_0" / "000001.png"), cv2.IMREAD_UNCHANGED), left[:, ::-1])
+    assert np.loadtxt(mirror / "poses.txt")[2, 3] == pytest.approx(-0.4)  # drifting right becomes drifting left
+    assert "3.09" in (mirror / "calib.txt").read_text().split()[1]  # the calib rig's focal length, 30 x 1.03
+    # an unchanged source: its mirror is kept; a source rendered again is mirrored again
+    made = tmp_path / "clean" / "10am" / "poses.txt"
+    before = made.stat().st_mtime_ns
+    dpc.render_drives(drives, Path("data"), tmp_path, jobs=1, say=lambda _: None, rigs=("calib",))
+    assert rendered == ["10a"] and made.stat().st_mtime_ns == before
+    os.utime(source / "poses.txt", ns=(before + 10**9, before + 10**9))
+    dpc.render_drives(drives, Path("data"), tmp_path, jobs=1, say=lambda _: None, rigs=("calib",))
+    assert made.stat().st_mtime_ns > before
+    with pytest.raises(ValueError, match="drive 10am mirrors 10a, which is not among the drives rendered"):
+        dpc.render_drives(drives[1:], Path("data"), tmp_path, say=lambda _: None, rigs=("calib",))

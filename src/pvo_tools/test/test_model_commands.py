@@ -216,3 +216,16 @@ def test_an_extra_corpus_without_validation_sequences_adds_training_samples_only
     args = ["sun-bcnn", "train", "--corpus", str(extra), "--corpus", str(extra), "-o", str(tmp_path / "n"), "--epochs", "1"]
     assert main([*args, "--batch-size", "16", *TINY]) == 2
     assert "no sequence in the validation split of" in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def test_a_card_names_the_command_that_mirrored_its_corpus(corpus: Path, tmp_path: Path) -> None:
+    from pvo_core.readers import read_corpus_manifest
+    from pvo_tools.commands.models import _corpus_command
+
+    mirrored = tmp_path / "mirrored"
+    mirrored.mkdir()
+    data = yaml.safe_load((corpus / "manifest.yaml").read_text())
+    data |= {"generator": "pvo sim mirror", "mirrored_from": str(corpus)}
+    (mirrored / "manifest.yaml").write_text(yaml.safe_dump(data))
+    assert _corpus_command(read_corpus_manifest(mirrored)) == f"pvo sim mirror {corpus} {mirrored}"
+    assert _corpus_command(read_corpus_manifest(corpus)).startswith(f"pvo sim corpus {corpus} --sequences 4")

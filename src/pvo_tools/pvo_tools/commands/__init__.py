@@ -15,6 +15,7 @@ COMMANDS = (
     "eval",
     "sim",
     "corpus",
+    "mirror",
     "demo",
     "experiment",
     "models",

@@ -151,7 +151,10 @@ def _model_config(args: argparse.Namespace, entry: ModelEntry) -> Any:
 def _corpus_command(manifest: Any) -> str:
     import yaml
 
-    data = yaml.safe_load(manifest.path.read_text()).get("corpus", {})
+    whole = yaml.safe_load(manifest.path.read_text())
+    if whole.get("generator") == "pvo sim mirror":
+        return f"pvo sim mirror {whole['mirrored_from']} {manifest.path.parent}"
+    data = whole.get("corpus", {})
     if not data:
         return ""
     size = f"{data['width']}x{data['height']}"
