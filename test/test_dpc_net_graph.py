@@ -209,6 +209,50 @@ def test_the_sensor_takes_the_cards_validation_mean_off_every_correction(tiny_mo
         DPCNetSensor(DPCNetSensorConfig(model=str(removing)))
 
 
+def test_a_mirrored_card_makes_the_sensor_mirror_equivariant(tiny_model: Path, tmp_path: Path) -> None:
+    """A card calibrated with mirrored inference: the sensor corrects a window seen through a left-right mirror
+    (each image flipped, left and right swapped, every VO step conjugated) by the mirror of its correction of the
+    window; the card without it does not."""
+    import shutil
+
+    import yaml
+    from pvo_core.lie import se3_log
+    from pvo_pseudosensors.dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
+    from pvo_pseudosensors.dpc_net.infer import _mirror_conjugation
+
+    mirrored = tmp_path / "mirrored"
+    shutil.copytree(tiny_model, mirrored)
+    card = yaml.safe_load((mirrored / "model.yaml").read_text())
+    card["calibration"]["mirrored"] = True
+    card["input"]["rig"] = {"size": [208, 64], "focal_px": [200.0, 200.0], "baseline_m": [0.54, 0.54]}
+    (mirrored / "model.yaml").write_text(yaml.safe_dump(card))
+    rng = np.random.default_rng(1)
+    pairs = [(rng.integers(0, 255, (64, 208), dtype=np.uint8), rng.integers(0, 255, (64, 208), dtype=np.uint8)) for _ in range(4)]
+    steps = [se3_exp(np.array([0.05, 0.0, 0.8, 0.0, 0.03, 0.01])) for _ in range(3)]
+    conjugation = _mirror_conjugation(0.54)
+
+    def correct(model: Path, through_mirror: bool) -> np.ndarray:
+        sensor = DPCNetSensor(DPCNetSensorConfig(model=str(model)))
+        for k, (left, right) in enumerate(pairs, start=1):
+            if through_mirror:
+                left, right = np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1])
+            sensor.add_images(k * STEP, left, right)
+        results = [
+            sensor.add_vo(k * STEP, (k + 1) * STEP, conjugation @ step @ conjugation if through_mirror else step)
+            for k, step in enumerate(steps, start=1)
+        ]
+        assert results[-1] is not None
+        estimate = np.eye(4)
+        for step in steps:
+            estimate = (conjugation @ step @ conjugation if through_mirror else step) @ estimate
+        return results[-1].transform @ np.linalg.inv(estimate)  # the correction
+
+    for model, equivariant in ((mirrored, True), (tiny_model, False)):
+        seen, through = correct(model, False), correct(model, True)
+        difference = np.abs(se3_log(through) - se3_log(conjugation @ seen @ conjugation)).max()
+        assert (difference < 1e-6) if equivariant else (difference > 1e-4), (model.name, difference)
+
+
 def test_a_camera_of_another_rig_is_refused(ros_context, tmp_path: Path) -> None:
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
     from pvo_pseudosensors.dpc_net.model import DPCNet, DPCTask

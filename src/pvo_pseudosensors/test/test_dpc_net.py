@@ -349,3 +349,32 @@ def test_an_axis_is_fused_when_the_correction_lowers_the_drift_not_the_window_er
     assert not per_window[4] and over_a_drive[4]  # per window it looks useless; over 100 windows it is not
     assert not per_window[5] and not over_a_drive[5]
     assert not over_a_drive[:4].any()  # unchanged axes are not "lowered"
+
+
+def test_mirrored_inference_is_exactly_mirror_equivariant_and_off_changes_nothing() -> None:
+    """A window through the mirror (images flipped, left and right swapped, T̂ -> M T̂ M^-1) gets the mirror of the
+    window's averaged correction; without the mirror the network's own output."""
+    from pvo_core.lie import se3_exp, se3_log
+    from pvo_pseudosensors.dpc_net.infer import _mirror_conjugation, correction_outputs, correction_vectors
+
+    config = replace(TINY, vo_input=True)
+    torch.manual_seed(3)
+    model = DPCNet(config).eval()
+    torch.nn.init.normal_(model.head.weight, std=0.02)
+    torch.nn.init.normal_(model.vo_head.weight, std=0.2)
+    first, last = torch.rand(5, 2, 32, 104), torch.rand(5, 2, 32, 104)
+    rng = np.random.default_rng(0)
+    estimates = np.array([se3_exp(np.r_[rng.normal(0, 0.3, 2), 1.2, rng.normal(0, 0.02, 3)]) for _ in range(5)])
+    plain = correction_outputs(model, config, first, last, estimates, False, 0.54)
+    with torch.no_grad():
+        direct = correction_vectors(config, model(first, last, estimate_input(estimates)).double().numpy())
+    assert np.array_equal(plain, direct)
+
+    averaged = correction_outputs(model, config, first, last, estimates, True, 0.54)
+    conjugation = _mirror_conjugation(0.54)
+    assert np.allclose(conjugation @ conjugation, np.eye(4))  # the mirror of the mirrored rig is the rig
+    flipped = [torch.flip(f[:, [1, 0]], dims=[-1]) for f in (first, last)]
+    through = correction_outputs(model, config, *flipped, conjugation @ estimates @ conjugation, True, 0.54)
+    expected = np.array([se3_log(conjugation @ se3_exp(x) @ conjugation) for x in averaged])
+    assert through == pytest.approx(expected, abs=1e-6)
+    assert np.abs(averaged - plain).max() > 1e-4  # the untrained network is not symmetric: the average moved it

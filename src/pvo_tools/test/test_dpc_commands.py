@@ -126,6 +126,23 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     capsys.readouterr()
     recalibrated = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
     assert not {"remove_mean", "fused_axes", "drive_calibration", "vo_scale"} & set(recalibrated)
+    assert recalibrated["mirrored"] is False
+    # mirrored inference: calibrated in that mode, and the corrections follow the card
+    from pvo_core.trajectory import read_kitti_poses
+    from pvo_pseudosensors.dpc_net.data import vo_poses
+    from pvo_pseudosensors.dpc_net.infer import load_dpc_net, predict_corrections
+    from pvo_pseudosensors.learning import Source
+
+    mirrored = tmp_path / "mirrored"
+    shutil.copytree(drove, mirrored)
+    assert main(["dpc-net", "calibrate", "--model", str(mirrored), "--corpus", str(corpus), "--mirrored"]) == 0
+    assert "11 validation windows of 1 sequences, each also predicted through the mirror" in capsys.readouterr().out
+    mirrored_card = yaml.safe_load((mirrored / "model.yaml").read_text())["calibration"]
+    assert mirrored_card["mirrored"] is True and mirrored_card["residual_covariance"] != recalibrated["residual_covariance"]
+    vo = vo_poses(Source(corpus / "0002", "0002"), None)
+    assert len(vo) == len(read_kitti_poses(corpus / "0002" / "poses.txt"))
+    as_is, through = (predict_corrections(*load_dpc_net(m), corpus / "0002", vo) for m in (drove, mirrored))
+    assert np.array_equal(as_is.last, through.last) and 1e-9 < np.abs(as_is.transforms - through.transforms).max() < 0.1
     assert main([*calibrate, "--drives", str(tmp_path / "nowhere")]) == 2
     assert "nowhere: not a sequence with poses.txt nor a folder of them" in capsys.readouterr().err
     assert main([*calibrate, "--drives", str(corpus / "0001"), str(corpus / "0001")]) == 2

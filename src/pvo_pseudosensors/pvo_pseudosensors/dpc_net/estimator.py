@@ -14,8 +14,7 @@ from pvo_core.lie import se3_exp
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import DPCNetConfig
-from .infer import UNMEASURED, load_dpc_net, measurement_covariance, residual_mean
-from .model import estimate_input
+from .infer import UNMEASURED, correction_outputs, load_dpc_net, measurement_covariance, mirror_baseline, residual_mean
 from .rig import Rig, rig_problems
 
 Array = NDArray[np.float64]
@@ -77,6 +76,9 @@ class DPCNetSensor:
         self.covariance = measurement_covariance(self.settings, self.card.calibration)
         # exp(b^): the validation mean error taken off every correction where the card chose it (identity otherwise)
         self.mean_removal = se3_exp(residual_mean(self.card.calibration))
+        # each window also through the mirror, the two corrections averaged, where the card was calibrated so
+        self.mirrored = bool(self.card.calibration.get("mirrored", False))
+        self.baseline = mirror_baseline(self.card)
         self.images: dict[int, NDArray[np.uint8]] = {}
         self.sizes: dict[int, tuple[int, ...]] = {}
         self.chain: deque[tuple[int, Array]] = deque()  # (stamp, T_k,k-1) since the window's first frame
@@ -171,6 +173,5 @@ class DPCNetSensor:
             )
             return None
         frames = [torch.from_numpy(self.images[s].astype(np.float32)[None] / 255.0) for s in (first, last)]
-        with torch.no_grad():
-            xi = self.model(frames[0], frames[1], estimate_input(estimate[None])).double().numpy()[0]
+        xi = correction_outputs(self.model, self.settings, *frames, estimate[None], self.mirrored, self.baseline)[0]
         return Correction(first, last, self.mean_removal @ se3_exp(xi) @ estimate, self.covariance.copy())

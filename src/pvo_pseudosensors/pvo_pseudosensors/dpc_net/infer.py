@@ -106,10 +106,11 @@ def remove_residual_mean(transforms: Array, calibration: dict) -> Array:
 def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
     """The corrected transform's covariance (6, 6), ROS order, on the axes the variant corrects (:data:`UNMEASURED`
     on the others, uncorrelated): the corrected transforms' own residual covariance on the validation split when
-    the card has it (`pvo dpc-net calibrate`), else the training targets' (eq. 6.6, the thesis's; an upper bound:
-    the error of the VO the model corrects). Only the axes the calibration validated are measured: those its
-    long validation drives chose (``fused_axes``, `calibrate --drives`; none when no choice lowered every drive's
-    m-ATE), else those whose error the correction lowered on the validation windows (``residual.corrected_*``)."""
+    the card has it (`pvo dpc-net calibrate`, in the card's inference mode), else the training targets' (eq. 6.6,
+    the thesis's; an upper bound: the error of the VO the model corrects). Only the axes the calibration validated
+    are measured: those its long validation drives chose (``fused_axes``, `calibrate --drives`; none when no choice
+    lowered every drive's m-ATE), else those whose error the correction lowered on the validation windows
+    (``residual.corrected_*``)."""
     covariance = np.asarray(calibration.get("residual_covariance", calibration["target_covariance"]), dtype=float)
     if "residual_covariance" in calibration:
         mean = residual_mean(calibration)  # removed from the corrections: the spread about it is what is left
@@ -124,6 +125,71 @@ def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
     kept = np.zeros((6, 6), dtype=bool)
     kept[np.ix_(list(axes), list(axes))] = True
     return np.where(kept, covariance, np.diag(np.full(6, UNMEASURED)))
+
+
+#: the mirror of the camera frame (x right, y down, z forward): every right turn a left turn
+MIRROR = np.diag([-1.0, 1.0, 1.0, 1.0])
+
+
+def mirror_baseline(card: ModelCard) -> float:
+    """The stereo baseline (m) through which a window is mirrored: the middle of the card's trained range (the rig
+    check refuses a sequence outside it); 0 for a model without a card rig or of the left image alone."""
+    config = DPCNetConfig.from_card(card)
+    rig = card.input.get("rig") or {}
+    if not config.stereo or not rig.get("baseline_m"):
+        return 0.0
+    return float(np.mean(rig["baseline_m"]))
+
+
+def _mirror_conjugation(baseline_m: float) -> Array:
+    """M = S E^-1 (4, 4): a transform T between two poses of the left camera becomes M T M^-1 between the mirrored
+    rig's left camera's (the old right one through the mirror; E the shift by the baseline along x)."""
+    shift = np.eye(4)
+    shift[0, 3] = -baseline_m
+    return MIRROR @ shift
+
+
+def correction_outputs(
+    model: DPCNet,
+    config: DPCNetConfig,
+    first: torch.Tensor,
+    last: torch.Tensor,
+    estimates: Array,
+    mirrored: bool,
+    baseline_m: float,
+    estimate_logs: torch.Tensor | None = None,
+) -> Array:
+    """The left corrections ξ (N, 6) of the VO's window transforms ``estimates`` (N, 4, 4) T̂_last,first from the
+    frames ``first``, ``last`` (N, C, H, W) in [0, 1] (:func:`correction_vectors`). ``mirrored``: also predicted on
+    the window through the mirror (images flipped left-right, a stereo pair's left and right swapped, T̂ -> M T̂ M^-1
+    with :func:`_mirror_conjugation` of ``baseline_m``), that correction taken back through the mirror (C = M^-1 C' M)
+    and the two averaged on the tangent space — what the network does differently to the two views, which a model
+    trained on a corpus and its mirror should not, cancels. ``estimate_logs``: the network's input for
+    ``estimates`` if already made (:func:`.model.estimate_input`)."""
+    from pvo_core.lie import se3_log
+
+    estimates = np.asarray(estimates, dtype=float).reshape(-1, 4, 4)
+    if not len(estimates):
+        return np.zeros((0, 6))
+    with torch.no_grad():
+        logs = estimate_input(estimates) if estimate_logs is None else estimate_logs
+        xi = correction_vectors(config, model(first, last, logs).double().numpy())
+        if not mirrored:
+            return xi
+        conjugation = _mirror_conjugation(baseline_m if config.stereo else 0.0)
+        back = np.linalg.inv(conjugation)
+        order = [1, 0] if config.stereo else [0]
+
+        def flipped(frames: torch.Tensor) -> torch.Tensor:
+            return torch.flip(frames[:, order], dims=[-1])
+
+        mirrored_estimates = conjugation @ estimates @ back
+        output = model(flipped(first), flipped(last), estimate_input(mirrored_estimates)).double().numpy()
+    xi_mirrored = correction_vectors(config, output)
+    unmirrored = np.array([se3_log(back @ se3_exp(x) @ conjugation) for x in xi_mirrored])
+    if config.variant == "yaw":  # the mirror of a yaw is a yaw; keep the variant's one axis
+        unmirrored[:, [0, 1, 2, 3, 5]] = 0.0
+    return 0.5 * (xi + unmirrored)
 
 
 def predict_corrections(model: DPCNet, card: ModelCard, sequence: Path, vo: Array, cache_dir: Path | None = None) -> Corrections:
@@ -147,13 +213,8 @@ def predict_corrections(model: DPCNet, card: ModelCard, sequence: Path, vo: Arra
         return torch.from_numpy(stacked.astype(np.float32) / 255.0)
 
     estimate = np.linalg.inv(vo[last]) @ vo[first]
-    with torch.no_grad():
-        output = (
-            model(frames(first), frames(last), estimate_input(estimate)).double().numpy()
-            if len(last)
-            else np.zeros((0, config.outputs))
-        )
-    xi = correction_vectors(config, output)
+    mirrored = bool(card.calibration.get("mirrored", False))
+    xi = correction_outputs(model, config, frames(first), frames(last), estimate, mirrored, mirror_baseline(card))
     transforms = np.stack([se3_exp(x) @ t for x, t in zip(xi, estimate, strict=True)]) if len(last) else np.zeros((0, 4, 4))
     transforms = remove_residual_mean(transforms, card.calibration)
     covariance = measurement_covariance(config, card.calibration)
@@ -209,15 +270,17 @@ def residual_covariance(
     from pvo_core.lie import se3_log
 
     config = DPCNetConfig.from_card(card)
+    mirrored, baseline = bool(card.calibration.get("mirrored", False)), mirror_baseline(card)
     residuals, before = [], []
-    with torch.no_grad():
-        for start in range(0, len(windows), batch_size):
-            batch = [windows[i] for i in range(start, min(start + batch_size, len(windows)))]
-            output = model(*(torch.stack([b[key] for b in batch]) for key in ("first", "last", "estimate")))
-            for xi, sample in zip(correction_vectors(config, output.double().numpy()), batch, strict=True):
-                target = sample["target"].double().numpy()
-                residuals.append(se3_log(target @ se3_exp(-xi)))
-                before.append(se3_log(target))
+    for start in range(0, len(windows), batch_size):
+        batch = [windows[i] for i in range(start, min(start + batch_size, len(windows)))]
+        first, last, logs = (torch.stack([b[key] for b in batch]) for key in ("first", "last", "estimate"))
+        estimates = np.array([se3_exp(log) for log in logs.double().numpy()])
+        xi_batch = correction_outputs(model, config, first, last, estimates, mirrored, baseline, logs)
+        for xi, sample in zip(xi_batch, batch, strict=True):
+            target = sample["target"].double().numpy()
+            residuals.append(se3_log(target @ se3_exp(-xi)))
+            before.append(se3_log(target))
     if not residuals:
         raise ValueError("no validation window to calibrate on")
     g, b = np.asarray(residuals), np.asarray(before)

@@ -46,6 +46,13 @@ def register_actions(actions: Any, entry: Any) -> None:
         "fusion; the one whose fusion lowers the m-ATE most on the validation split (two-fold) goes into the card",
     )
     calibrate.add_argument(
+        "--mirrored",
+        action="store_true",
+        help="predict every window also through a left-right mirror and average the two corrections (for a model "
+        "trained on a corpus and its mirror, `pvo sim mirror`); the card then predicts so everywhere (predict, "
+        "correct, the node)",
+    )
+    calibrate.add_argument(
         "--drives",
         type=Path,
         nargs="+",
@@ -171,6 +178,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         flush=True,
     )
     windows = DPCWindows(sources, config, args.cache or manifest.path.parent / ".cache", (config.test_delta,))
+    card.calibration["mirrored"] = bool(args.mirrored)  # the inference mode the residual (and all below) is made in
     covariance, figures = residual_covariance(model, card, windows)
     if card.input.get("rig"):  # calibrated for this VO
         card.input["rig"]["vo"] = vo_signature()
@@ -188,7 +196,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     card.calibration["residual"] = figures | {"corpus": str(args.corpus), "sequences": len(sources)}
     write_card(args.model, card)
     print(
-        f"{args.model}: {int(figures['windows'])} validation windows of {len(sources)} sequences; mean error translation "
+        f"{args.model}: {int(figures['windows'])} validation windows of {len(sources)} sequences"
+        f"{', each also predicted through the mirror' if args.mirrored else ''}; mean error translation "
         f"{figures['translation_error_m_before']:.4f} -> {figures['translation_error_m_after']:.4f} m, rotation "
         f"{figures['rotation_error_deg_before']:.4f} -> {figures['rotation_error_deg_after']:.4f} deg; residual "
         f"standard deviations (x y z rx ry rz) {np.sqrt(np.diag(covariance)).round(5).tolist()}; corrected axes (fused): "
