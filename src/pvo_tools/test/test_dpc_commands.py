@@ -137,6 +137,13 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     shutil.copytree(drove, mirrored)
     assert main(["dpc-net", "calibrate", "--model", str(mirrored), "--corpus", str(corpus), "--mirrored"]) == 0
     assert "11 validation windows of 1 sequences, each also predicted through the mirror" in capsys.readouterr().out
+    # validation splits joined (a corpus and its mirror): every corpus's windows, each corpus named in the card
+    other = tmp_path / "other-corpus"
+    shutil.copytree(corpus, other, ignore=shutil.ignore_patterns(".cache"))
+    joined = ["dpc-net", "calibrate", "--model", str(drove), "--corpus", str(corpus), "--corpus", str(other)]
+    assert main(joined) == 0
+    assert "22 validation windows of 2 sequences" in capsys.readouterr().out
+    assert yaml.safe_load((drove / "model.yaml").read_text())["calibration"]["residual"]["corpus"] == [str(corpus), str(other)]
     mirrored_card = yaml.safe_load((mirrored / "model.yaml").read_text())["calibration"]
     assert mirrored_card["mirrored"] is True and mirrored_card["residual_covariance"] != recalibrated["residual_covariance"]
     vo = vo_poses(Source(corpus / "0002", "0002"), None)

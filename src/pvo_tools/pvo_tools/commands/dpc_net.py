@@ -37,7 +37,13 @@ def register_actions(actions: Any, entry: Any) -> None:
     )
     calibrate.set_defaults(handler=run_calibrate)
     calibrate.add_argument("--model", type=Path, required=True, help="model directory; its model.yaml gets the result")
-    calibrate.add_argument("--corpus", type=Path, required=True, help="the corpus whose validation split to use (the model's)")
+    calibrate.add_argument(
+        "--corpus",
+        type=Path,
+        required=True,
+        action="append",
+        help="the corpus whose validation split to use (the model's; repeat to join several, e.g. a corpus and its mirror)",
+    )
     calibrate.add_argument("--cache", type=Path, help="decoded-image cache (default CORPUS/.cache)")
     calibrate.add_argument(
         "--vo-spans",
@@ -167,17 +173,18 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
     model, card = load_dpc_net(args.model)
     config = DPCNetConfig.from_card(card)
-    manifest = read_corpus_manifest(args.corpus)
-    sources = [Source(s.root, s.name, "validation") for s in rig_sequences(manifest, card)]
+    manifests = [read_corpus_manifest(corpus) for corpus in args.corpus]
+    validation = [s for manifest in manifests for s in rig_sequences(manifest, card)]
+    sources = [Source(s.root, s.name, "validation") for s in validation]
     if not sources:
-        raise ValueError(f"{manifest.path}: no validation sequence of the model's rig")
+        raise ValueError(f"{', '.join(str(m.path) for m in manifests)}: no validation sequence of the model's rig")
     print(
         f"pvo dpc-net calibrate: {len(sources)} validation sequences of the model's rig (the VO runs once per sequence, "
         "then is cached) ...",
         file=sys.stderr,
         flush=True,
     )
-    windows = DPCWindows(sources, config, args.cache or manifest.path.parent / ".cache", (config.test_delta,))
+    windows = DPCWindows(sources, config, args.cache or manifests[0].path.parent / ".cache", (config.test_delta,))
     card.calibration["mirrored"] = bool(args.mirrored)  # the inference mode the residual (and all below) is made in
     covariance, figures = residual_covariance(model, card, windows)
     if card.input.get("rig"):  # calibrated for this VO
@@ -193,7 +200,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     ):
         card.calibration.pop(stale, None)  # a new residual: what was chosen with the old one goes
     card.calibration["residual_covariance"] = covariance.tolist()
-    card.calibration["residual"] = figures | {"corpus": str(args.corpus), "sequences": len(sources)}
+    corpus = str(args.corpus[0]) if len(args.corpus) == 1 else [str(c) for c in args.corpus]
+    card.calibration["residual"] = figures | {"corpus": corpus, "sequences": len(sources)}
     write_card(args.model, card)
     print(
         f"{args.model}: {int(figures['windows'])} validation windows of {len(sources)} sequences"
@@ -208,7 +216,6 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if args.vo_spans:
         from ..dpc import choose_vo_span
 
-        validation = rig_sequences(manifest, card)
         print(
             f"choosing the VO span among {args.vo_spans} on {len(validation)} validation sequences ...",
             file=sys.stderr,

@@ -31,7 +31,7 @@ Array = NDArray[np.float64]
 
 #: the long sequences: name, KITTI test drive, first pose (:data:`pvo_tools.dpc.TEST_DRIVES`)
 SEQUENCES: tuple[tuple[str, str, int], ...] = tuple((d.name, d.drive, d.start) for d in TEST_DRIVES)
-_VALIDATION_RUNS: dict[Path, list[Any]] = {}  # per corpus: the VO over its validation split, run once
+_VALIDATION_RUNS: dict[tuple[Path, ...], list[Any]] = {}  # per corpora: the VO over their validation splits, run once
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -105,20 +105,23 @@ def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
         )
         return carried
     calibrated_on = ((card.calibration or {}).get("residual") or {}).get("corpus")
-    path = calibrated_on or card.corpus.get("path")
-    corpus = Path(path) if path else None
-    if corpus is None or not (corpus / "manifest.yaml").is_file():
-        say(f"  the model's corpus {corpus} is not here: the VO keeps its own covariances")
+    paths = calibrated_on if isinstance(calibrated_on, list) else [calibrated_on or card.corpus.get("path")]
+    corpora = tuple(Path(p) for p in paths if p)
+    missing = [c for c in corpora if not (c / "manifest.yaml").is_file()]
+    if not corpora or missing:
+        say(f"  the model's corpus {(missing or [None])[0]} is not here: the VO keeps its own covariances")
         return None
-    if corpus not in _VALIDATION_RUNS:
+    if corpora not in _VALIDATION_RUNS:
         sequences = []
-        for sequence in rig_sequences(read_corpus_manifest(corpus), card):
-            run, _ = vo_run(sequence.root)
-            relative = run.relative()
-            truth = read_kitti_poses(sequence.root / "poses.txt")
-            sequences.append(CalibrationSequence(sequence.name, truth, relative["transforms"], relative["covariances"]))
-        _VALIDATION_RUNS[corpus] = sequences
-    sequences = _VALIDATION_RUNS[corpus]
+        for corpus in corpora:
+            for sequence in rig_sequences(read_corpus_manifest(corpus), card):
+                run, _ = vo_run(sequence.root)
+                relative = run.relative()
+                truth = read_kitti_poses(sequence.root / "poses.txt")
+                sequences.append(CalibrationSequence(sequence.name, truth, relative["transforms"], relative["covariances"]))
+        _VALIDATION_RUNS[corpora] = sequences
+    sequences = _VALIDATION_RUNS[corpora]
+    corpus = ", ".join(str(c) for c in corpora)
     span = span or int((card.calibration or {}).get("vo_span") or card.hyperparameters["test_delta"])
     calibration = calibrate_vo(sequences, span)
     say(
