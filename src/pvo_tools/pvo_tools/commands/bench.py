@@ -285,6 +285,7 @@ def bench_dpc_net(args: argparse.Namespace) -> int:
     print(
         f"pvo bench dpc-net: {sensor.settings.height}x{sensor.settings.width} input from {pairs[0][0].shape[1]}x"
         f"{pairs[0][0].shape[0]} stereo pairs, Δp = {sensor.delta}, {len(pairs)} frames of the KITTI 06 clip, one core"
+        + (", each window also through the mirror (the card's mode)" if sensor.mirrored else "")
     )
     best: dict[str, list[float]] = {}
     for _ in range(args.repeat):
