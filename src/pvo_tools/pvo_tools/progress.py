@@ -48,3 +48,25 @@ class Progress:
         if self._tty:
             self.stream.write("\n")
             self.stream.flush()
+
+
+class CountProgress:
+    """A ``progress(done, total)`` callback for library calls that report counts: the bar starts at the first call
+    (when the total is known), nothing is shown when ``quiet``; :meth:`close` ends it if it started."""
+
+    def __init__(self, label: str, quiet: bool = False) -> None:
+        self.label = label
+        self.quiet = quiet
+        self.bar: Progress | None = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.quiet:
+            return
+        if self.bar is None:
+            self.bar = Progress(total, self.label)
+        if done > self.bar.done:
+            self.bar.update(done - self.bar.done)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()

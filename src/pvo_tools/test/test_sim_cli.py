@@ -84,6 +84,14 @@ def test_sim_corpus_command_renders_resumes_and_reports(tmp_path: Path, capsys) 
     assert [s["name"] for s in manifest["sequences"]] == ["0000", "0001"]
     assert main(args) == 0
     assert "0 sequence(s) rendered, 2 kept" in capsys.readouterr().out
+    # its mirror, with progress on stderr; again: nothing left to do; a folder that is neither is one line
+    assert main(["sim", "mirror", str(tmp_path / "c"), str(tmp_path / "m")]) == 0
+    printed = capsys.readouterr()
+    assert "2 sequence(s) mirrored now" in printed.out and "pvo sim mirror (sequences)" in printed.err
+    assert main(["sim", "mirror", str(tmp_path / "c"), str(tmp_path / "m"), "-q"]) == 0
+    assert "0 sequence(s) mirrored now" in capsys.readouterr().out
+    assert main(["sim", "mirror", str(tmp_path / "nowhere"), str(tmp_path / "m2")]) == 2
+    assert "nowhere: no such corpus or sequence directory" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(

@@ -8,7 +8,7 @@ from typing import Any
 
 from pvo_sim.corpus import CorpusConfig, render_corpus
 
-from ..progress import Progress
+from ..progress import CountProgress
 from .sim import parse_size
 
 
@@ -119,20 +119,9 @@ def run(args: argparse.Namespace) -> int:
         calib_focal_scale=args.calib_focal_scale,
         calib_baseline_scale=args.calib_baseline_scale,
     )
-    bar: Progress | None = None
-
-    def progress(done: int, total: int) -> None:
-        nonlocal bar
-        if args.quiet:
-            return
-        if bar is None:
-            bar = Progress(total, "pvo sim corpus (frames)")
-        if done > bar.done:
-            bar.update(done - bar.done)
-
+    progress = CountProgress("pvo sim corpus (frames)", args.quiet)
     result = render_corpus(config, args.out, jobs=args.jobs, progress=progress)
-    if bar is not None:
-        bar.close()
+    progress.close()
     print(
         f"{result.out}: {len(result.rendered)} sequence(s) rendered, {len(result.kept)} kept; "
         f"{result.frames_rendered} stereo frames in {result.seconds:.1f} s ({result.frames_per_second:.2f} stereo frames/s, "

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..progress import Progress
+from ..progress import CountProgress
 
 
 def register(sub: Any) -> None:
@@ -30,19 +30,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.source.is_dir():
         raise ValueError(f"{args.source}: no such corpus or sequence directory")
     if (args.source / "manifest.yaml").is_file():
-        bar: Progress | None = None
-
-        def progress(done: int, total: int) -> None:
-            nonlocal bar
-            if args.quiet:
-                return
-            if bar is None:
-                bar = Progress(total, "pvo sim mirror (sequences)")
-            bar.update(done - bar.done)
-
+        progress = CountProgress("pvo sim mirror (sequences)", args.quiet)
         done = mirror_corpus(args.source, args.out, progress)
-        if bar is not None:
-            bar.close()
+        progress.close()
         print(f"{args.out}: {len(done)} sequence(s) mirrored now; manifest {args.out / 'manifest.yaml'}")
         return 0
     out = mirror_sequence(args.source, args.out, overwrite=args.overwrite)
