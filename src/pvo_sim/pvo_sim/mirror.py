@@ -95,6 +95,13 @@ def mirror_sequence(source: Path, out: Path, overwrite: bool = False) -> Path:
         meta = yaml.safe_load((source / "sim.yaml").read_text()) or {}
         baseline = float((meta.get("config") or {}).get("baseline", baseline))
     poses = read_kitti_poses(source / "poses.txt")
+    sun_lines: list[str] = []
+    if (source / "sun.csv").is_file():
+        rows = [line.split(",") for line in (source / "sun.csv").read_text().splitlines() if line.strip()]
+        try:
+            sun_lines = [f"{r[0]},{-float(r[1]):.9f},{r[2]},{r[3]}" for r in rows]
+        except (IndexError, ValueError):
+            raise DataFormatError(source / "sun.csv", "not rows of image,sx,sy,sz") from None
     counts = set()
     out.mkdir(parents=True)
     for left, right in IMAGE_FOLDERS:
@@ -113,10 +120,8 @@ def mirror_sequence(source: Path, out: Path, overwrite: bool = False) -> Path:
         raise DataFormatError(source, f"{sorted(counts)} images per folder for {len(poses)} poses")
     for name in ("calib.txt", "times.txt"):
         shutil.copyfile(source / name, out / name)
-    if (source / "sun.csv").is_file():
-        rows = [line.split(",") for line in (source / "sun.csv").read_text().splitlines() if line.strip()]
-        lines = [f"{r[0]},{-float(r[1]):.9f},{r[2]},{r[3]}" for r in rows]
-        (out / "sun.csv").write_text("\n".join(lines) + "\n")
+    if sun_lines:
+        (out / "sun.csv").write_text("\n".join(sun_lines) + "\n")
     if meta:
         meta["mirrored_from"] = str(source)
         (out / "sim.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))

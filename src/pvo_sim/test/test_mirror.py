@@ -103,6 +103,11 @@ def test_what_cannot_be_mirrored_is_refused_in_one_line(sequence: Path, tmp_path
     (off_centre / "calib.txt").write_text("\n".join([" ".join(values), *calib[1:]]) + "\n")
     with pytest.raises(DataFormatError, match="principal point .* is not the centre of the 160x64 images"):
         mirror_sequence(off_centre, tmp_path / "out")
+    shutil.copyfile(sequence / "calib.txt", off_centre / "calib.txt")
+    (off_centre / "sun.csv").write_text("image,sx,sy,sz\n")
+    with pytest.raises(DataFormatError, match="off-centre/sun.csv: not rows of image,sx,sy,sz"):
+        mirror_sequence(off_centre, tmp_path / "out1")
+    assert not (tmp_path / "out1").exists()  # refused before anything was written
     (off_centre / "poses.txt").unlink()
     with pytest.raises(DataFormatError, match="off-centre/poses.txt: needed to mirror the sequence but missing"):
         mirror_sequence(off_centre, tmp_path / "out2")
