@@ -94,6 +94,28 @@ def test_sim_corpus_command_renders_resumes_and_reports(tmp_path: Path, capsys) 
     assert "nowhere: no such corpus or sequence directory" in capsys.readouterr().err
 
 
+def test_sim_corpus_degradation_shares_reach_every_sequence_and_the_card_command(tmp_path: Path) -> None:
+    import yaml
+    from pvo_core.readers import read_corpus_manifest
+    from pvo_tools.cli import main
+    from pvo_tools.commands.models import _corpus_command
+
+    out = tmp_path / "c"
+    shares = ["--radial-distortion", "1", "--moving-vehicles", "0", "--jpeg", "0", "--overcast", "0"]
+    if main(["sim", "corpus", str(out), "--sequences", "3", "--frames", "2", "--size", "96x48", *shares, "-q"]) != 0:
+        pytest.skip("pvo sim corpus could not render here (no offscreen renderer)")
+    manifest = yaml.safe_load((out / "manifest.yaml").read_text())
+    assert manifest["corpus"]["radial_distortion"] == 1.0 and manifest["corpus"]["moving_vehicles"] == 0.0
+    for sequence in manifest["sequences"]:
+        config = yaml.safe_load((out / sequence["name"] / "sim.yaml").read_text())["config"]
+        assert -0.3 <= config["degradations"]["distortion"] <= 0.2 and config["degradations"]["distortion"] != 0.0
+        assert "radial distortion" in sequence["conditions"] and "moving vehicles" not in sequence["conditions"]
+    command = _corpus_command(read_corpus_manifest(out))
+    for option in ("--overcast 0", "--moving-vehicles 0", "--radial-distortion 1", "--jpeg 0"):
+        assert f" {option}" in command
+    assert "--motion-blur" not in command  # a default share is not repeated
+
+
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
@@ -101,6 +123,7 @@ def test_sim_corpus_command_renders_resumes_and_reports(tmp_path: Path, capsys) 
         (["--split", "0.5,0.5"], "--split '0.5,0.5' must be three numbers"),
         (["--jobs", "0"], "--jobs must be >= 1"),
         (["--kitti-speed-scale", "2", "1"], "--kitti-speed-scale must be two factors LO HI with 0.25 <= LO <= HI <= 4"),
+        (["--radial-distortion", "1.5"], "radial_distortion must be a fraction in [0, 1], got 1.5"),
     ],
 )
 def test_sim_corpus_bad_options_are_one_line(tmp_path: Path, capsys, extra: list[str], message: str) -> None:

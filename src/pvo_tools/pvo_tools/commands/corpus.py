@@ -55,6 +55,18 @@ def register(sub: Any) -> None:
             help=f"one wrong calibration for every sequence: calib.txt written with the {what} times S (images unchanged; "
             f"DPC-Net's Table 6.1 rig, e.g. --calib-{name}-scale 1.03)",
         )
+    shares = corpus.add_argument_group(
+        "degradations (the share of sequences drawn with each; every sequence draws each one on its own)"
+    )
+    defaults = CorpusConfig()
+    for name, what in DEGRADATION_SHARES.items():
+        shares.add_argument(
+            "--" + name.replace("_", "-"),
+            type=float,
+            default=getattr(defaults, name),
+            metavar="F",
+            help=f"share of sequences {what} (default {getattr(defaults, name):g})",
+        )
     kitti = corpus.add_argument_group("real vehicle motion (each sequence drives a window of a KITTI drive)")
     kitti.add_argument(
         "--kitti-poses", type=Path, help="directory of KITTI odometry pose files NN.txt (e.g. ../shared/data/kitti/poses)"
@@ -84,6 +96,19 @@ def register(sub: Any) -> None:
         help="replay each window's drive faster by a factor drawn uniformly from [LO, HI] (e.g. 1 1.6: KITTI's urban "
         "drives rarely exceed 15 m/s; default 1 1: as driven)",
     )
+
+
+# CorpusConfig's per-sequence degradation shares, each a `pvo sim corpus` option of the same name
+DEGRADATION_SHARES = {
+    "overcast": "under an overcast sky (no shadows)",
+    "motion_blur": "with motion blur",
+    "exposure_changes": "with exposure changes",
+    "moving_vehicles": "with moving vehicles",
+    "texture_poor": "with texture-poor walls",
+    "wrong_calibration": "whose calib.txt is a little wrong",
+    "radial_distortion": "seen through a radially distorted lens (k1 drawn in [-0.3, 0.2])",
+    "jpeg": "JPEG-compressed",
+}
 
 
 def _drives(text: str) -> tuple[str, ...]:
@@ -118,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
         lens_distortion=tuple(args.lens_distortion),
         calib_focal_scale=args.calib_focal_scale,
         calib_baseline_scale=args.calib_baseline_scale,
+        **{name: getattr(args, name) for name in DEGRADATION_SHARES},
     )
     progress = CountProgress("pvo sim corpus (frames)", args.quiet)
     result = render_corpus(config, args.out, jobs=args.jobs, progress=progress)

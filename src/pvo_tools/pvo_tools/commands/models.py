@@ -166,6 +166,14 @@ def _corpus_command(manifest: Any) -> str:
     for name in ("focal", "baseline"):
         if data.get(f"calib_{name}_scale", 1.0) != 1.0:
             colour += f" --calib-{name}-scale {data[f'calib_{name}_scale']:g}"
+    from pvo_sim.corpus import CorpusConfig
+
+    from .corpus import DEGRADATION_SHARES
+
+    defaults = CorpusConfig()
+    for name in DEGRADATION_SHARES:
+        if name in data and float(data[name]) != getattr(defaults, name):
+            colour += f" --{name.replace('_', '-')} {float(data[name]):g}"
     shares = data.get("split")
     if shares and [round(float(v), 6) for v in shares] != [0.7, 0.15, 0.15]:  # `pvo sim corpus`'s default shares
         colour += " --split " + ",".join(f"{float(v):g}" for v in shares)
