@@ -99,7 +99,7 @@ class CorpusConfig:
         fractions += ("wrong_calibration", "radial_distortion", "jpeg")
         for name in fractions:
             if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"{name} must be a fraction in [0, 1], got {getattr(self, name)}")
+                raise ValueError(f"--{name.replace('_', '-')} must be a fraction in [0, 1], got {getattr(self, name)}")
         if self.lens_distortion:  # one line now, not after the first sequence rendered
             try:
                 Degradations(distortion=tuple(self.lens_distortion))
