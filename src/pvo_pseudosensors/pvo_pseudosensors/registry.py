@@ -122,6 +122,7 @@ def _sun_bcnn() -> ModelEntry:
             "mirror": "mirror training images left-right at random (the sun's x negated)",
             "aleatoric": "a von Mises-Fisher concentration per image (heteroscedastic covariance)",
             "augment": "photometric jitter in training (gain, gamma, noise)",
+            "batch_norm": "batch normalisation after every convolution (running statistics in the MC passes)",
         },
     )
 

@@ -495,3 +495,37 @@ def test_photometric_jitter_changes_brightness_not_geometry() -> None:
     assert not torch.allclose(jittered, ramp, atol=0.02)
     columns = jittered.mean(dim=(1, 2))  # (8, 64): the ramp still rises left to right in every image
     assert bool((columns[:, -8:].mean(dim=1) > columns[:, :8].mean(dim=1) + 0.2).all())
+
+
+def test_batch_normalised_mc_passes_keep_the_running_statistics() -> None:
+    """With batch normalisation an MC pass uses the running statistics, not its batch's: an image's draws are
+    the same alone or beside others, without dropout every pass is the evaluated network's output, and the
+    running statistics are left as they were; the shipped layout's layer indices are unchanged without it."""
+    from pvo_pseudosensors.sun_bcnn import infer
+
+    torch.manual_seed(0)
+    model = SunBCNN(replace(TINY, batch_norm=True, dropout=0.0))
+    model.train()
+    with torch.no_grad():
+        for _ in range(3):  # running statistics away from their initial (0, 1)
+            model(torch.rand(8, 1, *SIZE) * 0.5 + 0.3)
+    model.eval()
+    norms = [m for m in model.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    assert len(norms) == 2 * len(TINY.widths)
+    before = [m.running_mean.clone() for m in norms]
+    images = torch.rand(4, 1, *SIZE)
+    with torch.no_grad():
+        expected = model(images).double().numpy()
+    for mode in ("full", "head"):
+        together = infer.draw_samples(model, images, 3, seed=1, mode=mode).vectors
+        alone = infer.draw_samples(model, images[:1], 3, seed=1, mode=mode).vectors
+        np.testing.assert_allclose(together, np.broadcast_to(expected, together.shape), atol=1e-6)
+        np.testing.assert_allclose(alone[:, 0], together[:, 0], atol=1e-6)
+    assert all(torch.equal(m.running_mean, b) for m, b in zip(norms, before, strict=True))
+    assert not model.training
+
+    plain = SunBCNN(TINY)
+    assert [type(layer).__name__ for layer in plain.features[:5]] == ["Conv2d", "ReLU", "Conv2d", "ReLU", "Dropout2d"]
+    old_card = SunTask(TINY).card()  # a card written before the option: no batch_norm key
+    del old_card.hyperparameters["batch_norm"]
+    assert SunBCNNConfig.from_card(old_card).batch_norm is False

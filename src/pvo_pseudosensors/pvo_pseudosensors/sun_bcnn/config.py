@@ -24,7 +24,8 @@ class SunBCNNConfig:
     output, the concentration kappa of a von Mises-Fisher distribution about the predicted direction, trained
     by its negative log-likelihood, so that hard images (overcast, no shadows in view, blur) get a larger
     covariance than easy ones (the thesis's single tau cannot: its §5.8.1); augment: photometric jitter in
-    training (gain, gamma, noise per image)."""
+    training (gain, gamma, noise per image); batch_norm: batch normalisation after every convolution (its
+    running statistics in every MC pass: the passes differ by their dropout masks alone)."""
 
     height: int = 94
     width: int = 310
@@ -36,6 +37,7 @@ class SunBCNNConfig:
     grid: tuple[int, ...] = (2, 4)
     aleatoric: bool = True
     augment: bool = True
+    batch_norm: bool = False
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:
@@ -54,4 +56,5 @@ class SunBCNNConfig:
         values["grid"] = tuple(values.get("grid", (1, 1)))
         values.setdefault("aleatoric", False)  # models from before the options had neither
         values.setdefault("augment", False)
+        values.setdefault("batch_norm", False)
         return cls(**values)

@@ -172,7 +172,7 @@ def draw_samples(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, 
                 model.head.train()
             else:
                 shared = model.stem(images)
-                model.train()  # dropout on everywhere after the stem
+                model.mc_dropout()  # dropout on everywhere after the stem
             per_chunk = max(1, PASS_BATCH // max(count, 1))
             passes = []
             for start in range(0, samples, per_chunk):

@@ -30,13 +30,12 @@ class SunBCNN(nn.Module):
         layers: list[nn.Module] = []
         channels = 3 if config.colour else 1
         for width in config.widths:
-            layers += [
-                nn.Conv2d(channels, width, 3, stride=2, padding=1),
-                nn.ReLU(inplace=True),
-                nn.Conv2d(width, width, 3, padding=1),
-                nn.ReLU(inplace=True),
-                nn.Dropout2d(config.dropout),
-            ]
+            for stride, inputs in ((2, channels), (1, width)):
+                layers.append(nn.Conv2d(inputs, width, 3, stride=stride, padding=1, bias=not config.batch_norm))
+                if config.batch_norm:
+                    layers.append(nn.BatchNorm2d(width))
+                layers.append(nn.ReLU(inplace=True))
+            layers.append(nn.Dropout2d(config.dropout))
             channels = width
         self.features = nn.Sequential(*layers)
         pooled = channels * (1 + config.grid[0] * config.grid[1])
@@ -53,6 +52,15 @@ class SunBCNN(nn.Module):
             if config.aleatoric
             else None
         )
+
+    def mc_dropout(self) -> SunBCNN:
+        """Dropout on everywhere (an MC-dropout pass), everything else as in evaluation: batch normalisation
+        keeps its running statistics, so a pass does not depend on the other images in its batch."""
+        self.eval()
+        for module in self.modules():
+            if isinstance(module, nn.Dropout | nn.Dropout2d):
+                module.train()
+        return self
 
     @property
     def stem_length(self) -> int:
