@@ -1,0 +1,74 @@
+"""Sun-BCNN models side by side on a corpus's validation split (never its test split): every validation image
+through each model in one MC mode, as the node draws them, and Table 5.1's figures over all images, the sunny
+and the overcast ones — the comparison behind choosing a model to ship.
+
+    python scripts/sun_bcnn_validation.py --models sun_bcnn runs/sun8/more runs/sun8/more-bn --corpus data/corpus-sun
+
+Prints one line per model: images, median and mean vector error, zenith and azimuth median (deg), the
+uncalibrated ANEES (tau infinite: the covariance the MC passes and the aleatoric output give), and the
+sunny / overcast medians.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
+from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
+from pvo_pseudosensors.sun_bcnn.evaluation import evaluate_predictions
+from pvo_pseudosensors.sun_bcnn.infer import DEFAULT_MODE, MODES, load_sun_bcnn, predict_sequence
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--models", nargs="+", default=["sun_bcnn"], help="model directories or shipped names")
+    parser.add_argument("--corpus", type=Path, default=Path("data/corpus-sun"))
+    parser.add_argument("--mode", default=DEFAULT_MODE, choices=MODES, help=f"MC mode (default {DEFAULT_MODE})")
+    parser.add_argument("--samples", type=int, default=25, help="MC passes per image (default 25, the node's)")
+    parser.add_argument("--max-sequences", type=int, help="the first N validation sequences only")
+    args = parser.parse_args()
+
+    torch.set_num_threads(1)
+    sequences = read_corpus_manifest(args.corpus).split("validation")[: args.max_sequences or None]
+    if not sequences:
+        raise SystemExit(f"{args.corpus}: no validation sequences")
+    cloudy_sequences = sum("overcast" in s.conditions for s in sequences)
+    print(
+        f"{args.corpus}: {len(sequences)} validation sequences ({cloudy_sequences} overcast); mode {args.mode}, "
+        f"{args.samples} passes, tau infinite"
+    )
+    for name in args.models:
+        model, card = load_sun_bcnn(resolve_model(name))
+        rows, truth, cloudy_rows = [], [], []
+        for k, sequence in enumerate(sequences):
+            predictions = predict_sequence(
+                model,
+                card,
+                sequence.root,
+                samples=args.samples,
+                seed=1000 + k,
+                mode=args.mode,
+                tau=np.inf,
+                cache_dir=args.corpus / ".cache",
+            )
+            rows.append(predictions.rows())
+            truth.append(read_kitti_sun_csv(sequence.root / "sun.csv")[predictions.frames])
+            cloudy_rows.append(np.full(len(predictions.frames), "overcast" in sequence.conditions))
+        r, t, overcast = np.vstack(rows), np.vstack(truth), np.concatenate(cloudy_rows)
+        every, sunny, cloudy = evaluate_predictions(r, t), evaluate_predictions(r[~overcast], t[~overcast]), None
+        if overcast.any():
+            cloudy = evaluate_predictions(r[overcast], t[overcast])
+        print(
+            f"{name:<28} {len(r)} images  median {every['vector_median_deg']:6.2f}  mean {every['vector_mean_deg']:6.2f}  "
+            f"zenith {every['zenith_median_deg']:6.2f}  azimuth {every['azimuth_median_deg']:6.2f}  "
+            f"ANEES {every['anees']:5.2f}  sunny {sunny['vector_median_deg']:6.2f}  "
+            f"overcast {cloudy['vector_median_deg'] if cloudy else float('nan'):6.2f}",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
