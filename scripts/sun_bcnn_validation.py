@@ -58,13 +58,13 @@ def main() -> None:
             truth.append(read_kitti_sun_csv(sequence.root / "sun.csv")[predictions.frames])
             cloudy_rows.append(np.full(len(predictions.frames), "overcast" in sequence.conditions))
         r, t, overcast = np.vstack(rows), np.vstack(truth), np.concatenate(cloudy_rows)
-        every, sunny, cloudy = evaluate_predictions(r, t), evaluate_predictions(r[~overcast], t[~overcast]), None
-        if overcast.any():
-            cloudy = evaluate_predictions(r[overcast], t[overcast])
+        every = evaluate_predictions(r, t)
+        sunny = evaluate_predictions(r[~overcast], t[~overcast]) if (~overcast).any() else None
+        cloudy = evaluate_predictions(r[overcast], t[overcast]) if overcast.any() else None
         print(
             f"{name:<28} {len(r)} images  median {every['vector_median_deg']:6.2f}  mean {every['vector_mean_deg']:6.2f}  "
             f"zenith {every['zenith_median_deg']:6.2f}  azimuth {every['azimuth_median_deg']:6.2f}  "
-            f"ANEES {every['anees']:5.2f}  sunny {sunny['vector_median_deg']:6.2f}  "
+            f"ANEES {every['anees']:5.2f}  sunny {sunny['vector_median_deg'] if sunny else float('nan'):6.2f}  "
             f"overcast {cloudy['vector_median_deg'] if cloudy else float('nan'):6.2f}",
             flush=True,
         )
