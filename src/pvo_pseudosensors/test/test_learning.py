@@ -466,7 +466,7 @@ def test_the_sensor_runs_in_the_mode_its_model_was_calibrated_in_unless_told(seq
     np.testing.assert_array_equal(own.vectors, sample_sequence(model, card, root, samples=4, mode="full")[1].vectors)
     assert not np.allclose(own.vectors, sample_sequence(model, card, root, samples=4, mode="head-mirrored")[1].vectors)
     assert SunBCNNSensor(SunBCNNSensorConfig(model="sun_bcnn")).mode == "head-mirrored"
-    assert SunBCNNSensor(SunBCNNSensorConfig(model="sun_bcnn_kitti")).mode == "full"
+    assert SunBCNNSensor(SunBCNNSensorConfig(model="sun_bcnn_kitti")).mode == "head-mirrored"  # its tau fitted in it
     assert SunBCNNSensor(SunBCNNSensorConfig(model="sun_bcnn_kitti", mode="head")).mode == "head"
     with pytest.raises(ValueError, match="unknown mode 'sideways'"):
         SunBCNNSensorConfig(mode="sideways")

@@ -157,6 +157,24 @@ def test_experiment_reports_every_table(corpus: Path, pvo_data: Path, tmp_path: 
     assert len(rows) == 52  # header + the 51 frames of the 06 clip
 
 
+def test_experiment_can_skip_the_kitti_scratch_baseline(corpus: Path, pvo_data: Path, tmp_path: Path, capsys) -> None:
+    """`--scratch-epochs 0`: the fine-tuned KITTI model only, no model trained on 07 alone; a negative count is
+    one line before anything is written."""
+    model = tmp_path / "model"
+    train = ["sun-bcnn", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "--batch-size", "16", *TINY]
+    assert main(train) == 0
+    out = tmp_path / "experiment"
+    args = ["experiment", "sun-bcnn", "--corpus", str(corpus), "--model", str(model), "--samples", "2"]
+    options = ["--finetune-epochs", "1", "--fusion-sequences", "0", "--data", str(pvo_data), "-o", str(out), "-q"]
+    assert main([*args, *options, "--scratch-epochs", "-1"]) == 2
+    assert "--scratch-epochs -1: must be 0 (skip) or a number of epochs" in capsys.readouterr().err
+    assert not out.exists()
+    assert main([*args, *options, "--scratch-epochs", "0"]) == 0
+    report = (out / "report.md").read_text()
+    assert "fine-tuned on 07, KITTI 06" in report and "trained on 07 alone" not in report
+    assert (out / "kitti-finetuned" / "model.yaml").exists() and not (out / "kitti07-only").exists()
+
+
 def test_training_on_two_corpora_joins_their_splits(corpus: Path, tmp_path: Path, capsys) -> None:
     import shutil
 
