@@ -158,8 +158,8 @@ def test_experiment_reports_every_table(corpus: Path, pvo_data: Path, tmp_path: 
 
 
 def test_experiment_can_skip_the_kitti_scratch_baseline(corpus: Path, pvo_data: Path, tmp_path: Path, capsys) -> None:
-    """`--scratch-epochs 0`: the fine-tuned KITTI model only, no model trained on 07 alone; a negative count is
-    one line before anything is written."""
+    """`--scratch-epochs 0`: the fine-tuned KITTI model only, no model trained on 07 alone; a negative count (or a
+    fine-tune of no epoch) is one line before anything is written."""
     model = tmp_path / "model"
     train = ["sun-bcnn", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "--batch-size", "16", *TINY]
     assert main(train) == 0
@@ -168,6 +168,8 @@ def test_experiment_can_skip_the_kitti_scratch_baseline(corpus: Path, pvo_data: 
     options = ["--finetune-epochs", "1", "--fusion-sequences", "0", "--data", str(pvo_data), "-o", str(out), "-q"]
     assert main([*args, *options, "--scratch-epochs", "-1"]) == 2
     assert "--scratch-epochs -1: must be 0 (skip) or a number of epochs" in capsys.readouterr().err
+    assert main([*args, *options, "--finetune-epochs", "0"]) == 2
+    assert "--finetune-epochs 0: the KITTI fine-tune needs at least one epoch" in capsys.readouterr().err
     assert not out.exists()
     assert main([*args, *options, "--scratch-epochs", "0"]) == 0
     report = (out / "report.md").read_text()

@@ -270,6 +270,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..plots import pyplot
 
+    if args.finetune_epochs < 1:
+        raise ValueError(f"--finetune-epochs {args.finetune_epochs}: the KITTI fine-tune needs at least one epoch")
     if args.scratch_epochs is not None and args.scratch_epochs < 0:
         raise ValueError(f"--scratch-epochs {args.scratch_epochs}: must be 0 (skip) or a number of epochs")
     args.model = resolve_model(str(args.model))  # a shipped name (sun_bcnn) or a directory
