@@ -169,6 +169,33 @@ def _hydranet() -> ModelEntry:
         truth = true_relative_rotations(poses, frames[:, 0], frames[:, 1])
         return evaluate_rotations(rows[:, 2:6], rows[:, 6:].reshape(-1, 3, 3), truth)
 
+    def calibrate(model_dir, sequences, samples=None, mode=None, cache_dir=None):
+        """The inference mode (plain | mirrored, default plain) written into the card, with its figures on the
+        validation ``sequences`` pooled over their pairs (MC sampling does not apply: ``samples`` is unused)."""
+        from pvo_core.trajectory import read_kitti_poses
+
+        from .hydranet.evaluation import evaluate_rotations, true_relative_rotations
+        from .hydranet.infer import load_hydranet, predict_sequence
+        from .hydranet.model import MODES
+        from .learning.checkpoint import write_card
+
+        mode = mode or "plain"
+        if mode not in MODES:
+            raise ValueError(f"--mode {mode}: HydraNet runs {' or '.join(MODES)}")
+        model, card = load_hydranet(model_dir)
+        card.calibration = {**(card.calibration or {}), "mode": mode}
+        quaternions, covariances, truth = [], [], []
+        for sequence in sequences:
+            predictions = predict_sequence(model, card, sequence, cache_dir=cache_dir)
+            poses = read_kitti_poses(Path(sequence) / "poses.txt")
+            quaternions.append(predictions.quaternions)
+            covariances.append(predictions.covariance)
+            truth.append(true_relative_rotations(poses, predictions.earlier, predictions.frames))
+        figures = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth))
+        card.calibration = {**figures, "sequences": float(len(sequences)), "mode": mode}
+        write_card(model_dir, card)
+        return figures
+
     def summary(figures: dict[str, float]) -> list[str]:
         return [
             f"{'frame pairs':<24} {int(figures['pairs'])}",
@@ -188,6 +215,7 @@ def _hydranet() -> ModelEntry:
         evaluate=evaluate,
         summary=summary,
         truth="true camera poses (poses.txt, KITTI format)",
+        calibrate=calibrate,
         dataset=dataset,
         # each image decoded, then the flow of each consecutive pair (and of each reversed pair in training)
         work=lambda config, frames, training: sum(n + (n - 1) * (2 if config.reverse and training else 1) for n in frames),

@@ -255,3 +255,63 @@ def test_a_textured_model_predicts_through_the_sensor_and_the_sequence_call_alik
     assert estimates[0] is None
     for k in (1, 2):
         np.testing.assert_allclose(estimates[k].quaternion, predictions.quaternions[k - 1], atol=1e-5)
+
+
+def test_mirrored_inference_pools_the_heads_of_a_pair_and_of_its_mirror_image() -> None:
+    from pvo_pseudosensors.hydranet.model import mirror_flow
+
+    torch.manual_seed(2)
+    model = HydraNet(TINY)
+    flow = torch.randn(3, 2, 48, 144)
+    output = predict_rotations(model, flow, mirrored=True)
+    heads, root = model(flow)
+    mirror_heads, mirror_root = model(mirror_flow(flow))
+    signs = torch.tensor([1.0, 1.0, -1.0, -1.0], dtype=torch.float64)
+    pooled = torch.cat([heads.double(), mirror_heads.double() * signs], dim=1)  # 2H heads
+    assert pooled.shape == (3, 2 * TINY.heads, 4)
+    torch.testing.assert_close(output.quaternion, quat.mean(pooled))
+    torch.testing.assert_close(output.epistemic, quat.epistemic_covariance(pooled, quat.mean(pooled)))
+    axes = torch.diag(signs[1:])
+    aleatoric = torch.linalg.inv(root.double() @ root.double().transpose(-1, -2))
+    mirror_aleatoric = axes @ torch.linalg.inv(mirror_root.double() @ mirror_root.double().transpose(-1, -2)) @ axes
+    torch.testing.assert_close(output.aleatoric, 0.5 * (aleatoric + mirror_aleatoric))
+    # exactly mirror-equivariant: the mirror image's estimate is this one seen in the mirror
+    seen = predict_rotations(model, mirror_flow(flow), mirrored=True)
+    torch.testing.assert_close(seen.quaternion, output.quaternion * signs)
+    torch.testing.assert_close(seen.covariance, axes @ output.covariance @ axes)
+    plain = predict_rotations(model, flow)
+    assert not torch.allclose(plain.quaternion, output.quaternion)  # the mirror image's heads count
+
+
+def test_the_card_mode_runs_mirrored_through_the_sensor_and_the_sequence_call_alike(rotations, tmp_path: Path) -> None:
+    import cv2
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+    from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_flows, predict_sequence
+    from pvo_pseudosensors.learning.checkpoint import write_card
+    from pvo_pseudosensors.registry import models
+
+    torch.manual_seed(0)
+    directory = save_model(tmp_path / "model", HydraNet(TINY), HydraTask(TINY).card())
+    source = rotations["validation"][0]
+    with pytest.raises(ValueError, match="--mode full: HydraNet runs plain or mirrored"):
+        models()["hydranet"].calibrate(directory, [source.root], mode="full")
+    figures = models()["hydranet"].calibrate(directory, [source.root], mode="mirrored")
+    model, card = load_hydranet(directory)
+    assert card.calibration["mode"] == "mirrored" and card.calibration["pairs"] == figures["pairs"] == 24
+    predictions = predict_sequence(model, card, source.root)
+    flows = torch.from_numpy(
+        np.asarray(FlowPairs([source], TINY.size, reverse=False, targets=False).pairs[0].forward, dtype=np.float32)
+    )
+    mirrored, _, _ = predict_flows(model, flows, mirrored=True)
+    plain, _, _ = predict_flows(model, flows)
+    np.testing.assert_allclose(predictions.quaternions, mirrored, atol=1e-12)
+    assert np.abs(predictions.quaternions - plain).max() > 1e-6
+    sensor = HydraNetSensor(HydraNetSensorConfig(model=str(directory)))
+    paths = source.images("left", False)
+    estimates = [sensor.estimate(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), (k + 1) * 10**8) for k, p in enumerate(paths[:3])]
+    for k in (1, 2):
+        np.testing.assert_allclose(estimates[k].quaternion, predictions.quaternions[k - 1], atol=1e-5)
+    card.calibration["mode"] = "sideways"
+    write_card(directory, card)
+    with pytest.raises(ValueError, match="unknown HydraNet mode 'sideways'"):
+        HydraNetSensor(HydraNetSensorConfig(model=str(directory)))

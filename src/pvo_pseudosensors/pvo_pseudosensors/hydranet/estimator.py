@@ -14,7 +14,7 @@ from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import SHIPPED, HydraNetConfig
 from .flow import dense_flow, network_input
 from .infer import load_hydranet
-from .model import predict_rotations
+from .model import inference_mode, predict_rotations
 
 Array = NDArray[np.float64]
 UNMEASURED = 9999.0  # variance of a RelativePose's translation block: HydraNet says nothing about it
@@ -84,6 +84,7 @@ class HydraNetSensor:
         self.model, self.card = load_hydranet(resolve_model(config.model))
         self.height, self.width = (int(v) for v in self.card.input["size"])
         self.texture = HydraNetConfig.from_card(self.card).texture
+        self.mirrored = inference_mode(self.card)
         self.previous: NDArray[np.uint8] | None = None
         self.previous_stamp = 0
         self.previous_shape: tuple[int, ...] = ()
@@ -108,7 +109,7 @@ class HydraNetSensor:
         if shape != previous_shape:
             raise ValueError(f"image size changed from {previous_shape} to {shape}: this image starts a new pair")
         flow = torch.from_numpy(network_input(previous, dense_flow(previous, resized), self.texture))[None]
-        output = predict_rotations(self.model, flow)
+        output = predict_rotations(self.model, flow, self.mirrored)
         return RotationEstimate(
             previous_stamp,
             stamp,

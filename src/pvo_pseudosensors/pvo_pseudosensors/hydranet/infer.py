@@ -15,7 +15,7 @@ from ..learning.checkpoint import ModelCard, load_model
 from ..learning.data import Source
 from .config import ARCHITECTURE, HydraNetConfig
 from .flow import FlowPairs, network_input
-from .model import HydraNet, predict_rotations
+from .model import HydraNet, inference_mode, predict_rotations
 
 Array = NDArray[np.float64]
 
@@ -52,17 +52,20 @@ class RotationPredictions:
         return path
 
 
-def predict_flows(model: HydraNet, flows: torch.Tensor, batch: int = 64) -> tuple[Array, Array, Array]:
-    """Quaternions (N, 4), Sigma_e and Sigma_a (N, 3, 3) for network inputs (N, C, H, W), in batches."""
-    parts = [predict_rotations(model, flows[start : start + batch]) for start in range(0, len(flows), batch)]
+def predict_flows(model: HydraNet, flows: torch.Tensor, batch: int = 64, mirrored: bool = False) -> tuple[Array, Array, Array]:
+    """Quaternions (N, 4), Sigma_e and Sigma_a (N, 3, 3) for network inputs (N, C, H, W), in batches
+    (``mirrored``: :func:`~.model.predict_rotations`' mirrored inference)."""
+    parts = [predict_rotations(model, flows[start : start + batch], mirrored) for start in range(0, len(flows), batch)]
     return tuple(torch.cat([getattr(p, name) for p in parts]).numpy() for name in ("quaternion", "epistemic", "aleatoric"))  # type: ignore[return-value]
 
 
 def predict_sequence(
     model: HydraNet, card: ModelCard, sequence: Path, batch: int = 64, cache_dir: Path | None = None
 ) -> RotationPredictions:
-    """Every consecutive pair of ``sequence``'s left images (KITTI layout; poses.txt not needed)."""
+    """Every consecutive pair of ``sequence``'s left images (KITTI layout; poses.txt not needed), run as the
+    card's ``calibration.mode`` says (plain or mirrored)."""
     config = HydraNetConfig.from_card(card)
+    mirrored = inference_mode(card)
     sequence = Path(sequence)
     data = FlowPairs([Source(sequence, sequence.name)], config.size, reverse=False, cache_dir=cache_dir, targets=False)
     pairs = data.pairs[0]
@@ -70,6 +73,6 @@ def predict_sequence(
     if config.texture:
         flows = np.stack([network_input(image[0], flow, True) for image, flow in zip(pairs.images[:-1], flows, strict=True)])
     flows = torch.from_numpy(flows)
-    quaternions, epistemic, aleatoric = predict_flows(model, flows, batch)
+    quaternions, epistemic, aleatoric = predict_flows(model, flows, batch, mirrored)
     frames = np.arange(1, len(flows) + 1)
     return RotationPredictions(frames - 1, frames, quaternions, epistemic, aleatoric)

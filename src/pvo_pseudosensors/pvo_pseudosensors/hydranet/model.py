@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import torch
 from torch import nn
@@ -110,17 +111,26 @@ def bootstrap_mask(batch: dict[str, torch.Tensor], heads: int) -> torch.Tensor:
     return ((mixed >> 15) & 1).to(torch.float32)
 
 
-def mirror_pairs(flow: torch.Tensor, rotation: torch.Tensor, which: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The samples ``which`` (B,) bool mirrored left-right: flow (B, C, H, W) flipped along its width with u
-    negated (a texture channel only flipped), the rotation (B, 4) (w, x, y, z) of C_k,k-1 conjugated by the
-    mirror M = diag(-1, 1, 1) of the camera's x axis: M C M has the rotation vector (x, -y, -z) (the axes of
-    the camera's optical frame)."""
+#: The quaternion (w, x, y, z) of C_k,k-1 seen in a left-right mirror image, element-wise: M C M with M =
+#: diag(-1, 1, 1) on the camera's x axis has the rotation vector (x, -y, -z) (the optical frame's axes).
+MIRROR_QUATERNION_SIGNS = (1.0, 1.0, -1.0, -1.0)
+
+
+def mirror_flow(flow: torch.Tensor) -> torch.Tensor:
+    """Network inputs (B, C, H, W) as the mirror image would give them: flipped along the width, the flow's
+    horizontal component negated (a texture channel only flipped). Exact for a principal point at the image's
+    centre, as the rendered rig and, to a pixel, KITTI's."""
     signs = torch.ones(flow.shape[1], dtype=flow.dtype)
     signs[0] = -1.0
-    mirrored_flow = flow.flip(-1) * signs.view(1, -1, 1, 1)
-    mirrored_rotation = rotation * torch.tensor([1.0, 1.0, -1.0, -1.0], dtype=rotation.dtype)
+    return flow.flip(-1) * signs.view(1, -1, 1, 1)
+
+
+def mirror_pairs(flow: torch.Tensor, rotation: torch.Tensor, which: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The samples ``which`` (B,) bool mirrored left-right: the flow by :func:`mirror_flow`, the rotation (B, 4)
+    (w, x, y, z) of C_k,k-1 conjugated by the mirror (:data:`MIRROR_QUATERNION_SIGNS`)."""
+    mirrored_rotation = rotation * torch.tensor(MIRROR_QUATERNION_SIGNS, dtype=rotation.dtype)
     return (
-        torch.where(which[:, None, None, None], mirrored_flow, flow),
+        torch.where(which[:, None, None, None], mirror_flow(flow), flow),
         torch.where(which[:, None], mirrored_rotation, rotation),
     )
 
@@ -172,13 +182,39 @@ class RotationOutput:
         return self.epistemic + self.aleatoric
 
 
-def predict_rotations(model: HydraNet, flow: torch.Tensor) -> RotationOutput:
-    """The estimate for a batch of flows (B, 2, H, W): eval mode (the heads' dropout off, as the authors'
-    code), no gradients."""
+#: How a trained model is run (its card's ``calibration.mode``): "plain", or "mirrored" — each pair also through
+#: its mirror image, the two sets of heads pooled (:func:`predict_rotations`).
+MODES = ("plain", "mirrored")
+
+
+def predict_rotations(model: HydraNet, flow: torch.Tensor, mirrored: bool = False) -> RotationOutput:
+    """The estimate for a batch of network inputs (B, C, H, W): eval mode (the heads' dropout off, as the
+    authors' code), no gradients. ``mirrored``: the inputs also go through the network mirrored left-right
+    (:func:`mirror_flow`); those H heads, mirrored back, join the H heads of the inputs as they are, so the mean
+    (eq. 7.14) and Sigma_e (eq. 7.16) are over 2H heads — a disagreement between a pair and its mirror image
+    shows as epistemic spread — and Sigma_a is the mean of the two aleatoric outputs (the mirrored one
+    conjugated by the mirror, diag(1, -1, -1) on the rotation vector)."""
     model.eval()
     with torch.no_grad():
         heads, root = model(flow)
-    heads, root = heads.double(), root.double()
+        heads, root = heads.double(), root.double()
+        aleatoric = torch.linalg.inv(root @ root.transpose(-1, -2))
+        if mirrored:
+            mirror_heads, mirror_root = model(mirror_flow(flow))
+            signs = torch.tensor(MIRROR_QUATERNION_SIGNS, dtype=torch.float64)
+            heads = torch.cat([heads, mirror_heads.double() * signs], dim=-2)
+            axes = torch.diag(signs[1:])
+            mirror_root = mirror_root.double()
+            mirror_aleatoric = axes @ torch.linalg.inv(mirror_root @ mirror_root.transpose(-1, -2)) @ axes
+            aleatoric = 0.5 * (aleatoric + mirror_aleatoric)
     mean = quat.mean(heads)
-    precision = root @ root.transpose(-1, -2)
-    return RotationOutput(mean, quat.epistemic_covariance(heads, mean), torch.linalg.inv(precision))
+    return RotationOutput(mean, quat.epistemic_covariance(heads, mean), aleatoric)
+
+
+def inference_mode(card: Any) -> bool:
+    """Whether ``card``'s model runs mirrored (``calibration.mode``; plain when unset, as models before it);
+    ValueError naming an unknown mode."""
+    mode = (card.calibration or {}).get("mode", "plain")
+    if mode not in MODES:
+        raise ValueError(f"unknown HydraNet mode {mode!r} in the model card: choose one of {', '.join(MODES)}")
+    return mode == "mirrored"

@@ -234,15 +234,16 @@ def bench_hydranet(args: argparse.Namespace) -> int:
     size = (sensor.width, sensor.height)
     small = [cv2.resize(i, size, interpolation=cv2.INTER_AREA) for i in images]
     flow = torch.from_numpy(dense_flow(small[0], small[1]))[None]
+    heads = sensor.model.config.heads * (2 if sensor.mirrored else 1)  # mirrored: the pair and its mirror image
     stages = {
         "resize": lambda k: cv2.resize(images[k], size, interpolation=cv2.INTER_AREA),
         "Farneback flow": lambda k: dense_flow(small[k - 1], small[k]),
-        "network (25 heads, Sigma)": lambda k: predict_rotations(sensor.model, flow),
+        f"network ({heads} heads, Sigma)": lambda k: predict_rotations(sensor.model, flow, sensor.mirrored),
         "sensor total": lambda k: sensor.estimate(images[k], (k + 1) * 100_000_000),
     }
     print(
         f"pvo bench hydranet: {sensor.height}x{sensor.width} flow from {images[0].shape[1]}x{images[0].shape[0]} images, "
-        f"{len(images) - 1} pairs of the KITTI 06 clip, one core"
+        f"{len(images) - 1} pairs of the KITTI 06 clip, one core, {'mirrored' if sensor.mirrored else 'plain'} inference"
     )
     for name, stage in stages.items():
         best: list[float] = []

@@ -123,7 +123,11 @@ def _calibrate_parser(actions: Any, entry: ModelEntry) -> None:
     calibrate.add_argument("--model", type=Path, required=True, help="model directory; its model.yaml gets the result")
     calibrate.add_argument("--corpus", type=Path, required=True, help="corpus whose validation split to use")
     calibrate.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
-    calibrate.add_argument("--mode", help="MC sampling: full | head | full-mirrored | head-mirrored (default head-mirrored)")
+    calibrate.add_argument(
+        "--mode",
+        help="sun-bcnn's MC sampling: full | head | full-mirrored | head-mirrored (default head-mirrored); "
+        "hydranet's inference: plain | mirrored (default plain)",
+    )
     calibrate.add_argument("--max-sequences", type=int, default=0, help="at most this many sequences (0: all)")
 
 
@@ -342,10 +346,15 @@ def run_calibrate(args: argparse.Namespace, entry: ModelEntry) -> int:
         raise ValueError(f"{manifest.path}: no sequence in the validation split")
     assert entry.calibrate is not None
     figures = entry.calibrate(args.model, sequences, samples=args.samples, mode=args.mode, cache_dir=args.corpus / ".cache")
-    print(
-        f"{args.model}: tau {figures['tau']:.4g} (tau^-1 {1 / figures['tau']:.4g} rad^2) on {int(figures['kept'])} of "
-        f"{int(figures['images'])} validation images; ANEES {figures['anees_without_tau']:.2f} -> {figures['anees']:.2f}"
-    )
+    if "tau" in figures:
+        print(
+            f"{args.model}: tau {figures['tau']:.4g} (tau^-1 {1 / figures['tau']:.4g} rad^2) on {int(figures['kept'])} of "
+            f"{int(figures['images'])} validation images; ANEES {figures['anees_without_tau']:.2f} -> {figures['anees']:.2f}"
+        )
+    else:
+        mode = f" ({args.mode or 'plain'} inference)" if entry.name == "hydranet" else ""
+        print(f"{args.model}{mode} on {len(sequences)} validation sequences:")
+        print("\n".join(f"  {line}" for line in entry.summary(figures)) if entry.summary else figures)
     return 0
 
 
