@@ -60,6 +60,25 @@ def test_train_predict_eval(corpus: Path, tmp_path: Path, capsys) -> None:
     assert record["figures"]["pairs"] == 11.0
 
 
+def test_calibrate_sets_the_inference_mode_that_predict_then_uses(corpus: Path, tmp_path: Path, capsys) -> None:
+    model = tmp_path / "model"
+    args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "--batch-size", "8", "-q"]
+    assert main([*args, "--threads", "1", *TINY]) == 0
+    plain, mirrored = tmp_path / "plain.csv", tmp_path / "mirrored.csv"
+    assert main(["hydranet", "predict", str(corpus / "0003"), "--model", str(model), "-o", str(plain)]) == 0
+    capsys.readouterr()
+    assert main(["hydranet", "calibrate", "--model", str(model), "--corpus", str(corpus), "--mode", "sideways"]) == 2
+    assert "--mode sideways: HydraNet runs plain or mirrored" in capsys.readouterr().err
+    assert main(["hydranet", "calibrate", "--model", str(model), "--corpus", str(corpus), "--mode", "mirrored"]) == 0
+    printed = capsys.readouterr().out
+    assert "(mirrored inference) on 1 validation sequences" in printed and "ANEES" in printed
+    card = yaml.safe_load((model / "model.yaml").read_text())
+    assert card["calibration"]["mode"] == "mirrored" and card["calibration"]["pairs"] == 11.0
+    assert main(["hydranet", "predict", str(corpus / "0003"), "--model", str(model), "-o", str(mirrored)]) == 0
+    rows = [np.loadtxt(path, delimiter=",", skiprows=1) for path in (plain, mirrored)]
+    assert rows[0].shape == rows[1].shape == (11, 15) and np.abs(rows[0][:, 2:6] - rows[1][:, 2:6]).max() > 1e-7
+
+
 def test_presets_only_keeps_those_sequences(corpus: Path, tmp_path: Path, capsys) -> None:
     args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(tmp_path / "m"), "--epochs", "1", "--presets-only", "urban"]
     assert main([*args, "-q", "--threads", "1", *TINY]) == 0

@@ -118,11 +118,13 @@ def _predict_parser(actions: Any, entry: ModelEntry) -> None:
 
 
 def _calibrate_parser(actions: Any, entry: ModelEntry) -> None:
-    calibrate = actions.add_parser("calibrate", help=f"calibrate {entry.name}'s uncertainty on a corpus's validation split")
+    what = "uncertainty" if entry.mc_sampling else "inference mode (recorded with its figures)"
+    calibrate = actions.add_parser("calibrate", help=f"calibrate {entry.name}'s {what} on a corpus's validation split")
     calibrate.set_defaults(handler=lambda args: run_calibrate(args, entry))
     calibrate.add_argument("--model", type=Path, required=True, help="model directory; its model.yaml gets the result")
     calibrate.add_argument("--corpus", type=Path, required=True, help="corpus whose validation split to use")
-    calibrate.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
+    if entry.mc_sampling:
+        calibrate.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
     calibrate.add_argument(
         "--mode",
         help="sun-bcnn's MC sampling: full | head | full-mirrored | head-mirrored (default head-mirrored); "
@@ -345,7 +347,8 @@ def run_calibrate(args: argparse.Namespace, entry: ModelEntry) -> int:
     if not sequences:
         raise ValueError(f"{manifest.path}: no sequence in the validation split")
     assert entry.calibrate is not None
-    figures = entry.calibrate(args.model, sequences, samples=args.samples, mode=args.mode, cache_dir=args.corpus / ".cache")
+    samples = getattr(args, "samples", None)  # MC sampling only
+    figures = entry.calibrate(args.model, sequences, samples=samples, mode=args.mode, cache_dir=args.corpus / ".cache")
     if "tau" in figures:
         print(
             f"{args.model}: tau {figures['tau']:.4g} (tau^-1 {1 / figures['tau']:.4g} rad^2) on {int(figures['kept'])} of "
