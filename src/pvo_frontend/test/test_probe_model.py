@@ -47,7 +47,7 @@ def test_a_saved_model_loads_to_the_same_noise(tmp_path: Path, kind: str) -> Non
     )
     np.testing.assert_allclose(a.covariances, b.covariances)
     if kind == "gk":
-        assert a.loss == "student_t" and a.propagate_reference is False
+        assert a.loss == "student_t" and a.propagate_reference is True and b.propagate_reference is True
         np.testing.assert_allclose(a.loss_scale, b.loss_scale)
     else:
         np.testing.assert_array_equal(a.keep, b.keep)
@@ -81,6 +81,29 @@ def test_a_card_from_before_the_fitted_prior_loads_with_its_nominal_prior(tmp_pa
     (directory / "model.yaml").write_text(yaml.safe_dump(card))
     config = ProbeModel.load(directory).estimator.config
     assert config.prior == "nominal" and config.prior_samples == 3.0 and config.prior_sigma == (1.0, 1.0, 2.0)
+
+
+def test_a_card_from_before_the_reference_noise_setting_keeps_it_off(tmp_path: Path) -> None:
+    """New PROBE-GK models propagate the reference observation's noise in the solver (chosen in stop 42 on 180
+    validation sequences); a card without the setting was measured without it and loads that way; a bad value is
+    one line."""
+    import yaml
+
+    image = np.random.default_rng(1).integers(0, 255, (120, 200), dtype=np.uint8)
+    current = np.array([[50.0, 60.0], [120.0, 40.0]])
+    directory = small_model("gk").save(tmp_path / "old")
+    card = yaml.safe_load((directory / "model.yaml").read_text())
+    assert card["propagate_reference"] is True
+    del card["propagate_reference"]
+    (directory / "model.yaml").write_text(yaml.safe_dump(card))
+    old = ProbeModel.load(directory)
+    assert old.propagate_reference is False
+    assert old.noise(current - 1.0, current, image, disparity=np.array([9.0, 4.0])).propagate_reference is False
+    assert old.without_imu().propagate_reference is False
+    card["propagate_reference"] = "yes"
+    (directory / "model.yaml").write_text(yaml.safe_dump(card))
+    with pytest.raises(ValueError, match=r"PROBE model .*old: propagate_reference must be true or false, got 'yes'"):
+        ProbeModel.load(directory)
 
 
 def test_bad_model_files_are_one_clear_line(tmp_path: Path) -> None:
