@@ -72,3 +72,29 @@ def test_table_4_1_ordering_on_a_short_traverse() -> None:
     assert table.change("PROBE-GK-GT") < -0.5  # at least 50 % better than the fixed covariance
     assert trans["PROBE-GK-EM"] < trans["Static M-estimator"]
     assert trans["PROBE-GK-EM"] == pytest.approx(trans["PROBE-GK-GT"], rel=0.3)
+
+
+def test_a_traverse_solved_in_segments_is_each_frame_by_its_segments_solver() -> None:
+    """`per_frame_table` (Table 4.1 with the predictors each frame has): one segment is the plain table; the pairs
+    split in two with the same solvers give the same trajectories; a segment of other solvers changes only what
+    comes after its first frame; a pair count that does not match the poses is one line."""
+    from pvo_frontend.probe.evaluation import estimator_solvers, per_frame_table
+
+    train, test = simulate(WORLD, 10.0, seed=1), simulate(WORLD, 6.0, seed=2)
+    solvers, log_likelihood = estimator_solvers(
+        WORLD.camera, train.pairs, train.motions, WORLD.camera, PREDICTORS, em_iterations=2
+    )
+    whole = per_frame_table([(test.pairs, solvers)], test.poses, log_likelihood)
+    assert set(whole.armse) == {*ESTIMATORS, KNN_ROW} and whole.em_log_likelihood == log_likelihood
+    static = run_estimator(test.pairs, solvers["Static M-estimator"])
+    np.testing.assert_allclose(whole.trajectories["Static M-estimator"][1], test.poses[0] @ np.linalg.inv(static[0]))
+    split = per_frame_table([(test.pairs[:20], solvers), (test.pairs[20:], solvers)], test.poses)
+    for name in whole.armse:
+        np.testing.assert_allclose(split.trajectories[name], whole.trajectories[name])
+    fixed = {name: solvers["Fixed covariance"] for name in solvers}
+    mixed = per_frame_table([(test.pairs[:20], solvers), (test.pairs[20:], fixed)], test.poses)
+    gk_whole, gk_mixed = whole.trajectories["PROBE-GK-GT"], mixed.trajectories["PROBE-GK-GT"]
+    np.testing.assert_allclose(gk_mixed[:21], gk_whole[:21])
+    assert not np.allclose(gk_mixed[21:], gk_whole[21:])
+    with pytest.raises(ValueError, match="20 frame pairs in the segments for"):
+        per_frame_table([(test.pairs[:20], solvers)], test.poses)

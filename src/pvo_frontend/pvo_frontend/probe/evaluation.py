@@ -98,6 +98,68 @@ class ProbeTable:
         return self.armse[row][key] / self.armse[against][key] - 1.0
 
 
+def estimator_solvers(
+    train_camera: StereoCamera,
+    train_pairs: Sequence[FramePair],
+    train_motions: Sequence[Array],
+    test_camera: StereoCamera,
+    names: tuple[str, ...],
+    gk: GKConfig | None = None,
+    knn: KNNConfig | None = None,
+    em_iterations: int = 5,
+    fixed_sigma: Sequence[float] = (2.0, 2.0, 2.8),
+    student_dof: float = 5.0,
+    seed: int = 0,
+    say: Callable[[str], None] | None = None,
+) -> tuple[dict[str, Solver], list[float]]:
+    """Table 4.1's estimators for the test camera, their models trained on a training traverse: a fixed
+    covariance (least squares), the static Student-t M-estimator (Kerl et al.), PROBE-GK with ground truth and by
+    EM (initialised with the M-estimator's motions), and the k-NN PROBE; and EM's log-likelihood per iteration."""
+    gk = gk or GKConfig()
+    static_train = fixed_solver(train_camera, fixed_sigma, RobustLoss("student_t", student_dof))
+    gt_model = train_with_ground_truth(train_camera, train_pairs, train_motions, names, gk)
+    em = train_expectation_maximisation(
+        train_camera, train_pairs, run_estimator(train_pairs, static_train), names, gk, em_iterations, say=say
+    )
+    knn_model = train_knn(train_camera, train_pairs, train_motions, names, fixed_sigma, knn or KNNConfig(), seed=seed)
+    solvers = {
+        "Fixed covariance": fixed_solver(test_camera, fixed_sigma, RobustLoss("l2")),
+        "Static M-estimator": fixed_solver(test_camera, fixed_sigma, RobustLoss("student_t", student_dof)),
+        "PROBE-GK-GT": gk_solver(test_camera, gt_model),
+        "PROBE-GK-EM": gk_solver(test_camera, em.model),
+        KNN_ROW: knn_solver(test_camera, knn_model, fixed_sigma),
+    }
+    return solvers, em.log_likelihood
+
+
+def per_frame_table(
+    segments: Sequence[tuple[Sequence[FramePair], dict[str, Solver]]],
+    test_poses: Array,
+    em_log_likelihood: list[float] | None = None,
+    say: Callable[[str], None] | None = None,
+) -> ProbeTable:
+    """Table 4.1's rows on one test traverse (true poses (N + 1, 4, 4)) solved in consecutive segments, each
+    frame pair by its segment's solver of the row — the predictors each frame has (say, the image ones only
+    where the images are) — the constant-velocity start carried across segments; ARMSE of the whole."""
+    rows = list(segments[0][1])
+    table = ProbeTable({}, em_log_likelihood or [], truth=test_poses)
+    for name in rows:
+        motions, previous = [], np.eye(4)
+        for pairs, solvers in segments:
+            for pair in pairs:
+                previous = solvers[name](pair, previous)
+                motions.append(previous)
+        if len(motions) != len(test_poses) - 1:
+            raise ValueError(f"{len(motions)} frame pairs in the segments for {len(test_poses)} true poses")
+        poses = compose(test_poses[0], motions)
+        figures = metrics.armse(test_poses, poses)
+        table.armse[name] = {"trans": figures["trans"], "rot": figures["rot"]}
+        table.trajectories[name] = poses
+        if say:
+            say(f"{name:<20} trans ARMSE {figures['trans']:7.3f} m, rot {figures['rot']:.4f} rad")
+    return table
+
+
 def compare_estimators(
     train_camera: StereoCamera,
     train_pairs: Sequence[FramePair],
@@ -114,33 +176,13 @@ def compare_estimators(
     seed: int = 0,
     say: Callable[[str], None] | None = None,
 ) -> ProbeTable:
-    """Table 4.1's rows on a test traverse (pairs k-1 -> k with the true poses T_world,cam (N + 1, 4, 4)) with
-    models trained on a training traverse: a fixed covariance (least squares), the static Student-t
-    M-estimator (Kerl et al.), PROBE-GK with ground truth and by EM (initialised with the M-estimator's
-    motions), and the k-NN PROBE."""
-    gk = gk or GKConfig()
-    static_train = fixed_solver(train_camera, fixed_sigma, RobustLoss("student_t", student_dof))
-    gt_model = train_with_ground_truth(train_camera, train_pairs, train_motions, names, gk)
-    em = train_expectation_maximisation(
-        train_camera, train_pairs, run_estimator(train_pairs, static_train), names, gk, em_iterations, say=say
-    )
-    knn_model = train_knn(train_camera, train_pairs, train_motions, names, fixed_sigma, knn or KNNConfig(), seed=seed)
-    solvers = {
-        "Fixed covariance": fixed_solver(test_camera, fixed_sigma, RobustLoss("l2")),
-        "Static M-estimator": fixed_solver(test_camera, fixed_sigma, RobustLoss("student_t", student_dof)),
-        "PROBE-GK-GT": gk_solver(test_camera, gt_model),
-        "PROBE-GK-EM": gk_solver(test_camera, em.model),
-        KNN_ROW: knn_solver(test_camera, knn_model, fixed_sigma),
-    }
-    table = ProbeTable({}, em.log_likelihood, truth=test_poses)
-    for name, solve in solvers.items():
-        poses = compose(test_poses[0], run_estimator(test_pairs, solve))
-        figures = metrics.armse(test_poses, poses)
-        table.armse[name] = {"trans": figures["trans"], "rot": figures["rot"]}
-        table.trajectories[name] = poses
-        if say:
-            say(f"{name:<20} trans ARMSE {figures['trans']:7.3f} m, rot {figures['rot']:.4f} rad")
-    return table
+    """Table 4.1's rows (:func:`estimator_solvers`) on a test traverse: pairs k-1 -> k with the true poses
+    T_world,cam (N + 1, 4, 4)."""
+    solvers, log_likelihood = estimator_solvers(
+        train_camera, train_pairs, train_motions, test_camera, names, gk, knn, em_iterations, fixed_sigma,
+        student_dof, seed, say,
+    )  # fmt: skip
+    return per_frame_table([(test_pairs, solvers)], test_poses, log_likelihood, say)
 
 
 def synthetic_experiment(
@@ -206,6 +248,24 @@ def tracks_experiment(
         train.camera, train_pairs, train_motions, test.camera, test_pairs, test_poses, predictors.names,
         gk, None, em_iterations, say=say,
     )  # fmt: skip
+
+
+def tracks_solvers(
+    train: KLTTracks,
+    test: KLTTracks,
+    predictors: PredictorConfig,
+    train_frames: Sequence[int],
+    train_images: Callable[[int], NDArray[np.uint8] | None] | None = None,
+    gk: GKConfig | None = None,
+    em_iterations: int = 5,
+    say: Callable[[str], None] | None = None,
+) -> tuple[dict[str, Solver], list[float]]:
+    """:func:`estimator_solvers` trained on ``train``'s frames, for ``test``'s camera (to solve test pairs made
+    with the same ``predictors`` by :func:`track_pairs`)."""
+    train_pairs, train_motions, _ = track_pairs(train, predictors, train_frames, train_images)
+    return estimator_solvers(
+        train.camera, train_pairs, train_motions, test.camera, predictors.names, gk, None, em_iterations, say=say
+    )
 
 
 @dataclass
