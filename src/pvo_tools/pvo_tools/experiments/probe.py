@@ -8,8 +8,9 @@ PROBE of app. A.
 2. Real KITTI tracks: ``kitti/raw-derived/*.mat`` (500 frames of stereo KLT tracks, IMU and ground truth per
    drive); models trained on one drive, tested on another (07 -> 06 by default), with the predictors every
    frame has (flow variance of the tracks, disparity and row, |specific force|, |angular rate|), without the
-   IMU, and with the image predictors on the frames whose left images ``../shared/data`` holds (07: 0-159,
-   06: 0-50). Sequence 01's frames are never trained on.
+   IMU, with the image predictors on the frames whose left images ``../shared/data`` holds (07: 0-159,
+   06: 0-50), and with each test frame's own (the image models on 06's frames 1-50, the tracks + IMU models on
+   the rest). Sequence 01's frames are never trained on.
 3. Rendered sequences (``--corpus``): PROBE-GK trained with ground truth on the corpus's training split (this
    project's VO's own tracks, image predictors), against the default robust VO on every test sequence,
    grouped by condition (moving vehicles, motion blur, texture-poor walls, ... and clean).
@@ -157,7 +158,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def kitti_section(args: argparse.Namespace, figures: dict[str, float], tables: dict[str, Any], say: Any) -> list[str]:
-    """Experiment 2: Table 4.1 on real KITTI tracks, without and with the image predictors."""
+    """Experiment 2: Table 4.1 on real KITTI tracks, without and with the image predictors, and with the predictors
+    each test frame has (the image ones only where ../shared/data holds its image)."""
     from pvo_core.imageio import read_image
     from pvo_core.readers import read_klt_tracks
     from pvo_frontend.probe.evaluation import (
