@@ -160,31 +160,6 @@ def per_frame_table(
     return table
 
 
-def compare_estimators(
-    train_camera: StereoCamera,
-    train_pairs: Sequence[FramePair],
-    train_motions: Sequence[Array],
-    test_camera: StereoCamera,
-    test_pairs: Sequence[FramePair],
-    test_poses: Array,
-    names: tuple[str, ...],
-    gk: GKConfig | None = None,
-    knn: KNNConfig | None = None,
-    em_iterations: int = 5,
-    fixed_sigma: Sequence[float] = (2.0, 2.0, 2.8),
-    student_dof: float = 5.0,
-    seed: int = 0,
-    say: Callable[[str], None] | None = None,
-) -> ProbeTable:
-    """Table 4.1's rows (:func:`estimator_solvers`) on a test traverse: pairs k-1 -> k with the true poses
-    T_world,cam (N + 1, 4, 4)."""
-    solvers, log_likelihood = estimator_solvers(
-        train_camera, train_pairs, train_motions, test_camera, names, gk, knn, em_iterations, fixed_sigma,
-        student_dof, seed, say,
-    )  # fmt: skip
-    return per_frame_table([(test_pairs, solvers)], test_poses, log_likelihood, say)
-
-
 def synthetic_experiment(
     config: PointWorldConfig | None = None,
     gk: GKConfig | None = None,
@@ -198,14 +173,15 @@ def synthetic_experiment(
     say: Callable[[str], None] | None = None,
 ) -> ProbeTable:
     """Table 4.1's first row: training and test traverses in two worlds drawn from ``seed``
-    (:func:`compare_estimators`); the predictor is the feature's image row."""
+    (:func:`estimator_solvers`, :func:`per_frame_table`); the predictor is the feature's image row."""
     config = config or PointWorldConfig()
     train = simulate(config, train_seconds, seed=2 * seed + 1)
     test = simulate(config, test_seconds, seed=2 * seed + 2)
-    return compare_estimators(
-        config.camera, train.pairs, train.motions, config.camera, test.pairs, test.poses, PREDICTORS,
+    solvers, log_likelihood = estimator_solvers(
+        config.camera, train.pairs, train.motions, config.camera, PREDICTORS,
         gk, knn, em_iterations, fixed_sigma, student_dof, seed, say,
     )  # fmt: skip
+    return per_frame_table([(test.pairs, solvers)], test.poses, log_likelihood, say)
 
 
 def track_pairs(
@@ -242,12 +218,9 @@ def tracks_experiment(
     say: Callable[[str], None] | None = None,
 ) -> ProbeTable:
     """Table 4.1 on real KITTI tracks: models trained on ``train``'s frames, tested on ``test``'s."""
-    train_pairs, train_motions, _ = track_pairs(train, predictors, train_frames, train_images)
+    solvers, log_likelihood = tracks_solvers(train, test, predictors, train_frames, train_images, gk, em_iterations, say)
     test_pairs, _, test_poses = track_pairs(test, predictors, test_frames, test_images)
-    return compare_estimators(
-        train.camera, train_pairs, train_motions, test.camera, test_pairs, test_poses, predictors.names,
-        gk, None, em_iterations, say=say,
-    )  # fmt: skip
+    return per_frame_table([(test_pairs, solvers)], test_poses, log_likelihood, say)
 
 
 def tracks_solvers(
