@@ -71,7 +71,7 @@ def test_calibrate_sets_the_inference_mode_that_predict_then_uses(corpus: Path, 
     assert "--mode sideways: HydraNet runs plain or mirrored" in capsys.readouterr().err
     assert main(["hydranet", "calibrate", "--model", str(model), "--corpus", str(corpus), "--mode", "mirrored"]) == 0
     printed = capsys.readouterr().out
-    assert "(mirrored inference) on 1 validation sequences" in printed and "ANEES" in printed
+    assert "(mirrored mode) on 1 validation sequences" in printed and "ANEES" in printed
     card = yaml.safe_load((model / "model.yaml").read_text())
     assert card["calibration"]["mode"] == "mirrored" and card["calibration"]["pairs"] == 11.0
     assert main(["hydranet", "predict", str(corpus / "0003"), "--model", str(model), "-o", str(mirrored)]) == 0

@@ -355,7 +355,7 @@ def run_calibrate(args: argparse.Namespace, entry: ModelEntry) -> int:
             f"{int(figures['images'])} validation images; ANEES {figures['anees_without_tau']:.2f} -> {figures['anees']:.2f}"
         )
     else:
-        mode = f" ({args.mode or 'plain'} inference)" if entry.name == "hydranet" else ""
+        mode = f" ({args.mode} mode)" if args.mode else ""
         print(f"{args.model}{mode} on {len(sequences)} validation sequences:")
         print("\n".join(f"  {line}" for line in entry.summary(figures)) if entry.summary else figures)
     return 0
