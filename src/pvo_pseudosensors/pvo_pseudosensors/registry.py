@@ -192,7 +192,13 @@ def _hydranet() -> ModelEntry:
             covariances.append(predictions.covariance)
             truth.append(true_relative_rotations(poses, predictions.earlier, predictions.frames))
         figures = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth))
-        card.calibration = {**figures, "sequences": float(len(sequences)), "mode": mode}
+        members = (card.calibration or {}).get("members")  # an ensemble stays one
+        card.calibration = {
+            **figures,
+            "sequences": float(len(sequences)),
+            "mode": mode,
+            **({"members": members} if members else {}),
+        }
         write_card(model_dir, card)
         return figures
 

@@ -4,6 +4,7 @@ of its motion; the sensor reports the first image, a size change, a bad stamp an
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -315,3 +316,80 @@ def test_the_card_mode_runs_mirrored_through_the_sensor_and_the_sequence_call_al
     write_card(directory, card)
     with pytest.raises(ValueError, match="unknown HydraNet mode 'sideways'"):
         HydraNetSensor(HydraNetSensorConfig(model=str(directory)))
+
+
+def test_an_ensemble_pools_every_members_heads_and_averages_their_aleatoric_covariances() -> None:
+    from pvo_pseudosensors.hydranet.model import HydraEnsemble
+
+    torch.manual_seed(3)
+    first, second = HydraNet(TINY), HydraNet(TINY)
+    flow = torch.randn(4, 2, 48, 144)
+    output = predict_rotations(HydraEnsemble([first, second]), flow)
+    (heads_a, root_a), (heads_b, root_b) = first(flow), second(flow)
+    pooled = torch.cat([heads_a, heads_b], dim=1).double()  # 2H heads
+    torch.testing.assert_close(output.quaternion, quat.mean(pooled))
+    torch.testing.assert_close(output.epistemic, quat.epistemic_covariance(pooled, quat.mean(pooled)))
+    # Sigma_a of each member from its precision root, computed here without cholesky_inverse
+    covariances = [torch.linalg.inv(r.double() @ r.double().transpose(-1, -2)) for r in (root_a, root_b)]
+    torch.testing.assert_close(output.aleatoric, 0.5 * (covariances[0] + covariances[1]), rtol=1e-5, atol=1e-12)
+    # two bodies that disagree spread wider than either one's heads alone
+    alone = predict_rotations(first, flow)
+    assert torch.all(torch.linalg.det(output.epistemic) > torch.linalg.det(alone.epistemic))
+    with pytest.raises(ValueError, match="at least two HydraNets"):
+        HydraEnsemble([first])
+
+
+def test_an_ensemble_directory_runs_as_one_model_everywhere_and_bad_ones_are_one_line(rotations, tmp_path: Path) -> None:
+    import cv2
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+    from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence, write_ensemble
+    from pvo_pseudosensors.hydranet.model import HydraEnsemble
+    from pvo_pseudosensors.learning.checkpoint import read_card, write_card
+    from pvo_pseudosensors.registry import models
+
+    torch.manual_seed(0)
+    first = save_model(tmp_path / "a", HydraNet(TINY), HydraTask(TINY).card())
+    second = save_model(tmp_path / "b", HydraNet(TINY), HydraTask(TINY).card())
+    out = write_ensemble([first, second], tmp_path / "ensemble", "pvo hydranet ensemble a b -o ensemble")
+    model, card = load_hydranet(out)
+    assert isinstance(model, HydraEnsemble) and card.calibration == {"mode": "plain", "members": ["members/member-1"]}
+    assert card.commands["ensemble"] == "pvo hydranet ensemble a b -o ensemble"
+    source = rotations["validation"][0]
+    predictions = predict_sequence(model, card, source.root)
+    direct = predict_rotations(HydraEnsemble([load_hydranet(first)[0], load_hydranet(second)[0]]), _flows(source))
+    np.testing.assert_allclose(predictions.quaternions, direct.quaternion.numpy(), atol=1e-12)
+    np.testing.assert_allclose(predictions.covariance, direct.covariance.numpy(), rtol=1e-9, atol=1e-15)
+    # the node's sensor reads the same directory the same way
+    sensor = HydraNetSensor(HydraNetSensorConfig(model=str(out)))
+    paths = source.images("left", False)
+    estimates = [sensor.estimate(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), (k + 1) * 10**8) for k, p in enumerate(paths[:2])]
+    np.testing.assert_allclose(estimates[1].quaternion, predictions.quaternions[0], atol=1e-5)
+    # calibrate records its mode and figures and keeps the ensemble one
+    models()["hydranet"].calibrate(out, [source.root], mode="mirrored")
+    assert read_card(out).calibration["members"] == ["members/member-1"]
+    assert isinstance(load_hydranet(out)[0], HydraEnsemble)
+    # bad inputs: one line each, nothing written
+    with pytest.raises(ValueError, match="at least two models"):
+        write_ensemble([first], tmp_path / "one")
+    with pytest.raises(ValueError, match="already holds a model"):
+        write_ensemble([first, second], out)
+    with pytest.raises(ValueError, match="already an ensemble; give its members"):
+        write_ensemble([out, first], tmp_path / "nested")
+    wider = dataclasses.replace(TINY, width=160)
+    other = save_model(tmp_path / "c", HydraNet(wider), HydraTask(wider).card())
+    with pytest.raises(ValueError, match="read different inputs"):
+        write_ensemble([first, other], tmp_path / "mixed")
+    assert not (tmp_path / "one").exists() and not (tmp_path / "mixed").exists()
+    (out / "members" / "member-1" / "weights.safetensors").unlink()
+    with pytest.raises(ModelFileError, match=r"member-1/weights.safetensors: weights file not found"):
+        load_hydranet(out)
+    card = read_card(out)
+    card.calibration["members"] = "members/member-1"
+    write_card(out, card)
+    with pytest.raises(ModelFileError, match="calibration.members must be a list"):
+        load_hydranet(out)
+
+
+def _flows(source) -> torch.Tensor:
+    pairs = FlowPairs([source], TINY.size, reverse=False, targets=False).pairs[0]
+    return torch.from_numpy(np.asarray(pairs.forward, dtype=np.float32))

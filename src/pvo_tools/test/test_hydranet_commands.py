@@ -79,6 +79,33 @@ def test_calibrate_sets_the_inference_mode_that_predict_then_uses(corpus: Path, 
     assert rows[0].shape == rows[1].shape == (11, 15) and np.abs(rows[0][:, 2:6] - rows[1][:, 2:6]).max() > 1e-7
 
 
+def test_ensemble_makes_one_model_directory_that_predict_and_init_treat_as_such(corpus: Path, tmp_path: Path, capsys) -> None:
+    models = []
+    for seed in ("0", "1"):
+        model = tmp_path / f"seed{seed}"
+        args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "--batch-size", "8", "-q"]
+        assert main([*args, "--threads", "1", "--seed", seed, *TINY]) == 0
+        models.append(model)
+    ensemble = tmp_path / "ensemble"
+    capsys.readouterr()
+    assert main(["hydranet", "ensemble", *map(str, models), "-o", str(ensemble)]) == 0
+    assert f"{ensemble}: an ensemble of 2 HydraNets, 8 heads pooled" in capsys.readouterr().out
+    card = yaml.safe_load((ensemble / "model.yaml").read_text())
+    assert card["calibration"]["members"] == ["members/member-1"] and card["commands"]["ensemble"].startswith("pvo hydranet")
+    files = {name: tmp_path / f"{name}.csv" for name in ("seed0", "seed1", "ensemble")}
+    for name, path in files.items():
+        assert main(["hydranet", "predict", str(corpus / "0003"), "--model", str(tmp_path / name), "-o", str(path)]) == 0
+    rows = {name: np.loadtxt(path, delimiter=",", skiprows=1) for name, path in files.items()}
+    assert rows["ensemble"].shape == (11, 15)
+    assert min(np.abs(rows["ensemble"][:, 2:6] - rows[n][:, 2:6]).max() for n in ("seed0", "seed1")) > 1e-7
+    capsys.readouterr()
+    assert main(["hydranet", "ensemble", str(models[0]), "-o", str(tmp_path / "lone")]) == 2
+    assert "an ensemble needs at least two models, got 1" in capsys.readouterr().err
+    args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(tmp_path / "ft"), "--init", str(ensemble), "-q", *TINY]
+    assert main(args) == 2
+    assert "an ensemble; fine-tune each of its members instead" in capsys.readouterr().err
+
+
 def test_presets_only_keeps_those_sequences(corpus: Path, tmp_path: Path, capsys) -> None:
     args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(tmp_path / "m"), "--epochs", "1", "--presets-only", "urban"]
     assert main([*args, "-q", "--threads", "1", *TINY]) == 0

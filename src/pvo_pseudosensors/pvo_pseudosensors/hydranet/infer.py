@@ -11,20 +11,91 @@ import torch
 from numpy.typing import NDArray
 from pvo_core.readers import ROTATION_PREDICTIONS_HEADER
 
-from ..learning.checkpoint import ModelCard, load_model
+from ..learning.checkpoint import CARD, ModelCard, ModelFileError, load_model
 from ..learning.data import Source
 from .config import ARCHITECTURE, HydraNetConfig
 from .flow import FlowPairs, network_input
-from .model import HydraNet, inference_mode, predict_rotations
+from .model import HydraEnsemble, HydraNet, RotationNetwork, inference_mode, predict_rotations
 
 Array = NDArray[np.float64]
 
 
-def load_hydranet(directory: Path) -> tuple[HydraNet, ModelCard]:
-    """The trained network of ``directory`` in eval mode (one clear line for every bad model file)."""
-    model, card = load_model(Path(directory), ARCHITECTURE, lambda card: HydraNet(HydraNetConfig.from_card(card)))
+def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
+    """The trained network of ``directory`` in eval mode (one clear line for every bad model file). A card whose
+    ``calibration.members`` lists further model directories (relative to ``directory``; :func:`write_ensemble`)
+    gives a :class:`~.model.HydraEnsemble` of this directory's network and those."""
+    directory = Path(directory)
+    model, card = _load_one(directory)
+    members = (card.calibration or {}).get("members") or []
+    if not members:
+        return model, card
+    if not isinstance(members, list) or not all(isinstance(m, str) for m in members):
+        raise ModelFileError(f"{directory / CARD}: calibration.members must be a list of directories, got {members!r}")
+    first = HydraNetConfig.from_card(card)
+    networks = [model]
+    for name in members:
+        member, member_card = _load_one(directory / name)
+        if (member_card.calibration or {}).get("members"):
+            raise ModelFileError(f"{directory / name / CARD}: a member of an ensemble cannot be an ensemble itself")
+        config = HydraNetConfig.from_card(member_card)
+        if (config.size, config.texture) != (first.size, first.texture):
+            raise ModelFileError(
+                f"{directory / name / CARD}: reads {config.size[0]}x{config.size[1]} flow"
+                f"{' with texture' if config.texture else ''}, the ensemble's first network "
+                f"{first.size[0]}x{first.size[1]}{' with texture' if first.texture else ''}: members must read the same input"
+            )
+        networks.append(member)
+    ensemble = HydraEnsemble(networks)
+    ensemble.eval()
+    return ensemble, card
+
+
+def _load_one(directory: Path) -> tuple[HydraNet, ModelCard]:
+    model, card = load_model(directory, ARCHITECTURE, lambda card: HydraNet(HydraNetConfig.from_card(card)))
     model.eval()
-    return model, card
+    return model, card  # type: ignore[return-value]
+
+
+def write_ensemble(models: list[Path], out: Path, command: str = "") -> Path:
+    """One model directory ``out`` that runs ``models`` (at least two, each a trained HydraNet reading the same
+    input) as a :class:`~.model.HydraEnsemble`: the first's weights and card at its top, each other in
+    ``members/member-<i>`` (copied: the directory stands alone), listed in the card's ``calibration.members``;
+    the card keeps the first's training record, its inference mode, and adds the ``ensemble`` command. Each
+    input is loaded first, so a bad one is one line and nothing is written; ``out`` must not hold a model yet."""
+    import shutil
+
+    from ..learning.checkpoint import WEIGHTS, write_card
+
+    models = [Path(m) for m in models]
+    if len(models) < 2:
+        raise ValueError(f"an ensemble needs at least two models, got {len(models)}")
+    out = Path(out)
+    if (out / CARD).exists():
+        raise ValueError(f"{out}: already holds a model; choose a new directory")
+    cards = []
+    for path in models:
+        _, card = load_hydranet(path)
+        if (card.calibration or {}).get("members"):
+            raise ValueError(f"{path}: already an ensemble; give its members instead")
+        cards.append(card)
+    sizes = {(tuple(HydraNetConfig.from_card(c).size), HydraNetConfig.from_card(c).texture) for c in cards}
+    if len(sizes) > 1:
+        raise ValueError(f"{', '.join(map(str, models))}: the models read different inputs {sorted(sizes)}")
+    names = [f"members/member-{i}" for i in range(1, len(models))]
+    for source, target in zip(models, [out, *(out / n for n in names)], strict=True):
+        target.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source / WEIGHTS, target / WEIGHTS)
+        shutil.copyfile(source / CARD, target / CARD)
+    card = cards[0]
+    card.calibration = {"mode": (card.calibration or {}).get("mode", "plain"), "members": names}
+    card.commands = {**card.commands, "ensemble": command} if command else card.commands
+    sources = ", ".join(f"{n} = {m}" for n, m in zip(names, models[1:], strict=True))
+    card.notes = (
+        f"An ensemble of {len(models)} HydraNets: this directory's weights ({models[0]}; its training record below) "
+        f"and {sources}; the heads of all pooled (eq. 7.14, 7.16), Sigma_a their mean.\n" + card.notes
+    )
+    write_card(out, card)
+    return out
 
 
 @dataclass
@@ -52,7 +123,9 @@ class RotationPredictions:
         return path
 
 
-def predict_flows(model: HydraNet, flows: torch.Tensor, batch: int = 64, mirrored: bool = False) -> tuple[Array, Array, Array]:
+def predict_flows(
+    model: RotationNetwork, flows: torch.Tensor, batch: int = 64, mirrored: bool = False
+) -> tuple[Array, Array, Array]:
     """Quaternions (N, 4), Sigma_e and Sigma_a (N, 3, 3) for network inputs (N, C, H, W), in batches
     (``mirrored``: :func:`~.model.predict_rotations`' mirrored inference)."""
     parts = [predict_rotations(model, flows[start : start + batch], mirrored) for start in range(0, len(flows), batch)]
@@ -60,7 +133,7 @@ def predict_flows(model: HydraNet, flows: torch.Tensor, batch: int = 64, mirrore
 
 
 def predict_sequence(
-    model: HydraNet, card: ModelCard, sequence: Path, batch: int = 64, cache_dir: Path | None = None
+    model: RotationNetwork, card: ModelCard, sequence: Path, batch: int = 64, cache_dir: Path | None = None
 ) -> RotationPredictions:
     """Every consecutive pair of ``sequence``'s left images (KITTI layout; poses.txt not needed), run as the
     card's ``calibration.mode`` says (plain or mirrored)."""

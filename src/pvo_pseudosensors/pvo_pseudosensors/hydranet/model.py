@@ -79,6 +79,34 @@ class HydraNet(nn.Module):
         return heads, precision_root(self.covariance(features))
 
 
+class HydraEnsemble(nn.Module):
+    """Several independently trained HydraNets read as one (a deep ensemble of bodies; bagging's idea, the thesis's
+    reference in the 1-D study): ``forward`` gives every member's heads side by side (B, M·H, 4), so eq. 7.14's
+    mean and eq. 7.16's Sigma_e run over all of them — bodies that disagree, as independently seeded ones do
+    where their training data did not reach, show as epistemic spread, which one body's heads barely give —
+    and Sigma_a the mean of the members' aleatoric covariances, returned as the Cholesky factor of its inverse
+    like a single network's. The members read the same input (size and channels; :func:`~.infer.load_hydranet`
+    checks), ``config`` is the first's."""
+
+    def __init__(self, members: list[HydraNet]) -> None:
+        super().__init__()
+        if len(members) < 2:
+            raise ValueError(f"an ensemble needs at least two HydraNets, got {len(members)}")
+        self.members = nn.ModuleList(members)
+        self.config = members[0].config
+
+    def forward(self, flow: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        outputs = [member(flow) for member in self.members]
+        heads = torch.cat([heads for heads, _ in outputs], dim=1)
+        aleatoric = torch.stack([torch.cholesky_inverse(root.double()) for _, root in outputs]).mean(0)
+        root = torch.linalg.cholesky(torch.linalg.inv(aleatoric))
+        return heads, root.to(flow.dtype)
+
+
+#: What :func:`predict_rotations` runs: one network or an ensemble of them.
+RotationNetwork = HydraNet | HydraEnsemble
+
+
 def precision_root(raw: torch.Tensor) -> torch.Tensor:
     """L (B, 3, 3) from the covariance head's output (B, 6) or (B, 3): L = diag(exp(a)) M with M unit lower
     triangular (its three off-diagonal entries from the last outputs; none for the diagonal form), so log det
@@ -187,7 +215,7 @@ class RotationOutput:
 MODES = ("plain", "mirrored")
 
 
-def predict_rotations(model: HydraNet, flow: torch.Tensor, mirrored: bool = False) -> RotationOutput:
+def predict_rotations(model: RotationNetwork, flow: torch.Tensor, mirrored: bool = False) -> RotationOutput:
     """The estimate for a batch of network inputs (B, C, H, W): eval mode (the heads' dropout off, as the
     authors' code), no gradients. ``mirrored``: the inputs also go through the network mirrored left-right
     (:func:`mirror_flow`); those H heads, mirrored back, join the H heads of the inputs as they are, so the mean

@@ -30,8 +30,9 @@ TRAIN_DEFAULTS = {
 }
 
 
-#: command modules for the models whose predict / eval are not the generated ones (``register_actions``)
-CUSTOM_ACTIONS = {"dpc-net": "pvo_tools.commands.dpc_net"}
+#: command modules adding a model's own actions (``register_actions``): its predict / eval where they are not the
+#: generated ones, and actions no other model has
+CUSTOM_ACTIONS = {"dpc-net": "pvo_tools.commands.dpc_net", "hydranet": "pvo_tools.commands.hydranet"}
 
 
 def register(sub: Any) -> None:
@@ -42,11 +43,11 @@ def register(sub: Any) -> None:
         if entry.predict is not None:
             _predict_parser(actions, entry)
             _eval_parser(actions, entry)
-        else:  # a model whose predict / eval take other inputs brings its own actions
+        elif entry.name not in CUSTOM_ACTIONS:  # a model whose predict / eval take other inputs brings its own
+            raise RuntimeError(f"model {entry.name!r} has no predict/eval and no command module in CUSTOM_ACTIONS")
+        if entry.name in CUSTOM_ACTIONS:
             import importlib
 
-            if entry.name not in CUSTOM_ACTIONS:
-                raise RuntimeError(f"model {entry.name!r} has no predict/eval and no command module in CUSTOM_ACTIONS")
             importlib.import_module(CUSTOM_ACTIONS[entry.name]).register_actions(actions, entry)
         if entry.calibrate is not None:
             _calibrate_parser(actions, entry)
@@ -294,6 +295,8 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
 
         if not (args.init / "model.yaml").is_file():
             raise ValueError(f"--init {args.init}: not a model directory (no model.yaml)")
+        if (read_card(args.init).calibration or {}).get("members"):
+            raise ValueError(f"--init {args.init}: an ensemble; fine-tune each of its members instead")
         task = FineTune(task, args.init)
         # the card remakes the weights from nothing: the commands that made the initial model come first
         initial = read_card(args.init).commands
