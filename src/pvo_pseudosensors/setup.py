@@ -1,8 +1,19 @@
+import os
 from glob import glob
 
 from setuptools import find_packages, setup
 
 package_name = "pvo_pseudosensors"
+
+
+def model_files() -> list[tuple[str, list[str]]]:
+    """Every shipped model directory under models/, nested ones too (an ensemble's members), as data_files."""
+    return [
+        (os.path.join("share", package_name, root), sorted(os.path.join(root, name) for name in files))
+        for root, _, files in sorted(os.walk("models"))
+        if files
+    ]
+
 
 setup(
     name=package_name,
@@ -12,12 +23,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
-        ("share/" + package_name + "/models/sun_bcnn", glob("models/sun_bcnn/*")),
-        ("share/" + package_name + "/models/sun_bcnn_kitti", glob("models/sun_bcnn_kitti/*")),
-        ("share/" + package_name + "/models/hydranet", glob("models/hydranet/*")),
-        ("share/" + package_name + "/models/hydranet_kitti", glob("models/hydranet_kitti/*")),
-        ("share/" + package_name + "/models/dpc_net", glob("models/dpc_net/*")),
-        ("share/" + package_name + "/models/dpc_net_clean", glob("models/dpc_net_clean/*")),
+        *model_files(),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
