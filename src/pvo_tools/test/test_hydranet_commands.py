@@ -106,6 +106,40 @@ def test_ensemble_makes_one_model_directory_that_predict_and_init_treat_as_such(
     assert "an ensemble; fine-tune each of its members instead" in capsys.readouterr().err
 
 
+def test_the_experiments_finetuning_tunes_an_ensemble_member_by_member(corpus: Path, tmp_path: Path) -> None:
+    from pvo_pseudosensors.hydranet.config import HydraNetConfig
+    from pvo_pseudosensors.hydranet.flow import FlowPairs
+    from pvo_pseudosensors.hydranet.infer import load_hydranet
+    from pvo_pseudosensors.hydranet.model import HydraEnsemble
+    from pvo_pseudosensors.learning import Source, TrainConfig
+    from pvo_tools.experiments.hydranet import finetune
+
+    models = []
+    for seed in ("0", "1"):
+        args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(tmp_path / seed), "--epochs", "1", "-q"]
+        assert main([*args, "--batch-size", "8", "--threads", "1", "--seed", seed, *TINY]) == 0
+        models.append(tmp_path / seed)
+    assert main(["hydranet", "ensemble", *map(str, models), "-o", str(tmp_path / "ensemble")]) == 0
+    _, card = load_hydranet(tmp_path / "ensemble")
+    size = HydraNetConfig.from_card(card).size
+    data = (FlowPairs([Source(corpus / "0000", "a")], size, reverse=True), FlowPairs([Source(corpus / "0002", "b")], size))
+    loop = TrainConfig(epochs=1, batch_size=8, learning_rate=1e-4, patience=0, threads=1)
+    extra = {"commands": {"finetune": "pvo experiment hydranet ..."}}
+    for _ in range(2):  # a second run replaces the first's ensemble
+        out = finetune(tmp_path / "ensemble", card, data, loop, tmp_path / "tuned", extra)
+    tuned, tuned_card = load_hydranet(out)
+    assert isinstance(tuned, HydraEnsemble) and tuned_card.calibration["members"] == ["members/member-1"]
+    assert tuned_card.commands["ensemble"] == "pvo experiment hydranet ..."
+    for i, original in enumerate(models):  # each member started from its own weights and moved
+        before = load_hydranet(original)[0].state_dict()
+        after = load_hydranet(tmp_path / f"tuned-member-{i}")[0].state_dict()
+        assert any(not np.allclose(before[k].numpy(), after[k].numpy()) for k in before)
+        other = load_hydranet(models[1 - i])[0].state_dict()
+        assert sum(np.abs(after[k].numpy() - before[k].numpy()).sum() for k in before) < sum(
+            np.abs(after[k].numpy() - other[k].numpy()).sum() for k in before
+        )
+
+
 def test_presets_only_keeps_those_sequences(corpus: Path, tmp_path: Path, capsys) -> None:
     args = ["hydranet", "train", "--corpus", str(corpus), "-o", str(tmp_path / "m"), "--epochs", "1", "--presets-only", "urban"]
     assert main([*args, "-q", "--threads", "1", *TINY]) == 0

@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import argparse
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -489,9 +490,7 @@ def real_images_section(
     from pvo_pseudosensors.hydranet.config import HydraNetConfig
     from pvo_pseudosensors.hydranet.flow import FlowPairs
     from pvo_pseudosensors.hydranet.infer import load_hydranet
-    from pvo_pseudosensors.hydranet.model import HydraTask
-    from pvo_pseudosensors.learning import Source, TrainConfig, fit
-    from pvo_pseudosensors.learning.training import FineTune
+    from pvo_pseudosensors.learning import Source, TrainConfig
 
     kitti = data / "kitti"
     clip06 = stage_kitti(data, "06", range(51), kitti / "sequences" / "06" / "poses_frames000-050.txt", out / "kitti06")
@@ -519,7 +518,7 @@ def real_images_section(
             "corpus": card.corpus,
             "commands": {**card.commands, "finetune": f"{command}  # section 5: KITTI 07 frames 0-127, selected on 128-159"},
         }
-        fit(FineTune(HydraTask(config), args.model), train, validation, loop, tuned_dir, say=lambda _: None, card_extra=extra)
+        finetune(Path(args.model), card, (train, validation), loop, tuned_dir, extra)
         tuned, tuned_card = load_hydranet(tuned_dir)
         evaluated, _ = evaluate_sequence(tuned, tuned_card, clip06, "fine-tuned on 07, KITTI 06 clip", None)
         rows.append(evaluated)
@@ -539,6 +538,26 @@ def real_images_section(
         f"This project's stereo VO on the 06 clip: mean frame-to-frame rotation error {vo06:.4f} deg.",
         "",
     ]
+
+
+def finetune(model_dir: Path, card: Any, data: tuple[Any, Any], loop: Any, out: Path, card_extra: dict) -> Path:
+    """``model_dir``'s network fine-tuned on ``data`` (training, validation FlowPairs) into ``out``; an ensemble
+    member by member (``out``-member-<i>), then made one again in ``out`` (:func:`write_ensemble`)."""
+    from pvo_pseudosensors.hydranet.config import HydraNetConfig
+    from pvo_pseudosensors.hydranet.infer import write_ensemble
+    from pvo_pseudosensors.hydranet.model import HydraTask
+    from pvo_pseudosensors.learning import fit
+    from pvo_pseudosensors.learning.training import FineTune
+
+    members = [model_dir, *(model_dir / m for m in (card.calibration or {}).get("members") or [])]
+    tuned = [out] if len(members) == 1 else [out.with_name(f"{out.name}-member-{i}") for i in range(len(members))]
+    task = HydraTask(HydraNetConfig.from_card(card))
+    for member, target in zip(members, tuned, strict=True):
+        fit(FineTune(task, member), *data, loop, target, say=lambda _: None, card_extra=card_extra)
+    if len(members) > 1:
+        shutil.rmtree(out, ignore_errors=True)  # the ensemble an earlier run wrote there
+        write_ensemble(tuned, out, card_extra.get("commands", {}).get("finetune", ""))
+    return out
 
 
 def speed_section(model_dir: Path, data: Path, figures: dict) -> list[str]:
