@@ -16,6 +16,7 @@ the online fused estimate against the VO alone; then the mean over drives per mo
 from __future__ import annotations
 
 import argparse
+import hashlib
 import time
 from pathlib import Path
 
@@ -49,6 +50,12 @@ def main() -> None:
         "comma-separated, instead of on the corpus's short validation sequences (frame to frame)",
     )
     parser.add_argument("--cache", type=Path, default=Path("runs/hydranet-validation-drives/cache"), help="flow cache")
+    parser.add_argument(
+        "--vo-cache",
+        type=Path,
+        default=Path("runs/hydranet-validation-drives/vo"),
+        help="the VO's run of each drive, kept between runs (keyed by the drive's calib.txt and sim.yaml and the VO's code)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
 
@@ -76,12 +83,10 @@ def main() -> None:
     runs = {}
     for folder in drives:
         sequence = KittiSequence(folder, poses_file=folder / "poses.txt")
-        run = run_sequence(sequence, VOConfig())
-        relative = run.relative()
-        runs[folder] = (sequence, run, relative)
+        runs[folder] = (sequence, *vo_of(folder, sequence, args.vo_cache))
     for folder in drives:
         started = time.perf_counter()
-        sequence, run, relative = runs[folder]
+        sequence, vo_poses, relative = runs[folder]
         truth = sequence.poses
         stamps = FIRST_STAMP_NS + (np.asarray(sequence.stamps) * 1e9).round().astype(np.int64)
         calibrations = {0: corpus_calibration}
@@ -95,7 +100,7 @@ def main() -> None:
         for span in spans:
             if span:
                 calibrations[span] = calibrate_vo(others, span)
-        alone = fusion_figures(truth, truth[0] @ run.poses)
+        alone = fusion_figures(truth, truth[0] @ vo_poses)
         line = f"{folder.parent.name}/{folder.name}: VO {alone['m_ate_trans']:.2f} m {alone['m_ate_rot_deg']:.2f} deg"
         for path, model, card in models:
             predictions = predict_sequence(model, card, folder, cache_dir=args.cache)
@@ -119,6 +124,28 @@ def main() -> None:
         vo = f"VO scales over {span} frames on the other drives" if span else "VO scales from the corpus"
         figures = f"{mean[0]:+.1f} / {mean[1]:+.1f} %, segments {mean[2]:+.1f} / {mean[3]:+.1f} %"
         print(f"  {path} gate {gate:g} huber {huber:g}, {vo}: {figures}")
+
+
+def vo_of(folder: Path, sequence: KittiSequence, cache: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The VO's poses (N, 4, 4) and relative motions (transforms, covariances) on ``folder``: from ``cache`` when
+    this drive (calib.txt, sim.yaml, frame count) and the VO's code are unchanged, else run and kept there."""
+    import pvo_frontend
+
+    key = hashlib.sha256(str(len(sequence.stamps)).encode())
+    for name in ("calib.txt", "sim.yaml"):
+        if (folder / name).is_file():
+            key.update((folder / name).read_bytes())
+    for source in sorted(Path(pvo_frontend.__file__).parent.rglob("*.py")):
+        key.update(source.read_bytes())
+    path = cache / f"{folder.parent.name}-{folder.name}-{key.hexdigest()[:16]}.npz"
+    if path.is_file():
+        with np.load(path) as stored:
+            return stored["poses"], {"transforms": stored["transforms"], "covariances": stored["covariances"]}
+    run = run_sequence(sequence, VOConfig())
+    relative = run.relative()
+    cache.mkdir(parents=True, exist_ok=True)
+    np.savez(path, poses=run.poses, transforms=relative["transforms"], covariances=relative["covariances"])
+    return run.poses, {"transforms": relative["transforms"], "covariances": relative["covariances"]}
 
 
 if __name__ == "__main__":
