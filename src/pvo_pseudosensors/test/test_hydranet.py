@@ -335,6 +335,7 @@ def test_an_ensemble_pools_every_members_heads_and_averages_their_aleatoric_cova
     # two bodies that disagree spread wider than either one's heads alone
     alone = predict_rotations(first, flow)
     assert torch.all(torch.linalg.det(output.epistemic) > torch.linalg.det(alone.epistemic))
+    assert HydraEnsemble([first, second]).head_count == 2 * first.head_count == 2 * TINY.heads
     with pytest.raises(ValueError, match="at least two HydraNets"):
         HydraEnsemble([first])
 

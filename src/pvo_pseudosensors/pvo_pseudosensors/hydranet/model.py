@@ -68,6 +68,11 @@ class HydraNet(nn.Module):
             last.weight.mul_(HEAD_INIT_SCALE)
             last.bias.zero_()
 
+    @property
+    def head_count(self) -> int:
+        """Quaternion heads a forward pass gives (H)."""
+        return self.config.heads
+
     def forward(self, flow: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """flow (B, C, H, W): the flow in pixels (and the texture channel) -> the heads' unit quaternions
         (B, heads, 4) of C_k,k-1 (w >= 0) and the lower-triangular Cholesky factor L (B, 3, 3) of the aleatoric
@@ -94,6 +99,11 @@ class HydraEnsemble(nn.Module):
             raise ValueError(f"an ensemble needs at least two HydraNets, got {len(members)}")
         self.members = nn.ModuleList(members)
         self.config = members[0].config
+
+    @property
+    def head_count(self) -> int:
+        """Quaternion heads a forward pass gives (every member's)."""
+        return sum(member.head_count for member in self.members)
 
     def forward(self, flow: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         outputs = [member(flow) for member in self.members]

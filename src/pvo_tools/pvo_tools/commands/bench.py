@@ -234,7 +234,7 @@ def bench_hydranet(args: argparse.Namespace) -> int:
     size = (sensor.width, sensor.height)
     small = [cv2.resize(i, size, interpolation=cv2.INTER_AREA) for i in images]
     flow = torch.from_numpy(dense_flow(small[0], small[1]))[None]
-    heads = sensor.model.config.heads * (2 if sensor.mirrored else 1)  # mirrored: the pair and its mirror image
+    heads = sensor.model.head_count * (2 if sensor.mirrored else 1)  # mirrored: the pair and its mirror image
     stages = {
         "resize": lambda k: cv2.resize(images[k], size, interpolation=cv2.INTER_AREA),
         "Farneback flow": lambda k: dense_flow(small[k - 1], small[k]),

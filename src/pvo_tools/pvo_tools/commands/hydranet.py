@@ -26,6 +26,5 @@ def run_ensemble(args: argparse.Namespace) -> int:
     command = "pvo hydranet ensemble " + shlex.join([*map(str, args.models), "-o", str(args.out)])
     out = write_ensemble(args.models, args.out, command)
     model, _ = load_hydranet(out)
-    heads = sum(member.config.heads for member in model.members)
-    print(f"{out}: an ensemble of {len(args.models)} HydraNets, {heads} heads pooled")
+    print(f"{out}: an ensemble of {len(args.models)} HydraNets, {model.head_count} heads pooled")
     return 0
