@@ -381,6 +381,19 @@ def test_an_ensemble_directory_runs_as_one_model_everywhere_and_bad_ones_are_one
     with pytest.raises(ValueError, match="read different inputs"):
         write_ensemble([first, other], tmp_path / "mixed")
     assert not (tmp_path / "one").exists() and not (tmp_path / "mixed").exists()
+    import shutil
+
+    member = out / "members" / "member-1"
+    shutil.copytree(out, tmp_path / "kept")  # the good ensemble, for the next case
+    for name in ("weights.safetensors", "model.yaml"):  # a member of another input size put in by hand
+        shutil.copyfile(other / name, member / name)
+    with pytest.raises(ModelFileError, match=r"member-1/model.yaml: reads 48x160 flow, the ensemble's first network 48x144"):
+        load_hydranet(out)
+    nested = read_card(tmp_path / "kept")
+    write_card(tmp_path / "kept" / "members" / "member-1", nested)  # a member whose card lists members itself
+    with pytest.raises(ModelFileError, match="a member of an ensemble cannot be an ensemble itself"):
+        load_hydranet(tmp_path / "kept")
+    shutil.copyfile(first / "model.yaml", member / "model.yaml")
     (out / "members" / "member-1" / "weights.safetensors").unlink()
     with pytest.raises(ModelFileError, match=r"member-1/weights.safetensors: weights file not found"):
         load_hydranet(out)
