@@ -38,16 +38,24 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
         if (member_card.calibration or {}).get("members"):
             raise ModelFileError(f"{directory / name / CARD}: a member of an ensemble cannot be an ensemble itself")
         config = HydraNetConfig.from_card(member_card)
-        if (config.size, config.texture) != (first.size, first.texture):
+        if _network_input(config) != _network_input(first):
             raise ModelFileError(
-                f"{directory / name / CARD}: reads {config.size[0]}x{config.size[1]} flow"
-                f"{' with texture' if config.texture else ''}, the ensemble's first network "
-                f"{first.size[0]}x{first.size[1]}{' with texture' if first.texture else ''}: members must read the same input"
+                f"{directory / name / CARD}: reads {_describe_input(config)}, the ensemble's first network "
+                f"{_describe_input(first)}: members must read the same input"
             )
         networks.append(member)
     ensemble = HydraEnsemble(networks)
     ensemble.eval()
     return ensemble, card
+
+
+def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool]:
+    """What a network reads: the flow's size (height, width) and whether a texture channel comes with it."""
+    return tuple(config.size), config.texture
+
+
+def _describe_input(config: HydraNetConfig) -> str:
+    return f"{config.size[0]}x{config.size[1]} flow" + (" with texture" if config.texture else "")
 
 
 def _load_one(directory: Path) -> tuple[HydraNet, ModelCard]:
@@ -78,9 +86,10 @@ def write_ensemble(models: list[Path], out: Path, command: str = "") -> Path:
         if (card.calibration or {}).get("members"):
             raise ValueError(f"{path}: already an ensemble; give its members instead")
         cards.append(card)
-    sizes = {(tuple(HydraNetConfig.from_card(c).size), HydraNetConfig.from_card(c).texture) for c in cards}
-    if len(sizes) > 1:
-        raise ValueError(f"{', '.join(map(str, models))}: the models read different inputs {sorted(sizes)}")
+    inputs = [HydraNetConfig.from_card(c) for c in cards]
+    if len({_network_input(c) for c in inputs}) > 1:
+        read = ", ".join(f"{m}: {_describe_input(c)}" for m, c in zip(models, inputs, strict=True))
+        raise ValueError(f"the models read different inputs ({read}); an ensemble's members must read the same")
     names = [f"members/member-{i}" for i in range(1, len(models))]
     for source, target in zip(models, [out, *(out / n for n in names)], strict=True):
         target.mkdir(parents=True, exist_ok=True)
