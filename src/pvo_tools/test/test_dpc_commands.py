@@ -239,6 +239,28 @@ def test_the_experiment_miscalibrates_a_copy_and_tabulates_changes(corpus: Path,
     assert "| + lens fusion online | +0.0 % |" in "\n".join(lines)
 
 
+def test_a_biased_rig_is_read_beside_the_clean_rigs_vo_on_the_same_drive(pvo_data: Path, tmp_path: Path) -> None:
+    from pvo_core.trajectory import read_kitti_poses
+    from pvo_tools.dpc import vo_run
+    from pvo_tools.experiments.dpc_net import CLEAN_REFERENCE, evaluate_rig
+
+    clip = pvo_data / "kitti" / "sequences" / "06"
+    write_clip(clip, tmp_path / "clean" / "06", range(0, 30), focal_scale=1.0)
+    write_clip(clip, tmp_path / "calib" / "06", range(0, 30), focal_scale=1.05)
+    results, trajectories = evaluate_rig(
+        "t", [tmp_path / "calib" / "06"], {}, lambda _: None, {}, clean_folders=[tmp_path / "clean" / "06"]
+    )
+    assert list(results["06"]) == ["S-VO", CLEAN_REFERENCE]
+    truth = read_kitti_poses(tmp_path / "calib" / "06" / "poses.txt")
+    np.testing.assert_allclose(trajectories["06"][CLEAN_REFERENCE], truth[0] @ vo_run(tmp_path / "clean" / "06")[0].poses)
+    # the focal-length error stretches the calib rig's path: the reference is the true calibration's, not a copy
+    assert results["06"]["S-VO"]["m_ate_trans"] > 1.5 * results["06"][CLEAN_REFERENCE]["m_ate_trans"]
+
+    write_clip(clip, tmp_path / "other" / "06", range(10, 40), focal_scale=1.0)
+    with pytest.raises(ValueError, match="drives another path than .*calib/06: no clean-rig reference for it"):
+        evaluate_rig("t", [tmp_path / "calib" / "06"], {}, lambda _: None, {}, clean_folders=[tmp_path / "other" / "06"])
+
+
 def test_a_fusion_is_chosen_only_where_it_lowered_every_drive() -> None:
     changes = {
         "both lower everywhere": [[-0.2, -0.1], [-0.1, -0.05]],
