@@ -218,3 +218,33 @@ def test_a_model_of_several_corpora_was_trained_on_their_presets() -> None:
     assert model_presets(several, manifest) == {"urban"}
     assert model_presets(unrestricted, manifest) == {"urban", "planetary"}
     assert model_presets(SimpleNamespace(corpus={}), manifest) == {"urban", "planetary"}
+
+
+def test_the_fusion_reference_takes_the_true_rotations_with_hydranets_covariances() -> None:
+    from types import SimpleNamespace
+
+    from pvo_core.lie import quaternion_to_rotation, so3_exp
+    from pvo_pseudosensors.hydranet.estimator import pose_covariance
+    from pvo_tools.experiments.hydranet import rotation_measurements, true_rotations
+
+    rng = np.random.default_rng(3)
+    poses = np.tile(np.eye(4), (4, 1, 1))
+    for k in range(1, 4):
+        poses[k, :3, :3] = poses[k - 1, :3, :3] @ so3_exp(rng.normal(0.0, 0.05, 3))
+        poses[k, :3, 3] = poses[k - 1, :3, 3] + [0.0, 0.0, 1.0]
+    quaternions = np.array([[1.0, 0.01, 0.0, 0.0], [1.0, 0.0, -0.02, 0.0], [1.0, 0.0, 0.0, 0.03]])
+    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)
+    covariance = np.stack([np.diag([1e-6, 2e-6, 3e-6]) * (k + 1) for k in range(3)])
+    predictions = SimpleNamespace(earlier=np.arange(3), frames=np.arange(1, 4), quaternions=quaternions, covariance=covariance)
+    stamps = np.array([1, 2, 3, 4], dtype=np.int64) * 100_000_000
+
+    own = rotation_measurements(predictions, stamps)
+    errorless = rotation_measurements(predictions, stamps, true_rotations(poses, predictions))
+    for k, (a, b) in enumerate(zip(own, errorless, strict=True)):
+        np.testing.assert_allclose(a.transform[:3, :3], quaternion_to_rotation(quaternions[k]))
+        # C_k,k-1 maps the earlier camera's coordinates into the later one's: the truth's relative rotation
+        np.testing.assert_allclose(b.transform[:3, :3], poses[k + 1, :3, :3].T @ poses[k, :3, :3], atol=1e-12)
+        np.testing.assert_allclose(a.covariance, pose_covariance(covariance[k]))
+        np.testing.assert_allclose(b.covariance, a.covariance)
+        assert (a.stamp, a.reference_stamp) == (b.stamp, b.reference_stamp) == (stamps[k + 1], stamps[k])
+        assert a.rotation_only and b.rotation_only
