@@ -236,6 +236,8 @@ def test_reported_covariance_is_consistent_monte_carlo() -> None:
 def test_config_rejects_bad_values_and_unknown_names() -> None:
     with pytest.raises(ValueError, match="solver.loss must be one of"):
         from_flat({"solver.loss": "tukey"})
+    with pytest.raises(ValueError, match="solver.noise_model must be one of uvd, stereo"):
+        from_flat({"solver.noise_model": "diagonal"})
     with pytest.raises(ValueError, match="unknown VO parameter"):
         from_flat({"solver.nonsense": 1})
     with pytest.raises(ValueError, match="tracker.window must be odd"):
@@ -244,3 +246,51 @@ def test_config_rejects_bad_values_and_unknown_names() -> None:
         from_flat({"tracker.window": 9.5})
     assert from_flat({"solver.pixel_sigma": [2, 2, 4]}).solver.pixel_sigma == (2.0, 2.0, 4.0)
     assert VOConfig() == from_flat({})
+
+
+def test_the_stereo_noise_model_is_each_cameras_pixel_noise() -> None:
+    from pvo_frontend.vo.config import default_feature_covariance
+
+    config = from_flat({"solver.pixel_sigma": [0.5, 0.7, 2.0]})
+    np.testing.assert_allclose(default_feature_covariance(config.solver), np.diag([0.25, 0.49, 4.0]))
+    stereo = from_flat({"solver.pixel_sigma": [0.5, 0.7, 2.0], "solver.noise_model": "stereo"}).solver
+    # u_left, v, u_right independent (0.5, 0.7, 0.5 px) through d = u_left - u_right
+    to_uvd = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 0.0, -1.0]])
+    np.testing.assert_allclose(default_feature_covariance(stereo), to_uvd @ np.diag([0.25, 0.49, 0.25]) @ to_uvd.T)
+
+
+@pytest.mark.parametrize(("noise_model", "biased"), [("uvd", True), ("stereo", False)])
+def test_straight_driving_reads_no_yaw_only_with_the_stereo_noise_model(noise_model: str, biased: bool) -> None:
+    """Forward motion, each camera's u and v with the same 0.6 px noise: the thesis's diagonal (u, v, d) model
+    trusts the (reference) left camera more than the right and reads a yaw; the stereo model does not."""
+    from pvo_frontend.vo.config import default_feature_covariance
+
+    camera = StereoCamera(f=359.14, cu=309.5, cv=93.5, baseline=0.54, width=620, height=188)
+    forward = np.eye(4)
+    forward[2, 3] = -1.0  # T_cur,ref: 1 m straight ahead
+    cov = default_feature_covariance(from_flat({"solver.noise_model": noise_model}).solver)
+    rng = np.random.default_rng(7)
+    yaws = []
+    for _ in range(300):
+        p = np.column_stack([rng.uniform(-12, 12, 400) + 0.27, rng.uniform(-3, 1.6, 400), rng.uniform(4, 60, 400)])
+        q = p + forward[:3, 3]
+        y_ref, y_cur = camera.project(p), camera.project(q)
+        seen = (y_cur[:, 0] > 0) & (y_cur[:, 0] < 620) & (y_cur[:, 1] > 0) & (y_cur[:, 1] < 188)
+        seen &= (y_ref[:, 0] > 0) & (y_ref[:, 0] < 620)
+
+        def observe(y: np.ndarray) -> np.ndarray:
+            left, right = y[:, 0] + rng.normal(0, 0.6, len(y)), y[:, 0] - y[:, 2] + rng.normal(0, 0.6, len(y))
+            return np.column_stack([left, y[:, 1] + rng.normal(0, 0.6, len(y)), left - right])
+
+        obs_ref, obs_cur = observe(y_ref[seen]), observe(y_cur[seen])
+        ok = (obs_ref[:, 2] > 0.5) & (obs_cur[:, 2] > 0.5)
+        covs = np.broadcast_to(cov, (int(ok.sum()), 3, 3))
+        information = feature_information(camera, forward, obs_ref[ok], covs, covs)
+        points = camera.triangulate(obs_ref[ok])
+        result = solve_motion(camera, points, obs_cur[ok], information, RobustLoss("cauchy", 3.0), np.eye(4))
+        yaws.append(np.degrees(se3_log(result.transform)[4]))
+    mean, standard_error = float(np.mean(yaws)), float(np.std(yaws) / np.sqrt(len(yaws)))
+    if biased:
+        assert mean > 10 * standard_error and mean > 0.01, (mean, standard_error)  # 0.0185 deg per metre measured
+    else:
+        assert abs(mean) < 4 * standard_error and abs(mean) < 0.003, (mean, standard_error)

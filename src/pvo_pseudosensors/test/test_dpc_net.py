@@ -378,3 +378,20 @@ def test_mirrored_inference_is_exactly_mirror_equivariant_and_off_changes_nothin
     expected = np.array([se3_log(conjugation @ se3_exp(x) @ conjugation) for x in averaged])
     assert through == pytest.approx(expected, abs=1e-6)
     assert np.abs(averaged - plain).max() > 1e-4  # the untrained network is not symmetric: the average moved it
+
+
+def test_the_shipped_corrections_name_the_vo_that_runs_by_default() -> None:
+    """A VO setting added since (at the value that keeps the VO as it was) leaves the signature alone; set to
+    another value it names another VO, whose errors the shipped corrections did not learn."""
+    import yaml
+    from pvo_frontend.vo import VOConfig
+    from pvo_pseudosensors.dpc_net.data import settings_text, vo_signature
+    from pvo_pseudosensors.dpc_net.estimator import resolve_model
+
+    for name in ("dpc_net", "dpc_net_clean"):
+        card = yaml.safe_load((resolve_model(name) / "model.yaml").read_text())
+        assert card["input"]["rig"]["vo"] == vo_signature(), name
+    default = VOConfig()
+    assert "noise_model" not in settings_text(default) and settings_text(default.solver).startswith("SolverConfig(pixel_sigma=")
+    stereo = replace(default, solver=replace(default.solver, noise_model="stereo"))
+    assert "noise_model='stereo'" in settings_text(stereo)

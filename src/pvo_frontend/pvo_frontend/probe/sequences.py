@@ -15,6 +15,7 @@ from pvo_core.lie import se3_inverse
 from pvo_core.readers import KittiSequence
 
 from ..vo import StereoVO, VOConfig
+from ..vo.config import default_feature_covariance
 from ..vo.features import StereoFeatures
 from ..vo.pipeline import FeatureNoiseEstimate
 from .gk import GKConfig, GKModel
@@ -63,8 +64,7 @@ def collect(
     if predictors.imu and imu is None:
         raise ValueError(f"{name or sequence.root}: the IMU predictors need an IMU reading per frame (imu.csv)")
     config = replace(vo_config, probe=replace(vo_config.probe, model=""))
-    sigma = np.asarray(config.solver.pixel_sigma, dtype=float)
-    recorder = FeatureRecorder(predictors, np.diag(sigma**2))
+    recorder = FeatureRecorder(predictors, default_feature_covariance(config.solver))
     vo = StereoVO(sequence.camera(), config, feature_noise=recorder)
     poses = sequence.poses
     data = SequenceData(name or str(sequence.root), true_motions=[] if poses is not None else None)

@@ -11,10 +11,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
 from pvo_core.config import flatten as _flatten
 from pvo_core.config import from_flat as _from_flat
 
 LOSSES = ("l2", "huber", "cauchy", "geman_mcclure", "student_t")
+NOISE_MODELS = ("uvd", "stereo")
+Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -91,9 +95,17 @@ class SolverConfig:
     loss / loss_scale: robust loss on the whitened norm eps_i and its constant (nu for student_t).
     relative_cost_tolerance: stop when the relative cost change falls below it (thesis: 1 %).
     inlier_rounds: GN solves at most, re-deciding the inliers at each solution until they settle.
+    noise_model: how ``pixel_sigma`` becomes a feature's (u, v, d) covariance. ``uvd`` (the thesis):
+    R = diag(sigma_u², sigma_v², sigma_d²), u and d independent — but d = u_left - u_right shares the
+    left camera's error, so this trusts the left camera more than the right, and with the left camera as
+    the reference the solver reads a yaw out of straight driving (about 0.004 deg per frame at 0.3 px of
+    tracking noise, growing with its square; `pvo_frontend.vo.solver` tests it). ``stereo``: each camera's
+    u independent with sigma_u, v with sigma_v: R = [[su², 0, su²], [0, sv², 0], [su², 0, 2 su²]]
+    (sigma_d unused); left-right symmetric, so no yaw bias.
     """
 
     pixel_sigma: tuple[float, float, float] = (1.0, 1.0, 2.0)
+    noise_model: str = "uvd"
     propagate_reference_noise: bool = True
     loss: str = "cauchy"
     loss_scale: float = 3.0
@@ -170,6 +182,7 @@ def validate(config: VOConfig) -> None:
             len(config.solver.pixel_sigma) == 3 and min(config.solver.pixel_sigma) > 0.0,
             "solver.pixel_sigma needs 3 positive values",
         ),
+        (config.solver.noise_model in NOISE_MODELS, f"solver.noise_model must be one of {', '.join(NOISE_MODELS)}"),
         (config.solver.loss in LOSSES, f"solver.loss must be one of {', '.join(LOSSES)}"),
         (config.solver.loss_scale > 0.0, "solver.loss_scale must be positive"),
         (config.solver.max_iterations >= 1, "solver.max_iterations must be >= 1"),
@@ -181,6 +194,15 @@ def validate(config: VOConfig) -> None:
     for ok, message in checks:
         if not ok:
             raise ValueError(f"invalid VO configuration: {message}")
+
+
+def default_feature_covariance(solver: SolverConfig) -> Array:
+    """A feature's (u, v, d) covariance (3, 3), px², from ``solver.pixel_sigma`` by ``solver.noise_model``."""
+    su, sv, sd = (float(s) for s in solver.pixel_sigma)
+    if solver.noise_model == "stereo":
+        # u_left and u_right independent, each with su: d = u_left - u_right carries both
+        return np.array([[su**2, 0.0, su**2], [0.0, sv**2, 0.0], [su**2, 0.0, 2.0 * su**2]])
+    return np.diag([su**2, sv**2, sd**2])
 
 
 flatten = _flatten  # {"section.leaf": value, ...} of a config; tuples become lists

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from pvo_core.camera import StereoCamera
 from pvo_core.lie import se3_adjoint, se3_exp, se3_inverse, se3_log
 
-from .config import VOConfig
+from .config import VOConfig, default_feature_covariance
 from .features import Image, StereoFeatures, StereoMatcher
 from .ransac import ransac_motion
 from .solver import OBSERVATION_DIM, RobustLoss, SolveResult, feature_information, quadratic_form, solve_motion
@@ -242,7 +242,8 @@ class StereoVO:
 
     ``feature_noise`` (optional) maps the matched features (reference, current) and the current left image
     to a :class:`FeatureNoiseEstimate` - the hook PROBE uses; without it, and without ``probe.model`` in the
-    configuration (which loads that model as the hook), every feature gets R = diag(solver.pixel_sigma^2).
+    configuration (which loads that model as the hook), every feature gets the covariance that
+    ``solver.pixel_sigma`` and ``solver.noise_model`` make (:func:`~pvo_frontend.vo.config.default_feature_covariance`).
     """
 
     def __init__(self, camera: StereoCamera, config: VOConfig | None = None, feature_noise: FeatureNoise | None = None) -> None:
@@ -256,8 +257,7 @@ class StereoVO:
         self.feature_noise = feature_noise
         self.matcher = StereoMatcher(self.config.detector, self.config.tracker)
         self._rng = np.random.default_rng(self.config.ransac.seed)
-        sigma = np.asarray(self.config.solver.pixel_sigma, dtype=float)
-        self._default_cov = np.diag(sigma**2)
+        self._default_cov = default_feature_covariance(self.config.solver)
         self._previous: _Frame | None = None
         self._motion = np.eye(4)  # last good T_cur,prev, for the KLT prediction
         self._velocity_dt = 0.0

@@ -7,10 +7,12 @@ A correction learned this way is for this VO on this camera: the card names both
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -26,12 +28,29 @@ from .rig import Rig, sequence_rig
 Array = NDArray[np.float64]
 
 
+#: VO settings added after cards began to record the VO, each at the value that keeps the VO as it was: left
+#: out of the signature, so that an older card still names the same VO (and its cached runs stay valid)
+SIGNATURE_NEUTRAL: dict[str, Any] = {"solver.noise_model": "uvd"}
+
+
+def settings_text(config: Any, prefix: str = "") -> str:
+    """``repr`` of a (nested) settings dataclass without the :data:`SIGNATURE_NEUTRAL` entries it holds."""
+    if not dataclasses.is_dataclass(config):
+        return repr(config)
+    parts = []
+    for f in dataclasses.fields(config):
+        name, value = f"{prefix}{f.name}", getattr(config, f.name)
+        if f.repr and not (name in SIGNATURE_NEUTRAL and SIGNATURE_NEUTRAL[name] == value):
+            parts.append(f"{f.name}={settings_text(value, f'{name}.')}")
+    return f"{type(config).__qualname__}({', '.join(parts)})"
+
+
 def vo_signature() -> str:
     """Which VO a correction is for: a digest of this project's stereo VO settings (its defaults, as `pvo vo`
     and the training run it). A model card records it; another VO's errors are not the ones it learned."""
     from pvo_frontend.vo import VOConfig
 
-    return hashlib.sha256(repr(VOConfig()).encode()).hexdigest()[:16]
+    return hashlib.sha256(settings_text(VOConfig()).encode()).hexdigest()[:16]
 
 
 def vo_poses(source: Source, cache_dir: Path | None) -> Array:
@@ -43,7 +62,7 @@ def vo_poses(source: Source, cache_dir: Path | None) -> Array:
     sequence = KittiSequence(source.root, rate_hz=10.0)
     file = None
     if cache_dir is not None:
-        digest = hashlib.sha256(repr(VOConfig()).encode())
+        digest = hashlib.sha256(settings_text(VOConfig()).encode())
         for path in [*sequence.left_paths, *sequence.right_paths, source.root / "calib.txt"]:
             stat = path.stat()
             digest.update(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
