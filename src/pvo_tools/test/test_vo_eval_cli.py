@@ -33,6 +33,22 @@ def test_pvo_vo_bad_parameter_is_one_line(pvo_data: Path, tmp_path: Path, capsys
     )
 
 
+def test_pvo_vo_takes_the_nodes_params_file(pvo_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """The shipped params files carry the node's own settings too (frames, path publishing); offline they are left
+    out, the VO's are read, and -p still wins; an unknown dotted name is still an error."""
+    from pvo_tools.commands.vo import vo_config
+
+    config_dir = Path(__file__).resolve().parents[2] / "pvo_frontend" / "config"
+    calibrated = vo_config(None, config_dir / "stereo_vo_kitti_calibrated.yaml")
+    assert calibrated.solver.pixel_sigma == (2.0, 2.0, 4.0)
+    assert vo_config(["solver.noise_model=stereo"], config_dir / "stereo_vo.yaml").solver.noise_model == "stereo"
+    wrong = tmp_path / "params.yaml"
+    wrong.write_text("stereo_vo:\n  ros__parameters:\n    odom_frame: odom\n    solver.nonsense: 1\n")
+    args = ["vo", str(pvo_data / "kitti/sequences/06"), "-o", str(tmp_path / "t.txt"), "--params-file", str(wrong)]
+    assert main(args) == 2
+    assert "unknown VO parameter(s): solver.nonsense" in capsys.readouterr().err
+
+
 def test_pvo_eval_matches_the_devkit_and_writes_plots(pvo_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     gt = pvo_data / "kitti/poses/07.txt"
     est = pvo_data / "kitti/reference-results/IMLS/07.txt"

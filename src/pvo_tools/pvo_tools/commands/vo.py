@@ -74,7 +74,11 @@ def frame_imu(sequence_dir: Path, sequence: KittiSequence) -> np.ndarray | None:
 
 
 def vo_config(items: list[str] | None, params_file: Path | None = None) -> VOConfig:
-    return from_flat(parse_overrides(items, params_file, node="stereo_vo"))
+    """The VO's settings from a ``stereo_vo`` params file and ``NAME=VALUE`` items (those win). The file is the
+    node's: its own undotted settings (frames, path publishing, overload) mean nothing offline and are left out;
+    every VO setting is dotted (``solver.loss``), and an unknown one is an error."""
+    from_file = {name: value for name, value in parse_overrides(None, params_file, node="stereo_vo").items() if "." in name}
+    return from_flat({**from_file, **parse_overrides(items)})
 
 
 def run(args: argparse.Namespace) -> int:
