@@ -499,8 +499,8 @@ def fusion_section(
     ]
     lines += [
         f"*{TRUE_ROTATIONS}*: HydraNet's measurements with their covariances but the true rotations — what a rotation",
-        "sensor as confident as HydraNet and without error is worth through the same fusion (for HydraNet what the",
-        "GT-Sun rows are for Sun-BCNN): the most HydraNet's fusion could give at the weights its covariances carry.",
+        "sensor as confident as HydraNet and without error gives through the same fusion and gate (for HydraNet what",
+        "the GT-Sun rows are for Sun-BCNN). HydraNet itself can do better where its errors cancel the VO's.",
         "",
     ]
     labels = ["VO + HydraNet online", "VO + HydraNet smoothed", "VO fused alone online", f"{TRUE_ROTATIONS} online"]
