@@ -99,7 +99,7 @@ class SolverConfig:
     R = diag(sigma_u², sigma_v², sigma_d²), u and d independent — but d = u_left - u_right shares the
     left camera's error, so this trusts the left camera more than the right, and with the left camera as
     the reference the solver reads a yaw out of straight driving (about 0.004 deg per frame at 0.3 px of
-    tracking noise, growing with its square; `pvo_frontend.vo.solver` tests it). ``stereo``: each camera's
+    tracking noise, growing with its square; test_solver.py asserts it). ``stereo``: each camera's
     u independent with sigma_u, v with sigma_v: R = [[su², 0, su²], [0, sv², 0], [su², 0, 2 su²]]
     (sigma_d unused); left-right symmetric, so no yaw bias.
     """
