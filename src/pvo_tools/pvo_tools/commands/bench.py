@@ -119,6 +119,7 @@ BENCH_VARIANTS: dict[str, dict[str, Any]] = {
     "L2 loss": {"solver.loss": "l2"},
     "no reference-noise propagation": {"solver.propagate_reference_noise": False},
     "pixel sigma 2, 2, 4 (calibrated)": {"solver.pixel_sigma": [2.0, 2.0, 4.0]},
+    "stereo noise model": {"solver.noise_model": "stereo"},
 }
 
 
