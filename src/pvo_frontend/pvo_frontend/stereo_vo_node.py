@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import sys
 from collections import deque
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -32,6 +31,7 @@ from pvo_msgs.msg import RelativePose
 from pvo_ros import ERROR, OK, SENSOR_QUEUE_DEPTH, WARN, PvoNode, reliable, run_node
 
 from .probe.model import ProbeModel, resolve_model
+from .stereo_vo_settings import StereoVONodeConfig
 from .vo import FrameResult, FrameStatus, StereoVO, VOConfig
 
 LEVELS = {FrameStatus.FIRST: OK, FrameStatus.TRACKING: OK, FrameStatus.LOST: WARN, FrameStatus.REJECTED: ERROR}
@@ -39,37 +39,6 @@ LEVELS = {FrameStatus.FIRST: OK, FrameStatus.TRACKING: OK, FrameStatus.LOST: WAR
 
 IMU_HISTORY = 400  # IMU messages kept (2 s at 200 Hz) to find the one nearest a frame
 IMU_TOLERANCE_NS = 50_000_000
-
-
-@dataclass(frozen=True)
-class StereoVONodeConfig:
-    """The node's own parameters: output frames, how many image pairs may wait for camera_info, the path
-    (``/pvo/vo/path`` at most once per ``path_period`` seconds of message time, 0: every frame; at most
-    ``path_max_poses`` newest poses, 0: all — a long run's memory and publishing time stay bounded).
-
-    max_lag: under overload, skip a frame whose stamp is more than this many seconds behind the node's clock
-    (ROS time: ``/clock`` with ``use_sim_time``, else the system clock for live sensors), counted as
-    ``skipped_overload`` and reported; 0 never skips (for replays without ``/clock``, whose stamps are old)."""
-
-    odom_frame: str = "odom"
-    camera_frame: str = "camera_left_optical"
-    max_pending_frames: int = 100
-    publish_path: bool = True
-    path_period: float = 1.0
-    path_max_poses: int = 500
-    max_lag: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not self.max_lag >= 0.0:
-            raise ValueError(f"max_lag must be >= 0 s (0: never skip), got {self.max_lag}")
-        if self.max_pending_frames < 1:
-            raise ValueError(f"max_pending_frames must be >= 1, got {self.max_pending_frames}")
-        if not self.path_period >= 0.0:
-            raise ValueError(f"path_period must be >= 0 s, got {self.path_period}")
-        if self.path_max_poses < 0:
-            raise ValueError(f"path_max_poses must be >= 0 (0: the whole trajectory), got {self.path_max_poses}")
-        if not self.odom_frame or not self.camera_frame:
-            raise ValueError("odom_frame and camera_frame must not be empty")
 
 
 class StereoPairSynchroniser:

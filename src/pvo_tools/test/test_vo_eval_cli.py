@@ -35,7 +35,7 @@ def test_pvo_vo_bad_parameter_is_one_line(pvo_data: Path, tmp_path: Path, capsys
 
 def test_pvo_vo_takes_the_nodes_params_file(pvo_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     """The shipped params files carry the node's own settings too (frames, path publishing); offline they are left
-    out, the VO's are read, and -p still wins; an unknown dotted name is still an error."""
+    out, the VO's are read, and -p still wins; any other unknown name is still an error."""
     from pvo_tools.commands.vo import vo_config
 
     config_dir = Path(__file__).resolve().parents[2] / "pvo_frontend" / "config"
@@ -47,6 +47,9 @@ def test_pvo_vo_takes_the_nodes_params_file(pvo_data: Path, tmp_path: Path, caps
     args = ["vo", str(pvo_data / "kitti/sequences/06"), "-o", str(tmp_path / "t.txt"), "--params-file", str(wrong)]
     assert main(args) == 2
     assert "unknown VO parameter(s): solver.nonsense" in capsys.readouterr().err
+    wrong.write_text("stereo_vo:\n  ros__parameters:\n    odom_frame: odom\n    solverloss: huber\n")  # a typo, not the node's
+    assert main(args) == 2
+    assert "unknown VO parameter(s): solverloss" in capsys.readouterr().err
 
 
 def test_pvo_eval_matches_the_devkit_and_writes_plots(pvo_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

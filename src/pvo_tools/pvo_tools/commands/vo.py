@@ -75,9 +75,12 @@ def frame_imu(sequence_dir: Path, sequence: KittiSequence) -> np.ndarray | None:
 
 def vo_config(items: list[str] | None, params_file: Path | None = None) -> VOConfig:
     """The VO's settings from a ``stereo_vo`` params file and ``NAME=VALUE`` items (those win). The file is the
-    node's: its own undotted settings (frames, path publishing, overload) mean nothing offline and are left out;
-    every VO setting is dotted (``solver.loss``), and an unknown one is an error."""
-    from_file = {name: value for name, value in parse_overrides(None, params_file, node="stereo_vo").items() if "." in name}
+    node's: its own settings (frames, path publishing, overload) mean nothing offline and are left out; any other
+    unknown name is an error."""
+    from pvo_frontend.stereo_vo_settings import node_setting_names
+
+    node_only = node_setting_names()
+    from_file = {k: v for k, v in parse_overrides(None, params_file, node="stereo_vo").items() if k not in node_only}
     return from_flat({**from_file, **parse_overrides(items)})
 
 
