@@ -225,7 +225,8 @@ def test_the_fusion_reference_takes_the_true_rotations_with_hydranets_covariance
 
     from pvo_core.lie import quaternion_to_rotation, so3_exp
     from pvo_pseudosensors.hydranet.estimator import pose_covariance
-    from pvo_tools.experiments.hydranet import rotation_measurements, true_rotations
+    from pvo_pseudosensors.hydranet.evaluation import true_relative_rotations
+    from pvo_tools.experiments.hydranet import rotation_measurements
 
     rng = np.random.default_rng(3)
     poses = np.tile(np.eye(4), (4, 1, 1))
@@ -239,7 +240,7 @@ def test_the_fusion_reference_takes_the_true_rotations_with_hydranets_covariance
     stamps = np.array([1, 2, 3, 4], dtype=np.int64) * 100_000_000
 
     own = rotation_measurements(predictions, stamps)
-    errorless = rotation_measurements(predictions, stamps, true_rotations(poses, predictions))
+    errorless = rotation_measurements(predictions, stamps, true_relative_rotations(poses, np.arange(3), np.arange(1, 4)))
     for k, (a, b) in enumerate(zip(own, errorless, strict=True)):
         np.testing.assert_allclose(a.transform[:3, :3], quaternion_to_rotation(quaternions[k]))
         # C_k,k-1 maps the earlier camera's coordinates into the later one's: the truth's relative rotation

@@ -37,7 +37,7 @@ SEQUENCES: tuple[tuple[str, str, int], ...] = tuple((d.name, d.drive, d.start) f
 #: reach, so a target can be read against what the rig's error is worth
 CLEAN_REFERENCE = "S-VO on the clean rig"
 _VALIDATION_RUNS: dict[tuple[Path, ...], list[Any]] = {}  # per corpora: the VO over their validation splits, run once
-_CLEAN_RUNS: dict[Path, Any] = {}  # per clean drive: its VO, run once for both tables' reference rows
+_VO_RUNS: dict[Path, Any] = {}  # per drive folder: its VO run, once (a clean drive serves as both tables' reference)
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -137,6 +137,15 @@ def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
     return calibration
 
 
+def vo_of(folder: Path) -> Any:
+    """The VO's run over the drive at ``folder`` (:func:`pvo_tools.dpc.vo_run`), made once per process."""
+    from ..dpc import vo_run
+
+    if folder not in _VO_RUNS:
+        _VO_RUNS[folder] = vo_run(folder)[0]
+    return _VO_RUNS[folder]
+
+
 def evaluate_rig(
     label: str,
     folders: list[Path],
@@ -151,7 +160,7 @@ def evaluate_rig(
     ``smoothed`` for the fusion); and the trajectories themselves (camera-to-world, per sequence and row)."""
     from pvo_core.trajectory import read_kitti_poses
 
-    from ..dpc import correct_sequence, vo_run
+    from ..dpc import correct_sequence
 
     calibrations = {name: vo_calibration(card, say, vo_span) for name, (_, card) in models.items()}
     clean = {folder.name: folder for folder in clean_folders or []}
@@ -160,15 +169,14 @@ def evaluate_rig(
     for folder in folders:
         truth = read_kitti_poses(folder / "poses.txt")
         say(f"{label} {folder.name}: VO ...")
-        run, _ = vo_run(folder)
+        run = vo_of(folder)
         estimates = {"S-VO": truth[0] @ run.poses}
         if folder.name in clean:
             if not np.allclose(read_kitti_poses(clean[folder.name] / "poses.txt"), truth):
                 raise ValueError(f"{clean[folder.name]} drives another path than {folder}: no clean-rig reference for it")
-            if clean[folder.name] not in _CLEAN_RUNS:
+            if clean[folder.name] not in _VO_RUNS:
                 say(f"{label} {folder.name}: the clean rig's VO ...")
-                _CLEAN_RUNS[clean[folder.name]] = vo_run(clean[folder.name])[0]
-            estimates[CLEAN_REFERENCE] = truth[0] @ _CLEAN_RUNS[clean[folder.name]].poses
+            estimates[CLEAN_REFERENCE] = truth[0] @ vo_of(clean[folder.name]).poses
         for name, (model, card) in models.items():
             for method in methods.get(name, ("fusion",)):
                 corrected = correct_sequence(folder, model, card, method, calibrations[name], run=run)

@@ -220,13 +220,6 @@ def render_fusion_sequences(data: Path, count: int, frames: int, out: Path, say:
     return folders
 
 
-def true_rotations(poses: Array, predictions: Any) -> Array:
-    """(N, 3, 3) the true C_k,k-1 of each predicted pair, from camera-to-world ``poses`` (M, 4, 4)."""
-    from pvo_pseudosensors.hydranet.evaluation import true_relative_rotations
-
-    return true_relative_rotations(poses, predictions.earlier, predictions.frames)
-
-
 def rotation_measurements(predictions: Any, stamps: NDArray[np.int64], rotations: Array | None = None) -> list[Any]:
     """HydraNet's predictions as the rotation-only measurements the fusion takes (what the node publishes);
     ``rotations`` (N, 3, 3): other rotations in their place, with the predictions' covariances."""
@@ -427,6 +420,7 @@ def fusion_section(
     from pvo_core.trajectory import read_kitti_poses
     from pvo_frontend.offline import run_sequence
     from pvo_frontend.vo import VOConfig
+    from pvo_pseudosensors.hydranet.evaluation import true_relative_rotations
     from pvo_pseudosensors.hydranet.infer import predict_sequence
 
     from pvo_fusion import (
@@ -469,7 +463,8 @@ def fusion_section(
         vo = vo_measurements(stamps, relative["transforms"], relative["covariances"], calibration)
         predictions = predict_sequence(model, card, folder)
         rotations = rotation_measurements(predictions, stamps)
-        errorless = rotation_measurements(predictions, stamps, true_rotations(truth, predictions))
+        truths = true_relative_rotations(truth, predictions.earlier, predictions.frames)
+        errorless = rotation_measurements(predictions, stamps, truths)
         rows: dict[str, dict[str, float]] = {"VO": fusion_figures(truth, truth[0] @ run.poses)}
         for label, others in (
             ("VO fused alone", []),
