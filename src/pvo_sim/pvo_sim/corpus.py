@@ -25,6 +25,7 @@ from pvo_core.ephemeris import GeodeticOrigin, sun_elevation_azimuth
 from .degrade import CameraModel, Degradations
 from .paths import PATH_KINDS
 from .render import KITTI_FOCAL_PER_PIXEL_WIDTH, RENDERER_REVISION, SimConfig, simulate
+from .sky import SKIES
 from .world import PRESETS
 
 MANIFEST = "manifest.yaml"
@@ -84,6 +85,9 @@ class CorpusConfig:
     # calib.txt written with the focal length and the baseline times these, instead of the drawn error
     calib_focal_scale: float = 1.0
     calib_baseline_scale: float = 1.0
+    # the sky of every sequence (pvo_sim.sky): "gradient" (one for every sun) or "sun" (the CIE skies); set after
+    # the draws, so a corpus with the sun's sky has the same places, suns and worlds as the one without
+    sky: str = "gradient"
 
     def __post_init__(self) -> None:
         if self.supersample not in (1, 2, 3, 4):
@@ -110,6 +114,8 @@ class CorpusConfig:
                 raise ValueError(
                     f"--{name.replace('_', '-')} must be in [0.5, 2] (a calibration error), got {getattr(self, name)}"
                 )
+        if self.sky not in SKIES:
+            raise ValueError(f"--sky must be one of {', '.join(SKIES)}, got {self.sky!r}")
         if self.kitti_level_frames < 0:
             raise ValueError(f"--kitti-level-frames must be >= 0 (0: each window on itself), got {self.kitti_level_frames}")
         if len(self.kitti_speed_scale) != 2 or not 0.25 <= self.kitti_speed_scale[0] <= self.kitti_speed_scale[1] <= 4.0:
@@ -275,6 +281,8 @@ def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
             speed_scale=speed_scale,
         )
         conditions.append(f"KITTI {drive} from frame {start}" + (f" at {speed_scale:.2f}x" if speed_scale != 1.0 else ""))
+    if corpus.sky != "gradient":
+        config = replace(config, sky=corpus.sky)
     return SequencePlan(index, f"{index:04d}", split, config, tuple(conditions))
 
 

@@ -25,6 +25,7 @@ from pvo_core.lie import rotation_to_quaternion, so3_exp, so3_log
 
 from .degrade import CameraModel, Degradations, ImageDegrader
 from .paths import heading_rotation, kitti_path, procedural_path
+from .sky import SKIES, composite_sky, pixel_rays, sky_values
 from .world import PRESETS, SUPERSAMPLE, WorldSpec, build_world
 
 Array = NDArray[np.float64]
@@ -69,6 +70,9 @@ class SimConfig:
     altitude: float = 115.0
     start_time: str = "2011-09-30T11:30:00Z"
     overcast: bool = False
+    # the sky: "gradient" (one for every sun, the default since revision 1) or "sun" (the CIE standard clear sky
+    # about the sun, or the overcast one: pvo_sim.sky); the gradient's sim.yaml does not name it
+    sky: str = "gradient"
     night: bool = False
     depth: bool = False
     seed: int = 0
@@ -82,6 +86,8 @@ class SimConfig:
     def __post_init__(self) -> None:
         if self.preset not in PRESETS:
             raise ValueError(f"unknown preset {self.preset!r}: choose one of {', '.join(PRESETS)}")
+        if self.sky not in SKIES:
+            raise ValueError(f"--sky must be one of {', '.join(SKIES)}, got {self.sky!r}")
         if self.supersample not in (0, 1, 2, 3, 4):
             raise ValueError(f"--supersample must be 0 (the preset's default), 1, 2, 3 or 4, got {self.supersample}")
         if not -60.0 <= self.pitch_deg <= 60.0:
@@ -288,6 +294,7 @@ def simulate(
         image_size=(config.width * config.scale, config.height * config.scale),
         texture_poor=config.degradations.texture_poor,
         moving_vehicles=config.degradations.moving_vehicles,
+        sky=config.sky,
     )
     world = build_world(spec, poses, config.camera_height)
     model = world.compile()
@@ -342,6 +349,10 @@ def _render(
         depth_renderer.enable_depth_rendering()
     degrade = ImageDegrader(config.degradations, config.width, config.height, config.focal, n, config.seed, config.camera)
     cull = RangeCuller(model)
+    rays = None
+    if config.sky == "sun":  # the key colour must reach the image unblended: no haze band at the horizon
+        renderer.scene.flags[mujoco.mjtRndFlag.mjRND_HAZE] = False
+        rays = pixel_rays(config.width, config.height, config.focal)
     t1 = time.perf_counter()
     try:
         for k in range(n):
@@ -354,11 +365,16 @@ def _render(
             mujoco.mj_kinematics(model, data)
             mujoco.mj_camlight(model, data)
             option = cull(data, poses[k])
+            # the sky at infinity, the same for both cameras (one rotation); up: the world's z in the optical
+            # frame, row 2 of R_world,cam
+            sky = None if rays is None else sky_values(rays, poses[k, 2, :3], sun_camera[k], config.overcast, colour=True)
             name = f"{k:06d}.png"
             for index, (camera, folder) in enumerate((("left", left_dir), ("right", right_dir))):
                 renderer.update_scene(data, camera=camera, scene_option=option)
                 rgb = renderer.render()
-                if scale > 1:  # the mean of each scale x scale block: pixel centres stay where they were
+                if sky is not None:
+                    rgb = composite_sky(rgb, sky, scale)
+                elif scale > 1:  # the mean of each scale x scale block: pixel centres stay where they were
                     rgb = cv2.resize(rgb, (config.width, config.height), interpolation=cv2.INTER_AREA)
                 image = rgb if config.colour else cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
                 image = degrade(image, k, index)
@@ -381,6 +397,15 @@ def _render(
     seconds_render = time.perf_counter() - t1
     _write_sidecars(config, out, poses, times, sun_camera, origin, left_dir, world)
     return seconds_render
+
+
+def _recorded(config: SimConfig) -> dict:
+    """The configuration as ``sim.yaml`` records it: the default sky is not named, so a sequence rendered before
+    the sky was an option keeps its content hash."""
+    recorded = asdict(config)
+    if recorded["sky"] == "gradient":
+        del recorded["sky"]
+    return recorded
 
 
 def _write_sidecars(
@@ -429,7 +454,7 @@ def _write_sidecars(
     meta = {
         "generator": "pvo sim",
         "renderer_revision": RENDERER_REVISION,
-        "config": asdict(config),
+        "config": _recorded(config),
         "epoch_unix_s": float(times[0]),
         "world_T_cam0": poses[0].tolist(),
         "frames": n,

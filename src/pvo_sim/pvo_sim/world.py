@@ -35,6 +35,9 @@ class WorldSpec:
     texture_poor: float = 0.0  # fraction of buildings with plain walls
     moving_vehicles: int = MOVING_VEHICLES
     gravel: float = 9.0  # planetary: stones and rocks (as meshes) per 2 m of path
+    # "gradient": one sky for every sun; "sun": the skybox in the key colour, for :mod:`.sky` to replace with
+    # the sky the sun makes (the renderer composites it)
+    sky: str = "gradient"
 
 
 @dataclass(frozen=True)
@@ -176,7 +179,7 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
     <rgba haze="0.65 0.72 0.82 1" fog="0.7 0.75 0.82 1"/>
   </visual>
   <asset>
-    <texture name="sky" type="skybox" builtin="gradient" rgb1="0.85 0.9 1.0" rgb2="1 1 1" width="256" height="256"/>
+    {_skybox(spec.sky)}
     {chr(10).join("    " + a for a in assets).strip()}
   </asset>
   <worldbody>
@@ -192,6 +195,18 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
   </worldbody>
 </mujoco>"""
     return World(xml, parts.hfields, parts.moving_paths, parts.moving_headings, extent, parts.files)
+
+
+def _skybox(sky: str) -> str:
+    """The skybox texture: the gradient, or the key colour :func:`pvo_sim.sky.composite_sky` replaces."""
+    if sky == "gradient":
+        return '<texture name="sky" type="skybox" builtin="gradient" rgb1="0.85 0.9 1.0" rgb2="1 1 1" width="256" height="256"/>'
+    if sky == "sun":
+        from .sky import KEY_RGB
+
+        key = " ".join(f"{c / 255:g}" for c in KEY_RGB)
+        return f'<texture name="sky" type="skybox" builtin="flat" rgb1="{key}" rgb2="{key}" width="16" height="16"/>'
+    raise ValueError(f"unknown sky {sky!r}: choose gradient or sun")
 
 
 def _builders() -> dict[str, Callable[[WorldSpec, WorldArea, np.random.Generator], WorldParts]]:

@@ -256,3 +256,14 @@ def test_one_calibration_error_for_the_whole_corpus() -> None:
         assert plan.config.seed == before.config.seed and plan.config.focal == before.config.focal  # the same images
     with pytest.raises(ValueError, match=r"--calib-focal-scale must be in \[0.5, 2\]"):
         CorpusConfig(calib_focal_scale=0.0)
+
+
+def test_the_sun_sky_changes_the_sky_and_nothing_drawn() -> None:
+    sky = CorpusConfig(sequences=30, frames=10, seed=5, sky="sun")
+    plain = CorpusConfig(sequences=30, frames=10, seed=5)
+    for i in range(30):
+        plan, before = plan_sequence(sky, i), plan_sequence(plain, i)
+        assert plan.config.sky == "sun" and before.config.sky == "gradient"
+        assert replace(plan.config, sky="gradient") == before.config and plan.conditions == before.conditions
+    with pytest.raises(ValueError, match="--sky must be one of gradient, sun"):
+        CorpusConfig(sky="cloudy")

@@ -249,3 +249,10 @@ def test_a_card_names_the_command_that_mirrored_its_corpus(corpus: Path, tmp_pat
     (mirrored / "manifest.yaml").write_text(yaml.safe_dump(data))
     assert _corpus_command(read_corpus_manifest(mirrored)) == f"pvo sim mirror {corpus} {mirrored}"
     assert _corpus_command(read_corpus_manifest(corpus)).startswith(f"pvo sim corpus {corpus} --sequences 4")
+    assert "--sky" not in _corpus_command(read_corpus_manifest(corpus))
+    sky = tmp_path / "sky"
+    sky.mkdir()
+    data = yaml.safe_load((corpus / "manifest.yaml").read_text())
+    data["corpus"]["sky"] = "sun"
+    (sky / "manifest.yaml").write_text(yaml.safe_dump(data))
+    assert " --sky sun" in _corpus_command(read_corpus_manifest(sky))

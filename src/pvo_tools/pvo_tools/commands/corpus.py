@@ -37,6 +37,13 @@ def register(sub: Any) -> None:
         help="render N times larger and average down (1-4; default 1: the models read the corpus at half size or "
         "less, which integrates pixel areas anyway; pvo sim's default 2 costs a third of the rate)",
     )
+    corpus.add_argument(
+        "--sky",
+        choices=("gradient", "sun"),
+        default="gradient",
+        help="every sequence's sky: gradient (one for every sun; default) or sun (the CIE standard skies, brightest "
+        "about the sun); the draws are the same either way",
+    )
     corpus.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     corpus.add_argument(
         "--lens-distortion",
@@ -138,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
         kitti_validation=_drives(args.kitti_validation),
         kitti_test=_drives(args.kitti_test),
         kitti_turning=args.kitti_turning,
+        sky=args.sky,
         kitti_level_frames=args.kitti_level_frames,
         kitti_speed_scale=tuple(args.kitti_speed_scale),  # type: ignore[arg-type]
         lens_distortion=tuple(args.lens_distortion),

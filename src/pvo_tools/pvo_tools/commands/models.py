@@ -168,6 +168,7 @@ def _corpus_command(manifest: Any) -> str:
     presets = ",".join(data["presets"])
     colour = " --colour" if data.get("colour") else ""
     colour += f" --supersample {data['supersample']}" if data.get("supersample", 1) != 1 else ""
+    colour += f" --sky {data['sky']}" if data.get("sky", "gradient") != "gradient" else ""
     if data.get("lens_distortion"):
         colour += " --lens-distortion " + " ".join(f"{k:g}" for k in data["lens_distortion"])
     for name in ("focal", "baseline"):

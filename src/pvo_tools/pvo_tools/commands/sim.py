@@ -49,6 +49,13 @@ def register(sub: Any) -> None:
     sim.add_argument("--alt", type=float, default=115.0, help="altitude of the world origin (m)")
     sim.add_argument("--start-time", default="2011-09-30T11:30:00Z", help="UTC time of the first frame (ISO 8601)")
     sim.add_argument("--overcast", action="store_true", help="diffuse light, no cast shadows")
+    sim.add_argument(
+        "--sky",
+        choices=("gradient", "sun"),
+        default="gradient",
+        help="gradient: one sky for every sun (default); sun: the CIE standard clear sky, brightest about the sun and "
+        "towards the horizon (with --overcast, the CIE overcast sky)",
+    )
     sim.add_argument("--night", action="store_true", help="render even when the sun is below the horizon")
     sim.add_argument(
         "--supersample",
@@ -143,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
         altitude=args.alt,
         start_time=args.start_time,
         overcast=args.overcast,
+        sky=args.sky,
         night=args.night,
         depth=args.depth,
         supersample=args.supersample,
