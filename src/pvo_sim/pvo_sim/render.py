@@ -399,7 +399,7 @@ def _render(
     return seconds_render
 
 
-def _recorded(config: SimConfig) -> dict:
+def recorded_config(config: SimConfig) -> dict:
     """The configuration as ``sim.yaml`` records it: the default sky is not named, so a sequence rendered before
     the sky was an option keeps its content hash."""
     recorded = asdict(config)
@@ -454,7 +454,7 @@ def _write_sidecars(
     meta = {
         "generator": "pvo sim",
         "renderer_revision": RENDERER_REVISION,
-        "config": _recorded(config),
+        "config": recorded_config(config),
         "epoch_unix_s": float(times[0]),
         "world_T_cam0": poses[0].tolist(),
         "frames": n,

@@ -11,7 +11,7 @@ shows real and rendered frames together.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -104,7 +104,9 @@ def render(config: SimConfig, out: Path, reuse: bool = False) -> Path:
     import yaml
 
     meta = out / "sim.yaml"
-    if reuse and meta.is_file() and yaml.safe_load(meta.read_text()).get("config") == _plain(asdict(config)):
+    from pvo_sim.render import recorded_config
+
+    if reuse and meta.is_file() and yaml.safe_load(meta.read_text()).get("config") == _plain(recorded_config(config)):
         return out
     simulate(config, out, overwrite=True)
     return out
