@@ -17,13 +17,12 @@ from pathlib import Path
 
 from pvo_pseudosensors.learning.training import FineTune
 from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
-from pvo_pseudosensors.sun_bcnn.evaluation import evaluate_predictions
-from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn, predict_sequence
+from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn
 from pvo_pseudosensors.sun_bcnn.model import SunTask
 from pvo_tools.experiments.sun_bcnn import (
     KITTI_TRAIN_FRAMES,
     KITTI_VALIDATION_FRAMES,
-    kitti_truth,
+    kitti_figures,
     stage_kitti,
     train_on_kitti,
 )
@@ -50,12 +49,8 @@ def main() -> None:
     command += f"--epochs {args.epochs} -o {args.out}"
     train_on_kitti(FineTune(SunTask(config), base), config.spec, train, validation, args.out, args.epochs,
                    args.learning_rate, print, {"train": command})  # fmt: skip
-    truth_frames = list(KITTI_VALIDATION_FRAMES)
     for name in [str(args.out), *args.compare]:
-        model, card = load_sun_bcnn(resolve_model(name))
-        predictions = predict_sequence(model, card, validation, cache_dir=staged / ".cache")
-        truth = kitti_truth(data, "07", [truth_frames[k] for k in predictions.frames])
-        figures = evaluate_predictions(predictions.rows(), truth)
+        figures = kitti_figures(name, validation, data, "07", KITTI_VALIDATION_FRAMES, staged / ".cache")
         print(
             f"{name:<40} 07 frames 128-159: median {figures['vector_median_deg']:6.2f}  "
             f"mean {figures['vector_mean_deg']:6.2f}  ANEES {figures['anees']:5.2f}",

@@ -13,12 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
 import torch
-from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
-from pvo_pseudosensors.sun_bcnn.evaluation import evaluate_predictions
-from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn, predict_sequence
-from pvo_tools.experiments.sun_bcnn import KITTI_VALIDATION_FRAMES, kitti_truth, stage_kitti
+from pvo_tools.experiments.sun_bcnn import KITTI_VALIDATION_FRAMES, kitti_figures, stage_kitti
 from pvo_tools.paths import data_directory
 
 
@@ -36,10 +32,7 @@ def main() -> None:
     staged = stage_kitti(data, "07", frames, args.stage / f"kitti07-{args.frames}")
     print(f"KITTI 07 frames {frames.start}-{frames.stop - 1}: {len(frames)} images")
     for name in args.models:
-        model, card = load_sun_bcnn(resolve_model(name))
-        predictions = predict_sequence(model, card, staged, cache_dir=args.stage / ".cache")
-        truth = kitti_truth(data, "07", np.asarray(list(frames))[predictions.frames])
-        f = evaluate_predictions(predictions.rows(), truth)
+        f = kitti_figures(name, staged, data, "07", frames, args.stage / ".cache")
         print(
             f"{name:<40} median {f['vector_median_deg']:6.2f}  mean {f['vector_mean_deg']:6.2f}  "
             f"zenith {f['zenith_median_deg']:6.2f}  azimuth {f['azimuth_median_deg']:6.2f}  ANEES {f['anees']:6.2f}",

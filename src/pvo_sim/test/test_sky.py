@@ -91,6 +91,7 @@ def test_composite_replaces_only_the_key_and_blends_partly_covered_pixels() -> N
 
 
 def render(out: Path, heading: float, sky: str) -> SimConfig:
+    """A small straight drive pitched up to see the sky (skipped without an offscreen renderer)."""
     config = SimConfig(
         width=320, height=120, focal=185.4, path="straight", frames=2, heading_deg=heading, pitch_deg=-12.0,
         start_time="2011-09-30T08:00:00Z", sky=sky, depth=True, colour=True, supersample=2,
@@ -132,7 +133,6 @@ def test_a_rendered_sky_is_brightest_on_the_sun_side_and_keeps_no_key_colour(tmp
 
 def test_the_default_sky_is_not_recorded_and_a_wrong_sky_is_one_clear_error(tmp_path: Path) -> None:
     import yaml
-
     from pvo_sim.render import recorded_config
 
     config = render(tmp_path / "plain", 0.0, "gradient")

@@ -71,6 +71,19 @@ def kitti_truth(data: Path, sequence: str, frames: NDArray[np.int64]) -> Array:
     return read_kitti_sun_csv(data / "kitti" / "sun" / f"kitti_sun_test_{sequence}.csv")[frames]
 
 
+def kitti_figures(model_name: str, staged: Path, data: Path, sequence: str, frames: range, cache: Path) -> dict[str, float]:
+    """Table 5.1's figures of one model (a directory or shipped name, in the MC mode its card names, N = 25) on
+    ``frames`` of a KITTI clip staged by :func:`stage_kitti` into ``staged``."""
+    from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
+    from pvo_pseudosensors.sun_bcnn.evaluation import evaluate_predictions
+    from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn, predict_sequence
+
+    model, card = load_sun_bcnn(resolve_model(model_name))
+    predictions = predict_sequence(model, card, staged, cache_dir=cache)
+    truth = kitti_truth(data, sequence, np.asarray(list(frames))[predictions.frames])
+    return evaluate_predictions(predictions.rows(), truth)
+
+
 def train_on_kitti(
     task: Any,
     spec: Any,
