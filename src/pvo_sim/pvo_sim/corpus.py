@@ -24,7 +24,7 @@ from pvo_core.ephemeris import GeodeticOrigin, sun_elevation_azimuth
 
 from .degrade import CameraModel, Degradations
 from .paths import PATH_KINDS
-from .render import KITTI_FOCAL_PER_PIXEL_WIDTH, RENDERER_REVISION, SimConfig, simulate
+from .render import KITTI_FOCAL_PER_PIXEL_WIDTH, RENDERER_REVISION, SimConfig, recorded_config, simulate
 from .sky import SKIES
 from .world import PRESETS
 
@@ -327,7 +327,7 @@ def _entry(plan: SequencePlan, folder: Path, seconds: float) -> dict[str, Any]:
         "render_seconds": round(seconds, 2),
         "renderer_revision": RENDERER_REVISION,
         "sha256": content_hash(folder),
-        "config": _plain(asdict(plan.config)),
+        "config": _plain(recorded_config(plan.config)),  # as the sequence's sim.yaml records it
     }
 
 
