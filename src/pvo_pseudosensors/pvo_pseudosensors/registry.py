@@ -120,6 +120,8 @@ def _sun_bcnn() -> ModelEntry:
             "dropout": "dropout probability (kept on for MC sampling)",
             "grid": "rows,columns of the region pooling before the head (1,1: global)",
             "mirror": "mirror training images left-right at random (the sun's x negated)",
+            "rotate": "warp training images as if the camera turned: yaw within +-ROTATE deg, pitch and roll "
+            "+-ROTATE/4, the sun turned with it (0: off)",
             "aleatoric": "a von Mises-Fisher concentration per image (heteroscedastic covariance)",
             "augment": "photometric jitter in training (gain, gamma, noise)",
             "batch_norm": "batch normalisation after every convolution (running statistics in the MC passes)",

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from pvo_core.errors import DataFormatError
 from pvo_pseudosensors.learning import (
     DataSpec,
     FrameDataset,
@@ -23,7 +24,7 @@ from pvo_pseudosensors.learning import (
     save_model,
 )
 from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
-from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask
+from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask, random_rotations, rotate_cameras, rotation_matrices
 
 SIZE = (24, 64)  # the tiny model's input (height, width)
 TINY = SunBCNNConfig(
@@ -339,6 +340,84 @@ def test_mirroring_negates_the_suns_x_with_the_image() -> None:
 
     torch.manual_seed(0)
     assert float(task.loss(Constant().train(), batch)) > 0.5  # some samples were mirrored: their sun moved to -x
+
+
+def _sun_disc(camera: tuple[float, float, float, float], suns: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+    """Images (B, 1, H, W) black but for a bright Gaussian disc (sigma 1.5 px) where each sun (B, 3) projects."""
+    fx, fy, cx, cy = camera
+    v, u = torch.meshgrid(torch.arange(size[0], dtype=torch.float64), torch.arange(size[1], dtype=torch.float64), indexing="ij")
+    at_u = fx * suns[:, 0] / suns[:, 2] + cx
+    at_v = fy * suns[:, 1] / suns[:, 2] + cy
+    squared = (u - at_u[:, None, None]) ** 2 + (v - at_v[:, None, None]) ** 2
+    return torch.exp(-squared / (2 * 1.5**2))[:, None].float()
+
+
+def _disc_centre(images: torch.Tensor) -> torch.Tensor:
+    """(B, 2) brightness-weighted centre (u, v) of each image, in pixels."""
+    v, u = torch.meshgrid(torch.arange(images.shape[2]), torch.arange(images.shape[3]), indexing="ij")
+    weights = images[:, 0] ** 4  # the disc, not the border pixels the warp repeats
+    total = weights.sum(dim=(1, 2))
+    return torch.stack([(weights * u).sum(dim=(1, 2)) / total, (weights * v).sum(dim=(1, 2)) / total], dim=1)
+
+
+def test_a_turned_camera_sees_the_sun_where_the_turned_sun_vector_projects() -> None:
+    """The warp K R K^-1 is the image a turned pinhole camera sees: a disc drawn where the sun projects moves to
+    where the turned vector projects (principal point off centre, fx != fy, turns about all three axes)."""
+    size, camera = (94, 310), (150.0, 153.0, 150.2, 44.7)
+    suns = torch.nn.functional.normalize(torch.tensor([[0.3, -0.2, 1.0], [-0.5, 0.1, 1.0], [0.05, 0.25, 1.0]]), dim=1)
+    images = _sun_disc(camera, suns.double(), size)
+    degrees = torch.tensor([[9.0, 2.0, -3.0], [-12.0, -1.5, 2.5], [4.0, 3.0, 5.0]])  # yaw, pitch, roll
+    turns = rotation_matrices(*torch.deg2rad(degrees).T)
+    warped, turned = rotate_cameras(images, suns, torch.tensor([camera] * 3), turns)
+    expected = _disc_centre(_sun_disc(camera, turned.double(), size))
+    np.testing.assert_allclose(_disc_centre(warped).numpy(), expected.numpy(), atol=0.05)
+    np.testing.assert_allclose(torch.linalg.norm(turned, dim=1).numpy(), 1.0, atol=1e-6)
+    moved = torch.linalg.norm(_disc_centre(warped) - _disc_centre(images), dim=1)
+    assert float(moved.min()) > 10.0  # the turns are large enough to test something
+    # yaw turns about the optical frame's y axis (down): a positive yaw moves a sun ahead towards +x
+    yawed = rotation_matrices(*torch.deg2rad(torch.tensor([[10.0], [0.0], [0.0]])))[0]
+    assert float((yawed @ torch.tensor([0.0, 0.0, 1.0]))[0]) > 0
+
+
+def test_rotation_augmentation_keeps_image_and_sun_consistent_with_mirroring() -> None:
+    """In the loss, a model that reads the sun off the disc's position (the camera known) stays exact however
+    the images are mirrored and turned, while one that ignores the image loses: the suns moved."""
+    size, camera = (48, 128), (60.0, 60.0, 63.5, 23.5)
+    suns = torch.nn.functional.normalize(torch.tensor([[0.4, -0.1, 1.0], [-0.3, 0.2, 1.0]] * 4), dim=1)
+    batch = {"left": _sun_disc(camera, suns.double(), size), "sun": suns, "camera": torch.tensor([camera] * 8)}
+
+    class Reader(_Direct):
+        def direction_of(self, images: torch.Tensor) -> torch.Tensor:
+            centre = _disc_centre(images)
+            rays = torch.stack([(centre[:, 0] - camera[2]) / camera[0], (centre[:, 1] - camera[3]) / camera[1]], 1)
+            return torch.nn.functional.normalize(torch.cat([rays, torch.ones(len(rays), 1)], dim=1), dim=1)
+
+    task = SunTask(replace(TINY, height=size[0], width=size[1], mirror=True, rotate=20.0))
+    torch.manual_seed(3)
+    assert float(task.loss(Reader().train(), batch)) < 1e-5
+
+    class Constant(_Direct):
+        def direction_of(self, images: torch.Tensor) -> torch.Tensor:
+            return suns[: len(images)]
+
+    torch.manual_seed(3)
+    assert float(task.loss(Constant().train(), batch)) > 1e-3
+    with pytest.raises(ValueError, match="camera intrinsics"):
+        task.loss(Reader().train(), {"left": batch["left"], "sun": suns})
+    angles = torch.rad2deg(torch.acos(random_rotations(2000, 20.0)[:, 2, 2].clamp(-1, 1)))
+    assert 10.0 < float(angles.max()) <= 20.0 * 1.1  # yaw up to 20 deg, pitch up to 5: the forward axis turns up to ~21
+
+
+def test_a_dataset_with_camera_carries_the_intrinsics_at_its_size(tmp_path: Path) -> None:
+    root = write_sequence(tmp_path / "s", frames=3)  # 48x128 images, resized to 24x64
+    spec = replace(TINY, rotate=10.0).spec
+    with pytest.raises(DataFormatError, match="calib.txt.*camera intrinsics"):
+        FrameDataset([Source(root, "s")], spec)
+    row = "100 0 63.5 0 0 90 23.5 0 0 0 1 0"
+    (root / "calib.txt").write_text(f"P0: {row}\nP1: {row}\n")
+    sample = FrameDataset([Source(root, "s")], spec)[0]
+    np.testing.assert_allclose(sample["camera"].numpy(), [50.0, 45.0, 31.5, 11.5])
+    assert "camera" not in FrameDataset([Source(root, "s")], TINY.spec)[0]
 
 
 def test_the_vmf_likelihood_matches_scipy_and_the_loss_teaches_kappa_the_error() -> None:

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 from pvo_core.errors import DataFormatError
-from pvo_core.readers import read_corpus_manifest, read_imu_csv, read_kitti_sun_csv
+from pvo_core.readers import read_corpus_manifest, read_imu_csv, read_kitti_calibration, read_kitti_sun_csv
 from pvo_core.trajectory import read_kitti_poses
 
 from .spec import DataSpec
@@ -135,6 +135,7 @@ class _Sequence:
     poses: NDArray[np.float64] | None
     sun: NDArray[np.float64] | None
     imu: NDArray[np.float64] | None
+    camera: NDArray[np.float64] | None = None
 
 
 @dataclass
@@ -144,7 +145,8 @@ class FrameDataset(torch.utils.data.Dataset):
     ``left`` (C, H, W) float32 in [0, 1]; ``right``, ``previous`` (the left image at k - delta) likewise;
     ``relative`` (4, 4) T_k,k-delta (maps points from the earlier camera frame to the later one); ``sun``
     (3,) unit vector towards the sun in the left camera optical frame; ``imu`` (6,) angular rate (rad/s)
-    and specific force (m/s²); ``sequence``, ``frame`` (ints)."""
+    and specific force (m/s²); ``camera`` (4,) the left camera's fx, fy, cx, cy in pixels of the resized image
+    (from ``calib.txt``); ``sequence``, ``frame`` (ints)."""
 
     sources: Sequence[Source]
     spec: DataSpec
@@ -168,7 +170,8 @@ class FrameDataset(torch.utils.data.Dataset):
             poses = self._truth(source, "poses.txt", read_kitti_poses, len(left_paths)) if spec.delta else None
             sun = self._truth(source, "sun.csv", read_kitti_sun_csv, len(left_paths)) if spec.sun else None
             imu = self._truth(source, "imu.csv", lambda p: read_imu_csv(p)[:, 1:], len(left_paths)) if spec.imu else None
-            self.sequences.append(_Sequence(source, left, right, poses, sun, imu))
+            camera = _camera_at_size(source, left_paths[0], spec) if spec.camera else None
+            self.sequences.append(_Sequence(source, left, right, poses, sun, imu, camera))
             frames = np.arange(spec.delta, len(left_paths))
             rows.append(np.column_stack([np.full(len(frames), number), frames]))
         self.index = np.vstack(rows) if rows else np.zeros((0, 2), np.int64)
@@ -204,7 +207,30 @@ class FrameDataset(torch.utils.data.Dataset):
             sample["sun"] = torch.from_numpy(sequence.sun[k].astype(np.float32))
         if sequence.imu is not None:
             sample["imu"] = torch.from_numpy(sequence.imu[k].astype(np.float32))
+        if sequence.camera is not None:
+            sample["camera"] = torch.from_numpy(sequence.camera.astype(np.float32))
         return sample
+
+
+def _camera_at_size(source: Source, first_image: Path, spec: DataSpec) -> NDArray[np.float64]:
+    """The left camera's (fx, fy, cx, cy) from ``calib.txt`` (P0, or P2 for colour), scaled from the image's own
+    size to ``spec.size`` (pixel centres map as resizing maps them: x' = (x + 0.5) s - 0.5)."""
+    import cv2
+
+    path = source.root / "calib.txt"
+    if not path.is_file():
+        raise DataFormatError(path, f"needed by the dataset (camera intrinsics) but missing ({source.name})")
+    key = "P2" if spec.colour else "P0"
+    matrices = read_kitti_calibration(path)
+    if key not in matrices:
+        raise DataFormatError(path, f"no {key} entry (the left camera's projection)")
+    projection = matrices[key]
+    image = cv2.imread(str(first_image), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise DataFormatError(first_image, "not a readable image")
+    scale_y, scale_x = spec.size[0] / image.shape[0], spec.size[1] / image.shape[1]
+    fx, fy, cx, cy = projection[0, 0], projection[1, 1], projection[0, 2], projection[1, 2]
+    return np.array([fx * scale_x, fy * scale_y, (cx + 0.5) * scale_x - 0.5, (cy + 0.5) * scale_y - 0.5])
 
 
 def _float(image: NDArray[np.uint8]) -> torch.Tensor:

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 class DataSpec:
     """What every sample carries: the left image at ``size`` (height, width), grey or colour, and optionally
     the right image, the left image ``delta`` frames earlier with the relative pose T_k,k-delta, the sun
-    vector and the IMU reading."""
+    vector, the IMU reading and the left camera's pinhole intrinsics at ``size`` (``camera``)."""
 
     size: tuple[int, int]
     colour: bool = False
@@ -17,6 +17,7 @@ class DataSpec:
     delta: int = 0
     sun: bool = False
     imu: bool = False
+    camera: bool = False
 
     def __post_init__(self) -> None:
         if len(self.size) != 2 or min(self.size) < 8:

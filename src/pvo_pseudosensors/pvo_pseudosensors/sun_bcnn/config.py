@@ -20,7 +20,11 @@ class SunBCNNConfig:
     every block and the hidden layer (kept on for MC sampling); grid: rows and columns of the average pooling
     before the head (where things are in the image says where the sun is; (1, 1) is global pooling);
     mirror: in training, each image is mirrored left-right at random with the sun's x negated (a mirrored
-    world has a mirrored sun: twice the suns to learn from a corpus of few sequences); aleatoric: a fourth
+    world has a mirrored sun: twice the suns to learn from a corpus of few sequences); rotate: in training,
+    each image is warped as if the camera had turned by a random rotation — yaw uniform in ±rotate degrees,
+    pitch and roll in ±rotate/4 (real cameras pitch and roll less than they turn) — and the sun vector turned
+    with it: the same scene with the sun at another bearing, exact for a pinhole camera (the homography
+    K R K^-1 with the sequence's own intrinsics; 0: off); aleatoric: a fourth
     output, the concentration kappa of a von Mises-Fisher distribution about the predicted direction, trained
     by its negative log-likelihood, so that hard images (overcast, no shadows in view, blur) get a larger
     covariance than easy ones (the thesis's single tau cannot: its §5.8.1); augment: photometric jitter in
@@ -34,6 +38,7 @@ class SunBCNNConfig:
     hidden: int = 128
     dropout: float = 0.2
     mirror: bool = True
+    rotate: float = 0.0
     grid: tuple[int, ...] = (2, 4)
     aleatoric: bool = True
     augment: bool = True
@@ -42,12 +47,14 @@ class SunBCNNConfig:
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:
             raise ValueError("Sun-BCNN needs an input of at least 16 px, at least one block and dropout in [0, 1)")
+        if not 0.0 <= self.rotate <= 60.0:
+            raise ValueError(f"rotate must be a yaw range in [0, 60] degrees, got {self.rotate}")
         if len(self.grid) != 2 or min(self.grid) < 1:
             raise ValueError(f"grid must be two positive numbers (rows, columns), got {self.grid}")
 
     @property
     def spec(self) -> DataSpec:
-        return DataSpec((self.height, self.width), colour=self.colour, sun=True)
+        return DataSpec((self.height, self.width), colour=self.colour, sun=True, camera=self.rotate > 0.0)
 
     @classmethod
     def from_card(cls, card: Any) -> SunBCNNConfig:

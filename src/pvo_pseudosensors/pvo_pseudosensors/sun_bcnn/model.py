@@ -116,6 +116,57 @@ def photometric_jitter(images: torch.Tensor) -> torch.Tensor:
     return ((images.clamp(0.0, 1.0) * gain).clamp(1e-6, 1.0) ** gamma + noise).clamp(0.0, 1.0)
 
 
+def rotation_matrices(yaw: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor) -> torch.Tensor:
+    """(B, 3, 3) rotations of the camera optical frame (x right, y down, z forward): R = Rz(roll) Ry(yaw) Rx(pitch),
+    angles (B,) in radians."""
+    zero, one = torch.zeros_like(yaw), torch.ones_like(yaw)
+
+    def matrix(*rows: torch.Tensor) -> torch.Tensor:
+        return torch.stack(rows, dim=-1).reshape(-1, 3, 3)
+
+    c, s = torch.cos(pitch), torch.sin(pitch)
+    about_x = matrix(one, zero, zero, zero, c, -s, zero, s, c)
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    about_y = matrix(c, zero, s, zero, one, zero, -s, zero, c)
+    c, s = torch.cos(roll), torch.sin(roll)
+    about_z = matrix(c, -s, zero, s, c, zero, zero, zero, one)
+    return about_z @ about_y @ about_x
+
+
+def rotate_cameras(
+    images: torch.Tensor, sun: torch.Tensor, camera: torch.Tensor, rotation: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Images (B, C, H, W) as a pinhole camera (B, 4: fx, fy, cx, cy in pixels of these images) would have
+    seen them after turning by ``rotation`` (B, 3, 3; a point X in the old camera frame is R X in the new), and
+    the sun vectors (B, 3) in the new frame. Each output pixel samples the old image at K Rᵀ K⁻¹ of itself
+    (bilinear; outside the old image the nearest border pixel)."""
+    batch, _, height, width = images.shape
+    fx, fy, cx, cy = camera.unbind(dim=1)
+    intrinsics = torch.zeros(batch, 3, 3, dtype=images.dtype)
+    intrinsics[:, 0, 0], intrinsics[:, 1, 1], intrinsics[:, 0, 2], intrinsics[:, 1, 2] = fx, fy, cx, cy
+    intrinsics[:, 2, 2] = 1.0
+    new_to_old = intrinsics @ rotation.transpose(1, 2) @ torch.linalg.inv(intrinsics)
+    v, u = torch.meshgrid(torch.arange(height, dtype=images.dtype), torch.arange(width, dtype=images.dtype), indexing="ij")
+    pixels = torch.stack([u, v, torch.ones_like(u)], dim=-1).reshape(-1, 3)
+    old = pixels @ new_to_old.transpose(1, 2)  # (B, H*W, 3)
+    depth = old[..., 2].clamp_min(1e-6)  # turns this small keep every ray in front of the old camera
+    grid = torch.stack([(2.0 * old[..., 0] / depth + 1.0) / width - 1.0, (2.0 * old[..., 1] / depth + 1.0) / height - 1.0], -1)
+    warped = nn.functional.grid_sample(
+        images, grid.reshape(batch, height, width, 2), mode="bilinear", padding_mode="border", align_corners=False
+    )
+    return warped, (rotation @ sun[:, :, None])[:, :, 0]
+
+
+def random_rotations(count: int, max_yaw_deg: float) -> torch.Tensor:
+    """(count, 3, 3) camera turns: yaw uniform in ±max_yaw_deg, pitch and roll in ±max_yaw_deg / 4 (the global
+    RNG: seeded)."""
+    limit = math.radians(max_yaw_deg)
+    yaw = torch.empty(count).uniform_(-limit, limit)
+    pitch = torch.empty(count).uniform_(-limit / 4.0, limit / 4.0)
+    roll = torch.empty(count).uniform_(-limit / 4.0, limit / 4.0)
+    return rotation_matrices(yaw, pitch, roll)
+
+
 def vmf_negative_log_likelihood(kappa: torch.Tensor, cosine: torch.Tensor) -> torch.Tensor:
     """-log p(s | mu, kappa) of the von Mises-Fisher distribution on the sphere, for mu·s = ``cosine``:
     -log kappa + log(2 pi (1 - exp(-2 kappa))) + kappa (1 - cosine), stable for any kappa > 0."""
@@ -137,10 +188,18 @@ class SunTask:
         images, sun = batch["left"], batch["sun"]
         if self.config.augment and model.training:
             images = photometric_jitter(images)
+        camera = batch.get("camera")
         if self.config.mirror and model.training:
             flip = torch.rand(len(images)) < 0.5  # the global RNG: seeded, and checkpointed for --resume
             images = torch.where(flip[:, None, None, None], images.flip(-1), images)
             sun = torch.where(flip[:, None], sun * torch.tensor([-1.0, 1.0, 1.0]), sun)
+            if camera is not None:  # the mirrored image's principal point
+                mirrored = torch.stack([camera[:, 0], camera[:, 1], images.shape[-1] - 1.0 - camera[:, 2], camera[:, 3]], 1)
+                camera = torch.where(flip[:, None], mirrored, camera)
+        if self.config.rotate > 0.0 and model.training:
+            if camera is None:
+                raise ValueError("rotate needs each sample's camera intrinsics (a dataset built with DataSpec camera=True)")
+            images, sun = rotate_cameras(images, sun, camera, random_rotations(len(images), self.config.rotate))
         predicted, kappa = model(images, with_concentration=True)
         cosine = (predicted * sun).sum(dim=1)
         loss = (1.0 - cosine).mean()
