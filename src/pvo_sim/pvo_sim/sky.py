@@ -34,6 +34,9 @@ RESPONSE_EXPONENT = 0.45
 #: A clear sky's blue, normalised so that its BT.601 grey is the luminance value (saturates towards white).
 CLEAR_TINT = np.array([0.80, 0.89, 1.0]) / (0.299 * 0.80 + 0.587 * 0.89 + 0.114 * 1.0)
 OVERCAST_TINT = np.array([0.97, 0.98, 1.0]) / (0.299 * 0.97 + 0.587 * 0.98 + 0.114 * 1.0)
+#: Degrees of solar depression per tenfold fall of the sky's luminance in twilight (a clear sky dims by about an
+#: order of magnitude every 3 deg between sunset and the end of nautical twilight).
+TWILIGHT_DEG_PER_DECADE = 3.0
 
 
 def _gradation(cos_zenith: Array) -> Array:
@@ -67,13 +70,24 @@ def overcast_sky_luminance(rays: Array, up: Array) -> Array:
     return (1.0 + 2.0 * cos_zenith) / 3.0
 
 
+def twilight_factor(up: Array, sun: Array) -> float:
+    """The sky's luminance relative to a sun on the horizon: 1 while the sun is up, a tenfold fall every
+    :data:`TWILIGHT_DEG_PER_DECADE` deg it sinks below (a render with ``--night``: a dark sky, not a day's)."""
+    elevation = float(
+        np.degrees(np.arcsin(np.clip(np.asarray(sun, dtype=np.float64) @ np.asarray(up, dtype=np.float64), -1.0, 1.0)))
+    )
+    return 1.0 if elevation >= 0.0 else 10.0 ** (elevation / TWILIGHT_DEG_PER_DECADE)
+
+
 def sky_values(rays: Array, up: Array, sun: Array, overcast: bool, colour: bool) -> Array:
-    """The sky's pixel values in [0, 1] for unit ``rays`` (..., 3): grey (...,) or RGB (..., 3) when ``colour``."""
+    """The sky's pixel values in [0, 1] for unit ``rays`` (..., 3): grey (...,) or RGB (..., 3) when ``colour``;
+    a sun below the horizon dims either sky by :func:`twilight_factor`."""
+    dimming = twilight_factor(up, sun)
     if overcast:
-        value = OVERCAST_ZENITH_VALUE * overcast_sky_luminance(rays, up) ** 0.25
+        value = OVERCAST_ZENITH_VALUE * (dimming * overcast_sky_luminance(rays, up)) ** 0.25
         tint = OVERCAST_TINT
     else:
-        value = CLEAR_ZENITH_VALUE * clear_sky_luminance(rays, up, sun) ** RESPONSE_EXPONENT
+        value = CLEAR_ZENITH_VALUE * (dimming * clear_sky_luminance(rays, up, sun)) ** RESPONSE_EXPONENT
         tint = CLEAR_TINT
     if not colour:
         return np.clip(value, 0.0, 1.0)

@@ -16,6 +16,7 @@ from pvo_sim.sky import (
     overcast_sky_luminance,
     pixel_rays,
     sky_values,
+    twilight_factor,
 )
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -64,6 +65,23 @@ def test_overcast_sky_has_no_sun_and_is_a_third_as_bright_at_the_horizon() -> No
     assert overcast_sky_luminance(rays, UP) == pytest.approx([1.0, 1.0 / 3.0, 2.0 / 3.0])
     grey = sky_values(rays, UP, direction(30.0, 0.0), overcast=True, colour=False)
     assert grey[0] > grey[2] > grey[1]
+
+
+def test_a_sun_below_the_horizon_darkens_the_sky_tenfold_every_three_degrees() -> None:
+    up = np.array([0.0, -1.0, 0.0])
+    rays = pixel_rays(64, 24, 40.0)
+
+    def sun_at(elevation_deg: float) -> np.ndarray:
+        e = np.radians(elevation_deg)
+        return np.array([0.0, -np.sin(e), np.cos(e)])
+
+    assert twilight_factor(up, sun_at(0.0)) == twilight_factor(up, sun_at(40.0)) == 1.0  # daylight is unchanged
+    assert twilight_factor(up, sun_at(-6.0)) == pytest.approx(0.01)
+    for overcast in (False, True):
+        dusk = sky_values(rays, up, sun_at(-3.0), overcast=overcast, colour=False)
+        night = sky_values(rays, up, sun_at(-18.0), overcast=overcast, colour=True)
+        assert float(dusk.max()) < float(sky_values(rays, up, sun_at(0.0), overcast=overcast, colour=False).max())
+        assert float(night.max()) < 0.05  # dark: not the day's sky (stop 45's --night painted one)
 
 
 def test_pixel_rays_go_through_the_pixel_centres() -> None:
