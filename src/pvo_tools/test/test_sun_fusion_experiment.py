@@ -60,3 +60,26 @@ def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
         assert rows["GT-Sun-10"]["smoothed"]["rot"] != rows["Without Sun"]["smoothed"]["rot"]  # the sun was fused
     changes = fusion_changes(table)
     assert set(changes) == set(FUSION_ROWS[1:])
+
+
+def test_a_staged_kitti_clip_carries_its_camera_for_turned_camera_fine_tuning(tmp_path: Path) -> None:
+    """The experiment fine-tunes on staged KITTI frames; a model trained with --rotate needs their intrinsics."""
+    import cv2
+    from pvo_pseudosensors.learning import FrameDataset, Source
+    from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
+    from pvo_tools.experiments.sun_bcnn import stage_kitti
+
+    clip = tmp_path / "data" / "kitti" / "sequences" / "07"
+    (clip / "image_0").mkdir(parents=True)
+    for k in range(4):
+        cv2.imwrite(str(clip / "image_0" / f"{k:06d}.png"), np.full((40, 120), 60 * k, np.uint8))
+    (clip / "calib.txt").write_text("P0: 80 0 59.5 0 0 80 19.5 0 0 0 1 0\nP1: 80 0 59.5 -43 0 80 19.5 0 0 0 1 0\n")
+    (tmp_path / "data" / "kitti" / "sun").mkdir()
+    (tmp_path / "data" / "kitti" / "sun" / "kitti_sun_test_07.csv").write_text(
+        "".join(f"{k:06d},0.6,-0.6,0.52915026\n" for k in range(4))
+    )
+    staged = stage_kitti(tmp_path / "data", "07", range(1, 4), tmp_path / "staged")
+    config = SunBCNNConfig(height=20, width=60, rotate=10.0)
+    sample = FrameDataset([Source(staged, "07")], config.spec)[0]
+    np.testing.assert_allclose(sample["camera"].numpy(), [40.0, 40.0, 29.5, 9.5])
+    assert float(sample["left"].mean()) == pytest.approx(60 / 255, abs=1e-6)  # frame 1, renumbered 0

@@ -64,4 +64,5 @@ class SunBCNNConfig:
         values.setdefault("aleatoric", False)  # models from before the options had neither
         values.setdefault("augment", False)
         values.setdefault("batch_norm", False)
+        values.setdefault("rotate", 0.0)  # nor the turned cameras
         return cls(**values)

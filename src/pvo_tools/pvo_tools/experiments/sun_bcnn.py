@@ -48,8 +48,8 @@ def evaluate(label: str, rows: Array, truth: Array) -> Evaluated:
 
 
 def stage_kitti(data: Path, sequence: str, frames: range, out: Path) -> Path:
-    """A sequence folder (links to the clip's left images, renumbered from 0, and their rows of the sun CSV)
-    that the learning datasets read like a corpus sequence."""
+    """A sequence folder (links to the clip's left images, renumbered from 0, their rows of the sun CSV and the
+    clip's calibration as ``calib.txt``) that the learning datasets read like a corpus sequence."""
     clip = data / "kitti" / "sequences" / sequence / "image_0"
     rows = (data / "kitti" / "sun" / f"kitti_sun_test_{sequence}.csv").read_text().splitlines()
     images = sorted(clip.glob("*.png"))
@@ -62,6 +62,10 @@ def stage_kitti(data: Path, sequence: str, frames: range, out: Path) -> Path:
             link.symlink_to(images[frame].resolve())
         lines.append(rows[frame])
     (out / "sun.csv").write_text("\n".join(lines) + "\n")
+    for calibration in ("calib.txt", "calib_P0_P1_unlabelled.txt"):  # the camera, for --rotate's fine-tuning
+        if (clip.parent / calibration).is_file():
+            (out / "calib.txt").write_text((clip.parent / calibration).read_text())
+            break
     return out
 
 
