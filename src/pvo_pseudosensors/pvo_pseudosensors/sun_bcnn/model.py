@@ -146,14 +146,16 @@ def rotate_cameras(
     intrinsics[:, 0, 0], intrinsics[:, 1, 1], intrinsics[:, 0, 2], intrinsics[:, 1, 2] = fx, fy, cx, cy
     intrinsics[:, 2, 2] = 1.0
     new_to_old = intrinsics @ rotation.transpose(1, 2) @ torch.linalg.inv(intrinsics)
-    v, u = torch.meshgrid(torch.arange(height, dtype=images.dtype), torch.arange(width, dtype=images.dtype), indexing="ij")
-    pixels = torch.stack([u, v, torch.ones_like(u)], dim=-1).reshape(-1, 3)
-    old = pixels @ new_to_old.transpose(1, 2)  # (B, H*W, 3)
-    depth = old[..., 2].clamp_min(1e-6)  # turns this small keep every ray in front of the old camera
-    grid = torch.stack([(2.0 * old[..., 0] / depth + 1.0) / width - 1.0, (2.0 * old[..., 1] / depth + 1.0) / height - 1.0], -1)
-    warped = nn.functional.grid_sample(
-        images, grid.reshape(batch, height, width, 2), mode="bilinear", padding_mode="border", align_corners=False
-    )
+    u = torch.arange(width, dtype=images.dtype)[None, None, :]
+    v = torch.arange(height, dtype=images.dtype)[None, :, None]
+    m = new_to_old[:, :, :, None, None]  # each coefficient (B, 1, 1), broadcast over the (H, W) pixels
+
+    def row(i: int) -> torch.Tensor:
+        return m[:, i, 0] * u + m[:, i, 1] * v + m[:, i, 2]
+
+    depth = row(2).clamp_min(1e-6)  # turns this small keep every ray in front of the old camera
+    grid = torch.stack([(2.0 * row(0) / depth + 1.0) / width - 1.0, (2.0 * row(1) / depth + 1.0) / height - 1.0], dim=-1)
+    warped = nn.functional.grid_sample(images, grid, mode="bilinear", padding_mode="border", align_corners=False)
     return warped, (rotation @ sun[:, :, None])[:, :, 0]
 
 
