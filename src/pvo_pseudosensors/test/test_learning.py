@@ -418,6 +418,9 @@ def test_a_dataset_with_camera_carries_the_intrinsics_at_its_size(tmp_path: Path
     sample = FrameDataset([Source(root, "s")], spec)[0]
     np.testing.assert_allclose(sample["camera"].numpy(), [50.0, 45.0, 31.5, 11.5])
     assert "camera" not in FrameDataset([Source(root, "s")], TINY.spec)[0]
+    for wrong in (-1.0, 90.0):
+        with pytest.raises(ValueError, match="rotate must be a yaw range in \\[0, 60\\] degrees"):
+            replace(TINY, rotate=wrong)
 
 
 def test_the_vmf_likelihood_matches_scipy_and_the_loss_teaches_kappa_the_error() -> None:
