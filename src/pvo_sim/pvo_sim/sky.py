@@ -34,8 +34,8 @@ RESPONSE_EXPONENT = 0.45
 #: A clear sky's blue, normalised so that its BT.601 grey is the luminance value (saturates towards white).
 CLEAR_TINT = np.array([0.80, 0.89, 1.0]) / (0.299 * 0.80 + 0.587 * 0.89 + 0.114 * 1.0)
 OVERCAST_TINT = np.array([0.97, 0.98, 1.0]) / (0.299 * 0.97 + 0.587 * 0.98 + 0.114 * 1.0)
-#: Degrees of solar depression per tenfold fall of the sky's luminance in twilight (a clear sky dims by about an
-#: order of magnitude every 3 deg between sunset and the end of nautical twilight).
+#: Degrees of solar depression per tenfold fall of the sky's luminance in twilight (a clear sky's zenith dims by
+#: roughly four to five orders of magnitude between sunset and the end of nautical twilight, 12 deg below).
 TWILIGHT_DEG_PER_DECADE = 3.0
 
 
