@@ -375,6 +375,11 @@ def test_a_turned_camera_sees_the_sun_where_the_turned_sun_vector_projects() -> 
     moved = torch.linalg.norm(_disc_centre(warped) - _disc_centre(images), dim=1)
     assert float(moved.min()) > 10.0  # the turns are large enough to test something
     # yaw turns about the optical frame's y axis (down): a positive yaw moves a sun ahead towards +x
+    from pvo_core.lie import so3_exp  # an independent implementation: R = Rz(roll) Ry(yaw) Rx(pitch)
+
+    for (yaw, pitch, roll), matrix in zip(torch.deg2rad(degrees).double().tolist(), turns.double().numpy(), strict=True):
+        expected = so3_exp([0.0, 0.0, roll]) @ so3_exp([0.0, yaw, 0.0]) @ so3_exp([pitch, 0.0, 0.0])
+        np.testing.assert_allclose(matrix, expected, atol=1e-6)
     yawed = rotation_matrices(*torch.deg2rad(torch.tensor([[10.0], [0.0], [0.0]])))[0]
     assert float((yawed @ torch.tensor([0.0, 0.0, 1.0]))[0]) > 0
 
