@@ -125,6 +125,7 @@ def _sun_bcnn() -> ModelEntry:
             "aleatoric": "a von Mises-Fisher concentration per image (heteroscedastic covariance)",
             "augment": "photometric jitter in training (gain, gamma, noise)",
             "batch_norm": "batch normalisation after every convolution (running statistics in the MC passes)",
+            "bins": "0: regress the sun vector (the thesis); N: classify it into N directions over the sphere",
         },
     )
 

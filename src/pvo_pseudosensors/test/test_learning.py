@@ -24,7 +24,17 @@ from pvo_pseudosensors.learning import (
     save_model,
 )
 from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
-from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask, random_rotations, rotate_cameras, rotation_matrices
+from pvo_pseudosensors.sun_bcnn.model import (
+    SunBCNN,
+    SunTask,
+    bin_spacing,
+    decode_bins,
+    random_rotations,
+    rotate_cameras,
+    rotation_matrices,
+    soft_bin_targets,
+    sphere_directions,
+)
 
 SIZE = (24, 64)  # the tiny model's input (height, width)
 TINY = SunBCNNConfig(
@@ -475,6 +485,59 @@ def test_the_aleatoric_output_learns_larger_covariance_for_noisier_images(tmp_pa
     spread = np.trace(covariance, axis1=1, axis2=2)
     assert np.median(spread[hidden]) > 3 * np.median(spread[~hidden])
     assert np.all(np.linalg.eigvalsh(covariance) > 0) and np.allclose(covariance, covariance.transpose(0, 2, 1))
+
+
+def _angles_deg(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    return torch.rad2deg(torch.acos((a * b).sum(dim=1).clamp(-1.0, 1.0)))
+
+
+def test_the_bins_cover_the_sphere_and_their_soft_targets_decode_to_the_sun() -> None:
+    directions = sphere_directions(512)
+    np.testing.assert_allclose(torch.linalg.norm(directions, dim=1).numpy(), 1.0, atol=1e-6)
+    torch.manual_seed(0)
+    suns = torch.nn.functional.normalize(torch.randn(3000, 3), dim=1)
+    nearest = torch.rad2deg(torch.acos((suns @ directions.T).max(dim=1).values.clamp(-1, 1)))
+    assert float(nearest.max()) < 0.75 * np.degrees(bin_spacing(512))  # no direction is far from a bin
+    targets = soft_bin_targets(suns, 512)
+    np.testing.assert_allclose(targets.sum(dim=1).numpy(), 1.0, atol=1e-5)
+    assert float(_angles_deg(decode_bins(torch.log(targets), directions), suns).max()) < 0.25
+    # two modes, the sun ahead (60 %) or behind (40 %): the answer is the one ahead, not their average
+    ahead, behind = torch.tensor([[0.3, -0.4, 0.866]]), torch.tensor([[0.3, -0.4, -0.866]])
+    mixture = 0.6 * soft_bin_targets(ahead, 512) + 0.4 * soft_bin_targets(behind, 512)
+    assert float(_angles_deg(decode_bins(torch.log(mixture), directions), ahead)[0]) < 0.5
+    with pytest.raises(ValueError, match="bins must be 0 .* got 10"):
+        replace(TINY, bins=10)
+
+
+def test_a_tiny_classifying_model_learns_where_the_sun_is() -> None:
+    """Ramp images brighter towards the sun: with 64 bins (~25 deg apart) the head learns the suns from an
+    untrained ~55 deg to a fraction of a bin, and its MC passes give the same kind of draws as the regressing head's."""
+    from pvo_pseudosensors.sun_bcnn.infer import combine, draw_samples
+
+    rng = np.random.default_rng(1)
+    n, (h, w) = 128, SIZE
+    suns = rng.normal(size=(n, 3))
+    suns[:, 2] = np.abs(suns[:, 2]) + 0.5
+    suns /= np.linalg.norm(suns, axis=1, keepdims=True)
+    u, v = np.meshgrid(np.linspace(-1, 1, w), np.linspace(-1, 1, h))
+    images = torch.tensor(np.stack([0.5 + 0.3 * (s[0] * u + s[1] * v) for s in suns])[:, None], dtype=torch.float32)
+    targets = torch.tensor(suns, dtype=torch.float32)
+    torch.manual_seed(0)
+    config = replace(TINY, dropout=0.05, bins=64, aleatoric=True)
+    task, model = SunTask(config), SunBCNN(config)
+    optimiser = torch.optim.Adam(model.parameters(), lr=3e-3)
+    with torch.no_grad():
+        untrained = _angles_deg(model.eval()(images), targets)
+    for _ in range(150):
+        optimiser.zero_grad()
+        task.loss(model.train(), {"left": images, "sun": targets}).backward()
+        optimiser.step()
+    draws = draw_samples(model, images, 8, seed=1)
+    assert draws.inverse_concentration is not None
+    mean, covariance = combine(draws, np.inf)
+    assert np.all(np.linalg.eigvalsh(covariance) > 0)
+    trained = _angles_deg(torch.from_numpy(mean), targets.double())
+    assert float(untrained.median()) > 30.0 and float(trained.median()) < 10.0
 
 
 def test_mirrored_mc_modes_pool_the_image_and_its_mirror() -> None:

@@ -29,7 +29,11 @@ class SunBCNNConfig:
     by its negative log-likelihood, so that hard images (overcast, no shadows in view, blur) get a larger
     covariance than easy ones (the thesis's single tau cannot: its §5.8.1); augment: photometric jitter in
     training (gain, gamma, noise per image); batch_norm: batch normalisation after every convolution (its
-    running statistics in every MC pass: the passes differ by their dropout masks alone)."""
+    running statistics in every MC pass: the passes differ by their dropout masks alone); bins: 0 regresses the
+    unit vector (the thesis), N > 0 classifies the sun into N directions spread evenly over the sphere instead
+    (soft targets about the true sun, a cross-entropy loss; the answer is the probability-weighted mean direction
+    about the most probable bin): a distribution keeps "ahead or behind" and "low or high" apart where a
+    regressed vector averages them."""
 
     height: int = 94
     width: int = 310
@@ -43,12 +47,15 @@ class SunBCNNConfig:
     aleatoric: bool = True
     augment: bool = True
     batch_norm: bool = False
+    bins: int = 0
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:
             raise ValueError("Sun-BCNN needs an input of at least 16 px, at least one block and dropout in [0, 1)")
         if not 0.0 <= self.rotate <= 60.0:
             raise ValueError(f"rotate must be a yaw range in [0, 60] degrees, got {self.rotate}")
+        if self.bins != 0 and not 20 <= self.bins <= 5000:
+            raise ValueError(f"bins must be 0 (regress the vector) or a number of directions in [20, 5000], got {self.bins}")
         if len(self.grid) != 2 or min(self.grid) < 1:
             raise ValueError(f"grid must be two positive numbers (rows, columns), got {self.grid}")
 
@@ -65,4 +72,5 @@ class SunBCNNConfig:
         values.setdefault("augment", False)
         values.setdefault("batch_norm", False)
         values.setdefault("rotate", 0.0)  # nor the turned cameras
+        values.setdefault("bins", 0)  # nor the classified directions
         return cls(**values)

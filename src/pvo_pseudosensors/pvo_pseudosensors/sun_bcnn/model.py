@@ -5,7 +5,8 @@ and the fully connected layer, a unit-norm 3-vector output in the camera's optic
 z forward), trained with the loss 1 - s·ŝ (thesis eq. 5.3); optionally (``aleatoric``) a concentration kappa
 of a von Mises-Fisher distribution about it, trained by its negative log-likelihood with the direction held
 fixed and from a small head of its own on the pooled features, which it does not train (so the direction learns
-exactly as the thesis's, and kappa learns how far off it tends to be).
+exactly as the thesis's, and kappa learns how far off it tends to be). With ``bins`` the head classifies the
+sun into directions spread over the sphere instead of regressing the vector (:func:`decode_bins`).
 Prediction (MC dropout) is in :mod:`.infer`.
 """
 
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 
 import torch
 from torch import nn
@@ -44,7 +46,7 @@ class SunBCNN(nn.Module):
             nn.Linear(pooled, config.hidden),
             nn.ReLU(inplace=True),
             nn.Dropout(config.dropout),
-            nn.Linear(config.hidden, 3),
+            nn.Linear(config.hidden, config.bins or 3),
         )
         # kappa reads the pooled features without training them: the direction learns exactly as without it
         self.concentration = (
@@ -90,20 +92,66 @@ class SunBCNN(nn.Module):
     def outputs(self, pooled: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The head: pooled features -> (B, 3) unit vectors towards the sun and (B,) concentrations kappa
         (>= 1; None without the aleatoric output)."""
-        vectors = nn.functional.normalize(self.head(pooled), dim=1)
+        raw, kappa = self.raw_outputs(pooled)
+        if self.config.bins:
+            return decode_bins(raw, sphere_directions(self.config.bins)), kappa
+        return nn.functional.normalize(raw, dim=1), kappa
+
+    def raw_outputs(self, pooled: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The head before decoding: (B, 3) unnormalised vectors, or (B, bins) logits with ``bins``; and kappa."""
+        raw = self.head(pooled)
         if self.concentration is None:
-            return vectors, None
-        return vectors, nn.functional.softplus(self.concentration(pooled.detach())[:, 0]) + 1.0
+            return raw, None
+        return raw, nn.functional.softplus(self.concentration(pooled.detach())[:, 0]) + 1.0
 
     def direction(self, pooled: torch.Tensor) -> torch.Tensor:
         """The head: pooled features -> (B, 3) unit vectors towards the sun."""
         return self.outputs(pooled)[0]
 
-    def forward(self, image: torch.Tensor, with_concentration: bool = False):
+    def forward(self, image: torch.Tensor, with_concentration: bool = False, raw: bool = False):
         """(B, C, H, W) in [0, 1] -> (B, 3) unit vectors towards the sun; with_concentration: also the (B,)
-        kappas, as :meth:`outputs` (through forward, so that DistributedDataParallel syncs the gradients)."""
-        vectors, kappa = self.outputs(self.pooled(image))
-        return (vectors, kappa) if with_concentration else vectors
+        kappas, as :meth:`outputs` (through forward, so that DistributedDataParallel syncs the gradients); raw:
+        the head's output before decoding (:meth:`raw_outputs`) in place of the vectors."""
+        pooled = self.pooled(image)
+        outputs, kappa = self.raw_outputs(pooled) if raw else self.outputs(pooled)
+        return (outputs, kappa) if with_concentration else outputs
+
+
+@lru_cache(maxsize=8)
+def sphere_directions(count: int) -> torch.Tensor:
+    """(count, 3) unit vectors spread evenly over the sphere: a Fibonacci lattice, the same for every call
+    (do not modify the cached tensor)."""
+    index = torch.arange(count, dtype=torch.float64) + 0.5
+    z = 1.0 - 2.0 * index / count
+    radius = torch.sqrt(1.0 - z * z)
+    longitude = math.pi * (1.0 + math.sqrt(5.0)) * index
+    return torch.stack([radius * torch.cos(longitude), radius * torch.sin(longitude), z], dim=1).float()
+
+
+def bin_spacing(count: int) -> float:
+    """The typical angle (rad) between neighbouring directions of :func:`sphere_directions`: the side of a
+    square of the sphere's area / count."""
+    return math.sqrt(4.0 * math.pi / count)
+
+
+def soft_bin_targets(sun: torch.Tensor, count: int) -> torch.Tensor:
+    """(B, count) training targets for suns (B, 3): a von Mises-Fisher kernel about each sun over the
+    directions, one bin spacing wide (a sun between bins shares itself among them, so the decoded mean can land
+    between bins)."""
+    directions = sphere_directions(count).to(sun.dtype)
+    return torch.softmax((sun @ directions.T - 1.0) / bin_spacing(count) ** 2, dim=1)
+
+
+def decode_bins(logits: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+    """(B, N) logits over the directions (N, 3) -> (B, 3) unit vectors: the probability-weighted mean of the
+    directions within four bin spacings of the most probable one — the mode, refined between bins (the soft
+    targets of a sun decode to it within 0.25 deg at 512 bins; two spacings would truncate the kernel and err
+    up to 3 deg); a second mode farther away (the sun ahead or behind) does not drag it."""
+    probabilities = torch.softmax(logits, dim=1)
+    directions = directions.to(logits.dtype)
+    mode = directions[logits.argmax(dim=1)]
+    near = (mode @ directions.T) > math.cos(4.0 * bin_spacing(len(directions)))
+    return nn.functional.normalize((probabilities * near) @ directions, dim=1)
 
 
 def photometric_jitter(images: torch.Tensor) -> torch.Tensor:
@@ -177,8 +225,9 @@ def vmf_negative_log_likelihood(kappa: torch.Tensor, cosine: torch.Tensor) -> to
 
 @dataclass
 class SunTask:
-    """Sun-BCNN for the training loop: loss 1 - s·ŝ averaged over the batch, plus the von Mises-Fisher
-    negative log-likelihood of the true sun about the (fixed) prediction with the aleatoric output."""
+    """Sun-BCNN for the training loop: loss 1 - s·ŝ averaged over the batch (with ``bins``: the cross-entropy
+    of the soft targets), plus the von Mises-Fisher negative log-likelihood of the true sun about the (fixed)
+    prediction with the aleatoric output."""
 
     config: SunBCNNConfig
     architecture: str = ARCHITECTURE
@@ -202,9 +251,16 @@ class SunTask:
             if camera is None:
                 raise ValueError("rotate needs each sample's camera intrinsics (a dataset built with DataSpec camera=True)")
             images, sun = rotate_cameras(images, sun, camera, random_rotations(len(images), self.config.rotate))
-        predicted, kappa = model(images, with_concentration=True)
-        cosine = (predicted * sun).sum(dim=1)
-        loss = (1.0 - cosine).mean()
+        if self.config.bins:
+            logits, kappa = model(images, with_concentration=True, raw=True)
+            targets = soft_bin_targets(sun, self.config.bins)
+            loss = -(targets * torch.log_softmax(logits, dim=1)).sum(dim=1).mean()
+            predicted = decode_bins(logits.detach(), sphere_directions(self.config.bins))
+            cosine = (predicted * sun).sum(dim=1)
+        else:
+            predicted, kappa = model(images, with_concentration=True)
+            cosine = (predicted * sun).sum(dim=1)
+            loss = (1.0 - cosine).mean()
         if kappa is not None:
             loss = loss + vmf_negative_log_likelihood(kappa, cosine.detach()).mean()
         return loss
