@@ -521,7 +521,8 @@ def test_the_bins_cover_the_sphere_and_their_soft_targets_decode_to_the_sun() ->
 
 def test_a_tiny_classifying_model_learns_where_the_sun_is() -> None:
     """Ramp images brighter towards the sun: with 64 bins (~25 deg apart) the head learns the suns from an
-    untrained ~55 deg to a fraction of a bin, and its MC passes give the same kind of draws as the regressing head's."""
+    untrained guess (> 30 deg off) to within a fraction of a bin (< 10 deg), and its MC passes give a covariance
+    as the regressing head's do."""
     from pvo_pseudosensors.sun_bcnn.infer import combine, draw_samples
 
     images, targets = _ramp_images(128, 1)
