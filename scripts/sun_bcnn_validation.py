@@ -6,12 +6,13 @@ and the overcast ones — the comparison behind choosing a model to ship.
 
 Prints one line per model: images, median and mean vector error, zenith and azimuth median (deg), the
 uncalibrated ANEES (tau infinite: the covariance the MC passes and the aleatoric output give), and the
-sunny / overcast medians.
+sunny / overcast medians. ``--decode-radius 4 6 inf`` evaluates a classifying model at other decode radii.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,12 @@ def main() -> None:
     parser.add_argument("--mode", default=DEFAULT_MODE, choices=MODES, help=f"MC mode (default {DEFAULT_MODE})")
     parser.add_argument("--samples", type=int, default=25, help="MC passes per image (default 25, the node's)")
     parser.add_argument("--max-sequences", type=int, help="the first N validation sequences only")
+    parser.add_argument(
+        "--decode-radius",
+        type=float,
+        nargs="+",
+        help="classifying models: evaluate each at these decode radii (bin spacings; inf: the whole sphere) instead of its own",
+    )
     args = parser.parse_args()
 
     torch.set_num_threads(1)
@@ -40,8 +47,14 @@ def main() -> None:
         f"{args.corpus}: {len(sequences)} validation sequences ({cloudy_sequences} overcast); mode {args.mode}, "
         f"{args.samples} passes, tau infinite"
     )
-    for name in args.models:
+    runs = [(name, radius) for name in args.models for radius in (args.decode_radius or [None])]
+    for name, radius in runs:
         model, card = load_sun_bcnn(resolve_model(name))
+        if radius is not None:
+            if not model.config.bins:
+                raise SystemExit(f"{name}: --decode-radius needs a classifying model (bins > 0)")
+            model.config = dataclasses.replace(model.config, decode_radius=radius)
+            name = f"{name}@{radius:g}"
         rows, truth, cloudy_rows = [], [], []
         for k, sequence in enumerate(sequences):
             predictions = predict_sequence(

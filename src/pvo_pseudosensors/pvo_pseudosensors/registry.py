@@ -126,6 +126,8 @@ def _sun_bcnn() -> ModelEntry:
             "augment": "photometric jitter in training (gain, gamma, noise)",
             "batch_norm": "batch normalisation after every convolution (running statistics in the MC passes)",
             "bins": "0: regress the sun vector (the thesis); N: classify it into N directions over the sphere",
+            "decode_radius": "with bins: the answer is the mean within this many bin spacings of the most probable "
+            "bin (inf: the whole sphere)",
         },
     )
 

@@ -3,6 +3,7 @@ DDP through torchrun), checkpoints and every bad-checkpoint case. Tiny data and 
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -517,6 +518,33 @@ def test_the_bins_cover_the_sphere_and_their_soft_targets_decode_to_the_sun() ->
     assert float(_angles_deg(decode_bins(torch.log(mixture), directions), ahead)[0]) < 0.5
     with pytest.raises(ValueError, match="bins must be 0 .* got 10"):
         replace(TINY, bins=10)
+
+
+def test_a_wider_decode_radius_pulls_a_ring_of_suns_to_its_centre() -> None:
+    # near the zenith the classifier spreads its mass over a ring of azimuths: the local decode lands on the
+    # ring (elevation 70 deg here), the whole sphere's mean at its centre (straight up: -y in the optical frame)
+    directions = sphere_directions(256)
+    azimuths = torch.arange(12) * (2.0 * math.pi / 12)
+    up = torch.tensor([[0.0, -1.0, 0.0]])
+    elevation = math.radians(70.0)
+    ring = torch.stack(
+        [
+            math.cos(elevation) * torch.cos(azimuths),
+            torch.full_like(azimuths, -math.sin(elevation)),
+            math.cos(elevation) * torch.sin(azimuths),
+        ],
+        dim=1,
+    )
+    weights = torch.linspace(1.0, 1.2, 12)[:, None]  # one azimuth a little more probable: a definite mode
+    logits = torch.log((weights * soft_bin_targets(ring, 256)).sum(dim=0, keepdim=True))
+    local = float(_angles_deg(decode_bins(logits, directions, radius=1.0), up)[0])
+    assert local > 8.0  # towards the ring, not at its centre (a ring 20 deg from the zenith)
+    assert float(_angles_deg(decode_bins(logits, directions, radius=math.inf), up)[0]) < 2.0
+    # the default four spacings (51 deg) already reach across this ring: between the two
+    assert float(_angles_deg(decode_bins(logits, directions), up)[0]) < local
+    for radius in (0.5, math.nan):
+        with pytest.raises(ValueError, match="decode_radius must be at least 1 bin spacing"):
+            replace(TINY, bins=256, decode_radius=radius)
 
 
 def test_a_tiny_classifying_model_learns_where_the_sun_is() -> None:

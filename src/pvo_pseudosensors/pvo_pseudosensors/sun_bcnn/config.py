@@ -33,7 +33,8 @@ class SunBCNNConfig:
     unit vector (the thesis), N > 0 classifies the sun into N directions spread evenly over the sphere instead
     (soft targets about the true sun, a cross-entropy loss; the answer is the probability-weighted mean direction
     about the most probable bin): a distribution keeps "ahead or behind" and "low or high" apart where a
-    regressed vector averages them."""
+    regressed vector averages them; decode_radius: how far about the most probable bin that mean reaches, in bin
+    spacings (inf: the whole sphere)."""
 
     height: int = 94
     width: int = 310
@@ -48,6 +49,7 @@ class SunBCNNConfig:
     augment: bool = True
     batch_norm: bool = False
     bins: int = 0
+    decode_radius: float = 4.0
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:
@@ -56,6 +58,8 @@ class SunBCNNConfig:
             raise ValueError(f"rotate must be a yaw range in [0, 60] degrees, got {self.rotate}")
         if self.bins != 0 and not 20 <= self.bins <= 5000:
             raise ValueError(f"bins must be 0 (regress the vector) or a number of directions in [20, 5000], got {self.bins}")
+        if not self.decode_radius >= 1.0:  # also NaN
+            raise ValueError(f"decode_radius must be at least 1 bin spacing (inf: the whole sphere), got {self.decode_radius}")
         if len(self.grid) != 2 or min(self.grid) < 1:
             raise ValueError(f"grid must be two positive numbers (rows, columns), got {self.grid}")
 
@@ -73,4 +77,5 @@ class SunBCNNConfig:
         values.setdefault("batch_norm", False)
         values.setdefault("rotate", 0.0)  # nor the turned cameras
         values.setdefault("bins", 0)  # nor the classified directions
+        values.setdefault("decode_radius", 4.0)  # the one radius of stop 47
         return cls(**values)

@@ -94,7 +94,7 @@ class SunBCNN(nn.Module):
         (>= 1; None without the aleatoric output)."""
         raw, kappa = self.raw_outputs(pooled)
         if self.config.bins:
-            return decode_bins(raw, sphere_directions(self.config.bins)), kappa
+            return decode_bins(raw, sphere_directions(self.config.bins), self.config.decode_radius), kappa
         return nn.functional.normalize(raw, dim=1), kappa
 
     def raw_outputs(self, pooled: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -142,15 +142,19 @@ def soft_bin_targets(sun: torch.Tensor, count: int) -> torch.Tensor:
     return torch.softmax((sun @ directions.T - 1.0) / bin_spacing(count) ** 2, dim=1)
 
 
-def decode_bins(logits: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+def decode_bins(logits: torch.Tensor, directions: torch.Tensor, radius: float = 4.0) -> torch.Tensor:
     """(B, N) logits over the directions (N, 3) -> (B, 3) unit vectors: the probability-weighted mean of the
-    directions within four bin spacings of the most probable one — the mode, refined between bins (the soft
+    directions within ``radius`` bin spacings of the most probable one — the mode, refined between bins (the soft
     targets of a sun decode to it within 0.25 deg at 512 bins; two spacings would truncate the kernel and err
-    up to 3 deg); a second mode farther away (the sun ahead or behind) does not drag it."""
+    up to 3 deg); a second mode farther away (the sun ahead or behind) does not drag it. A radius of pi / spacing
+    or more (``math.inf``) is the mean over the whole sphere: the regressed vector's answer."""
     probabilities = torch.softmax(logits, dim=1)
     directions = directions.to(logits.dtype)
+    angle = radius * bin_spacing(len(directions))
+    if angle >= math.pi:
+        return nn.functional.normalize(probabilities @ directions, dim=1)
     mode = directions[logits.argmax(dim=1)]
-    near = (mode @ directions.T) > math.cos(4.0 * bin_spacing(len(directions)))
+    near = (mode @ directions.T) > math.cos(angle)
     return nn.functional.normalize((probabilities * near) @ directions, dim=1)
 
 
@@ -255,7 +259,7 @@ class SunTask:
             logits, kappa = model(images, with_concentration=True, raw=True)
             targets = soft_bin_targets(sun, self.config.bins)
             loss = -(targets * torch.log_softmax(logits, dim=1)).sum(dim=1).mean()
-            predicted = decode_bins(logits.detach(), sphere_directions(self.config.bins))
+            predicted = decode_bins(logits.detach(), sphere_directions(self.config.bins), self.config.decode_radius)
             cosine = (predicted * sun).sum(dim=1)
         else:
             predicted, kappa = model(images, with_concentration=True)
