@@ -301,6 +301,10 @@ def turning_weights(poses_file: Path, frames: int, floor: float = 0.1) -> np.nda
     return weights / weights.sum()
 
 
+#: Seconds between manifest rewrites while rendering (the manifest is also written when rendering ends or stops).
+MANIFEST_INTERVAL_S = 10.0
+
+
 def content_hash(folder: Path) -> str:
     """SHA-256 over the relative paths and bytes of every file under ``folder`` (sorted)."""
     digest = hashlib.sha256()
@@ -314,7 +318,8 @@ def content_hash(folder: Path) -> str:
 def _plain(value: Any) -> Any:
     import yaml
 
-    return yaml.safe_load(yaml.safe_dump(value, sort_keys=False))
+    dumper, loader = getattr(yaml, "CSafeDumper", yaml.SafeDumper), getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    return yaml.load(yaml.dump(value, Dumper=dumper, sort_keys=False), Loader=loader)
 
 
 def _entry(plan: SequencePlan, folder: Path, seconds: float) -> dict[str, Any]:
@@ -339,7 +344,7 @@ def read_manifest(out: Path) -> dict[str, Any]:
     if not path.is_file():
         return {}
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
     except (OSError, yaml.YAMLError) as exc:
         raise ValueError(f"{path}: unreadable corpus manifest ({exc}); remove it to start afresh") from None
     if not isinstance(data, dict) or not isinstance(data.get("sequences"), list):
@@ -350,6 +355,8 @@ def read_manifest(out: Path) -> dict[str, Any]:
 def _write_manifest(out: Path, corpus: CorpusConfig, entries: dict[str, dict[str, Any]]) -> None:
     import yaml
 
+    # libyaml where the wheel has it: Python's emitter takes seconds for a thousand-sequence manifest
+    dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
     data = {
         "generator": "pvo sim corpus",
         "corpus": _plain(asdict(corpus)),
@@ -357,7 +364,7 @@ def _write_manifest(out: Path, corpus: CorpusConfig, entries: dict[str, dict[str
         "sequences": [entries[name] for name in sorted(entries)],
     }
     temporary = out / f".{MANIFEST}.tmp"
-    temporary.write_text(yaml.safe_dump(data, sort_keys=False))
+    temporary.write_text(yaml.dump(data, Dumper=dumper, sort_keys=False))
     os.replace(temporary, out / MANIFEST)
 
 
@@ -455,23 +462,28 @@ def render_corpus(
     start = time.perf_counter()
     rendered: list[str] = []
     by_name = {p.name: p for p in todo}
+    written = start
 
     def finished(name: str, seconds: float) -> None:
-        nonlocal done_frames
+        nonlocal done_frames, written
         entries[name] = _entry(by_name[name], out / name, seconds)
-        _write_manifest(out, corpus, entries)
+        # the manifest is the resume point: rewritten every few seconds, not after every sequence (rewriting a
+        # thousand entries per sequence made the parent process the bottleneck), and always at the end below
+        if time.perf_counter() - written >= MANIFEST_INTERVAL_S:
+            _write_manifest(out, corpus, entries)
+            written = time.perf_counter()
         rendered.append(name)
         done_frames += corpus.frames
         if progress:
             progress(done_frames, total)
 
-    if jobs == 1 or len(todo) <= 1:
-        for plan in todo:
-            finished(*_render_one(plan, out))
-    else:
-        queue = list(todo)
-        running: dict[str, tuple[Any, float]] = {}
-        try:
+    queue = list(todo)
+    running: dict[str, tuple[Any, float]] = {}
+    try:
+        if jobs == 1 or len(todo) <= 1:
+            for plan in todo:
+                finished(*_render_one(plan, out))
+        else:
             while queue or running:
                 while queue and len(running) < jobs:
                     plan = queue.pop(0)
@@ -488,8 +500,9 @@ def render_corpus(
                         detail = errors[-1] if errors else f"exit status {process.returncode}"
                         raise ValueError(f"{out / name}: rendering failed: {detail}")
                     finished(name, time.perf_counter() - started)
-        finally:
-            for process, _ in running.values():  # interrupted: stop the workers; their partial output is discarded
-                process.terminate()
-                process.wait()
+    finally:
+        for process, _ in running.values():  # interrupted: stop the workers; their partial output is discarded
+            process.terminate()
+            process.wait()
+        _write_manifest(out, corpus, entries)  # every sequence finished so far, also when interrupted or failed
     return CorpusResult(out, rendered, kept, time.perf_counter() - start, len(rendered) * corpus.frames)
