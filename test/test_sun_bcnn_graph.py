@@ -32,7 +32,7 @@ def tiny_model(tmp_path: Path) -> Path:
     from pvo_pseudosensors.sun_bcnn import SunBCNNConfig
     from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask
 
-    config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.2)
+    config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.2, bins=0, rotate=0.0)
     torch.manual_seed(0)
     card = SunTask(config).card()
     card.calibration = {"tau": 100.0}

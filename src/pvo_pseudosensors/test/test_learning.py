@@ -39,7 +39,17 @@ from pvo_pseudosensors.sun_bcnn.model import (
 
 SIZE = (24, 64)  # the tiny model's input (height, width)
 TINY = SunBCNNConfig(
-    height=SIZE[0], width=SIZE[1], widths=(4, 8), hidden=8, dropout=0.1, grid=(1, 1), mirror=False, augment=False, aleatoric=False
+    height=SIZE[0],
+    width=SIZE[1],
+    widths=(4, 8),
+    hidden=8,
+    dropout=0.1,
+    grid=(1, 1),
+    mirror=False,
+    augment=False,
+    aleatoric=False,
+    bins=0,
+    rotate=0.0,  # the regressed vector, no turned cameras: what most tests here are about
 )
 
 
@@ -218,7 +228,7 @@ from pvo_pseudosensors.sun_bcnn.model import SunTask
 
 roots, out = sys.argv[1:-1], Path(sys.argv[-1])
 # no per-process randomness: no dropout, mirroring or jitter
-config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.0, mirror=False, augment=False)
+config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.0, mirror=False, augment=False, bins=0, rotate=0.0)
 train = FrameDataset([Source(Path(r), Path(r).name) for r in roots[:-1]], config.spec)
 validation = FrameDataset([Source(Path(roots[-1]), "v")], config.spec)
 fit(SunTask(config), train, validation, TrainConfig(epochs=3, batch_size=16, learning_rate=3e-3, patience=0, seed=1, threads=1),

@@ -10,7 +10,7 @@ import pytest
 import yaml
 from pvo_tools.cli import main
 
-TINY = ["--height", "24", "--width", "64", "--widths", "4,8", "--hidden", "8", "--no-augment", "--threads", "1", "-q"]
+TINY = "--height 24 --width 64 --widths 4,8 --hidden 8 --no-augment --bins 0 --rotate 0 --threads 1 -q".split()
 
 
 def write_sequence(root: Path, frames: int, seed: int) -> None:

@@ -44,7 +44,7 @@ def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
 
     torch = pytest.importorskip("torch")
     torch.manual_seed(0)
-    config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.1, grid=(1, 1))
+    config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, dropout=0.1, grid=(1, 1), bins=0, rotate=0.0)
     save_model(tmp_path / "model", SunBCNN(config), SunTask(config).card())
     from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn
 
