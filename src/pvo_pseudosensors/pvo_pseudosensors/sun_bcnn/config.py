@@ -43,12 +43,12 @@ class SunBCNNConfig:
     hidden: int = 128
     dropout: float = 0.2
     mirror: bool = True
-    rotate: float = 0.0
+    rotate: float = 10.0
     grid: tuple[int, ...] = (2, 4)
     aleatoric: bool = True
     augment: bool = True
     batch_norm: bool = False
-    bins: int = 0
+    bins: int = 256
     decode_radius: float = 4.0
 
     def __post_init__(self) -> None:
