@@ -53,7 +53,10 @@ def main() -> None:
         if radius is not None:
             if not model.config.bins:
                 raise SystemExit(f"{name}: --decode-radius needs a classifying model (bins > 0)")
-            model.config = dataclasses.replace(model.config, decode_radius=radius)
+            try:
+                model.config = dataclasses.replace(model.config, decode_radius=radius)
+            except ValueError as exc:
+                raise SystemExit(f"--decode-radius: {exc}") from None
             name = f"{name}@{radius:g}"
         rows, truth, cloudy_rows = [], [], []
         for k, sequence in enumerate(sequences):

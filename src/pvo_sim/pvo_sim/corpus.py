@@ -315,10 +315,18 @@ def content_hash(folder: Path) -> str:
     return digest.hexdigest()
 
 
+def _yaml_classes() -> tuple[Any, Any]:
+    """The safe YAML dumper and loader, libyaml's where the wheel has it (Python's emitter takes seconds for a
+    thousand-sequence manifest)."""
+    import yaml
+
+    return getattr(yaml, "CSafeDumper", yaml.SafeDumper), getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 def _plain(value: Any) -> Any:
     import yaml
 
-    dumper, loader = getattr(yaml, "CSafeDumper", yaml.SafeDumper), getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    dumper, loader = _yaml_classes()
     return yaml.load(yaml.dump(value, Dumper=dumper, sort_keys=False), Loader=loader)
 
 
@@ -344,7 +352,7 @@ def read_manifest(out: Path) -> dict[str, Any]:
     if not path.is_file():
         return {}
     try:
-        data = yaml.load(path.read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+        data = yaml.load(path.read_text(), Loader=_yaml_classes()[1])
     except (OSError, yaml.YAMLError) as exc:
         raise ValueError(f"{path}: unreadable corpus manifest ({exc}); remove it to start afresh") from None
     if not isinstance(data, dict) or not isinstance(data.get("sequences"), list):
@@ -355,8 +363,7 @@ def read_manifest(out: Path) -> dict[str, Any]:
 def _write_manifest(out: Path, corpus: CorpusConfig, entries: dict[str, dict[str, Any]]) -> None:
     import yaml
 
-    # libyaml where the wheel has it: Python's emitter takes seconds for a thousand-sequence manifest
-    dumper = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+    dumper = _yaml_classes()[0]
     data = {
         "generator": "pvo sim corpus",
         "corpus": _plain(asdict(corpus)),
