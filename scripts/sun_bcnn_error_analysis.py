@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
+from pvo_core.sun import UNCALIBRATED
 from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
 from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn, predict_sequence
 
@@ -39,7 +40,13 @@ def main() -> None:
         predicted, truth, conditions = [], [], []
         for k, sequence in enumerate(sequences):
             p = predict_sequence(
-                model, card, sequence.root, samples=25, seed=1000 + k, tau=np.inf, cache_dir=args.corpus / ".cache"
+                model,
+                card,
+                sequence.root,
+                samples=25,
+                seed=1000 + k,
+                calibration=UNCALIBRATED,
+                cache_dir=args.corpus / ".cache",
             )
             predicted.append(p.vectors)
             truth.append(read_kitti_sun_csv(sequence.root / "sun.csv")[p.frames])

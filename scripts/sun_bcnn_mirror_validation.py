@@ -69,7 +69,7 @@ def main() -> None:
         if args.modes:
             for mode in MODES:
                 tic = time.perf_counter()
-                mean, _ = combine(draw_samples(model, images, n, 1000 + k, mode=mode), np.inf)
+                mean, _ = combine(draw_samples(model, images, n, 1000 + k, mode=mode))
                 seconds[mode] += time.perf_counter() - tic
                 cosine = np.clip(np.sum(mean * truth, axis=1), -1.0, 1.0)
                 errors[mode] += list(np.degrees(np.arccos(cosine)))
@@ -81,7 +81,7 @@ def main() -> None:
         mirror = Draws(flipped.vectors * MIRROR_X, flipped.inverse_concentration)
         candidates = (direct, pooled(direct, more), pooled(direct, mirror), pooled(first(direct, half), first(mirror, half)))
         for label, draws in zip(labels, candidates, strict=True):
-            mean, _ = combine(draws, np.inf)
+            mean, _ = combine(draws)
             cosine = np.clip(np.sum(mean * truth, axis=1), -1.0, 1.0)
             errors[label] += list(np.degrees(np.arccos(cosine)))
         print(f"{item.name}: {len(samples)} images", flush=True)

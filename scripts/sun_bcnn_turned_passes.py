@@ -69,7 +69,7 @@ def main() -> None:
             images = torch.stack([item["left"] for item in items])
             camera = torch.stack([item["camera"] for item in items]).to(images.dtype)
             frames = np.array([int(item["frame"]) for item in items])
-            predictions = predictions_from_draws(frames, pooled_over_turns(model, images, camera, yaws, 1000 + k), np.inf)
+            predictions = predictions_from_draws(frames, pooled_over_turns(model, images, camera, yaws, 1000 + k))
             rows.append(predictions.rows())
             truth.append(read_kitti_sun_csv(sequence.root / "sun.csv")[frames])
             overcast.append(np.full(len(frames), "overcast" in sequence.conditions))

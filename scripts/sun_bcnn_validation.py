@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
+from pvo_core.sun import UNCALIBRATED
 from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
 from pvo_pseudosensors.sun_bcnn.evaluation import evaluate_predictions
 from pvo_pseudosensors.sun_bcnn.infer import DEFAULT_MODE, MODES, load_sun_bcnn, predict_sequence
@@ -67,7 +68,7 @@ def main() -> None:
                 samples=args.samples,
                 seed=1000 + k,
                 mode=args.mode,
-                tau=np.inf,
+                calibration=UNCALIBRATED,
                 cache_dir=args.corpus / ".cache",
             )
             rows.append(predictions.rows())

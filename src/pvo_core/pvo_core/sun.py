@@ -5,6 +5,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -135,6 +138,58 @@ def zenith_azimuth_residuals(predicted: ArrayLike, truth: ArrayLike) -> Array:
     return np.column_stack([pz - tz, wrap_angle(pa - ta)])
 
 
+def anees(residuals: ArrayLike, covariances: ArrayLike) -> float:
+    """The average normalised estimation error squared of residuals (N, 2) under covariances (N, 2, 2), over
+    the two dimensions: 1 when the covariances state the spread the residuals have."""
+    r = np.asarray(residuals, dtype=float)
+    c = np.asarray(covariances, dtype=float)
+    return float(np.mean(np.einsum("ni,nij,nj->n", r, np.linalg.inv(c), r)) / 2.0)
+
+
+@dataclass(frozen=True)
+class CovarianceCalibration:
+    """How a sun model's own covariance over (zenith, azimuth) in rad² becomes the stated one:
+    Sigma = scale * Sigma_model + tau^-1 I. tau is the thesis's model precision (Method II), which widens an
+    overconfident model; scale (<= 1) narrows one whose covariance is too wide, which tau cannot."""
+
+    tau: float = float("inf")
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.tau > 0.0):  # also rejects NaN
+            raise ValueError(f"covariance calibration: tau must be positive (inf for none), got {self.tau}")
+        if not (np.isfinite(self.scale) and self.scale > 0.0):
+            raise ValueError(f"covariance calibration: scale must be positive and finite, got {self.scale}")
+
+    @classmethod
+    def from_mapping(cls, figures: Mapping[str, object]) -> CovarianceCalibration:
+        """From a model card's ``calibration`` block (``tau`` and ``scale``; absent: none)."""
+        return cls(float(figures.get("tau", np.inf)), float(figures.get("scale", 1.0)))  # type: ignore[arg-type]
+
+    def apply(self, covariances: ArrayLike) -> Array:
+        """The stated covariances (N, 2, 2) from the model's own (N, 2, 2)."""
+        stated = self.scale * np.asarray(covariances, dtype=float)
+        return stated if np.isinf(self.tau) else stated + np.eye(2) / self.tau
+
+
+#: no calibration: the model's own covariance as it is
+UNCALIBRATED = CovarianceCalibration()
+
+
+def calibrate_scale(residuals: ArrayLike, covariances: ArrayLike, keep: ArrayLike) -> float:
+    """The scale (<= 1) of :class:`CovarianceCalibration` for covariances (N, 2, 2) too wide for the residuals
+    (N, 2): the ANEES scales as 1/scale, so the scale sqrt(ANEES_kept * ANEES_all) puts the ANEES over the rows
+    where ``keep`` (the thesis's cosine-distance filter) and over all rows symmetrically about 1 (their
+    geometric mean becomes 1): both are reported, and an online consumer sees every row. 1 when the
+    covariances are not too wide by that measure (tau widens those)."""
+    r = np.asarray(residuals, dtype=float)
+    c = np.asarray(covariances, dtype=float)
+    kept = np.asarray(keep, dtype=bool)
+    if not kept.any():
+        raise ValueError("no residual to calibrate the covariance scale on")
+    return float(min(1.0, np.sqrt(anees(r[kept], c[kept]) * anees(r, c))))
+
+
 def calibrate_tau(residuals: ArrayLike, covariances: ArrayLike, keep: ArrayLike | None = None, target: float = 1.0) -> float:
     """The model precision tau of Method II: the covariances (N, 2, 2) plus tau^-1 I give an ANEES of
     ``target`` over the residuals (N, 2) (rows where ``keep``; the thesis's code kept cosine distances < 0.3).
@@ -146,19 +201,18 @@ def calibrate_tau(residuals: ArrayLike, covariances: ArrayLike, keep: ArrayLike 
     if len(r) == 0:
         raise ValueError("no residual to calibrate tau on")
 
-    def anees(inverse_tau: float) -> float:
-        widened = c + inverse_tau * np.eye(2)
-        return float(np.mean(np.einsum("ni,nij,nj->n", r, np.linalg.inv(widened), r)) / 2.0)
+    def widened_anees(inverse_tau: float) -> float:
+        return anees(r, c + inverse_tau * np.eye(2))
 
     floor = 1e-12
-    if anees(floor) <= target:
+    if widened_anees(floor) <= target:
         return float("inf")
     low, high = floor, 1.0
-    while anees(high) > target:  # widen until the ANEES falls below the target
+    while widened_anees(high) > target:  # widen until the ANEES falls below the target
         high *= 10.0
         if high > 1e6:
             raise ValueError("residuals too large to calibrate tau")
     for _ in range(200):  # bisection in log space: the ANEES falls monotonically as tau^-1 grows
         middle = np.sqrt(low * high)
-        low, high = (middle, high) if anees(middle) > target else (low, middle)
+        low, high = (middle, high) if widened_anees(middle) > target else (low, middle)
     return float(1.0 / np.sqrt(low * high))

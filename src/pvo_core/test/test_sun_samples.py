@@ -55,6 +55,43 @@ def test_calibrated_tau_gives_the_target_anees() -> None:
     assert calibrate_tau(residuals, covariance * 1e4) == np.inf  # already wide enough: nothing to add
 
 
+def test_covariance_scale_narrows_a_too_wide_covariance() -> None:
+    from pvo_core.sun import CovarianceCalibration, anees, calibrate_scale
+
+    rng = np.random.default_rng(2)
+    true_sigma = np.array([0.02, 0.05])
+    residuals = rng.normal(0, 1, (4000, 2)) * true_sigma
+    stated = np.tile(np.diag((2.0 * true_sigma) ** 2), (4000, 1, 1))  # four times the variance the errors have
+    everything = np.ones(4000, dtype=bool)
+    scale = calibrate_scale(residuals, stated, everything)
+    assert scale == pytest.approx(0.25, rel=0.05)
+    assert anees(residuals, CovarianceCalibration(scale=scale).apply(stated)) == pytest.approx(1.0, rel=1e-9)
+
+    # a filter that drops the largest errors: the two ANEES end symmetric about 1 (their geometric mean is 1)
+    keep = np.linalg.norm(residuals / true_sigma, axis=1) < 2.0
+    scale = calibrate_scale(residuals, stated, keep)
+    narrowed = CovarianceCalibration(scale=scale).apply(stated)
+    assert anees(residuals[keep], narrowed[keep]) < 1.0 < anees(residuals, narrowed)
+    assert np.sqrt(anees(residuals[keep], narrowed[keep]) * anees(residuals, narrowed)) == pytest.approx(1.0, rel=1e-9)
+
+    assert calibrate_scale(residuals, stated / 16.0, everything) == 1.0  # overconfident: tau's job, not the scale's
+    with pytest.raises(ValueError, match="no residual to calibrate the covariance scale on"):
+        calibrate_scale(residuals, stated, ~everything)
+
+
+def test_covariance_calibration_applies_scale_then_tau() -> None:
+    from pvo_core.sun import UNCALIBRATED, CovarianceCalibration
+
+    covariance = np.array([[[4.0, 1.0], [1.0, 9.0]]])
+    np.testing.assert_allclose(CovarianceCalibration(tau=2.0, scale=0.5).apply(covariance), [[[2.5, 0.5], [0.5, 5.0]]])
+    np.testing.assert_array_equal(UNCALIBRATED.apply(covariance), covariance)
+    assert CovarianceCalibration.from_mapping({"tau": 4.0}) == CovarianceCalibration(tau=4.0, scale=1.0)
+    assert CovarianceCalibration.from_mapping({}) == UNCALIBRATED
+    for bad, message in (({"scale": 0.0}, "scale must be positive"), ({"tau": float("nan")}, "tau must be positive")):
+        with pytest.raises(ValueError, match=message):
+            CovarianceCalibration.from_mapping(bad)
+
+
 @pytest.mark.parametrize(("zenith", "kappa"), [(1.2, 400.0), (0.5, 2000.0), (2.4, 900.0)])
 def test_aleatoric_covariance_matches_von_mises_fisher_draws(zenith: float, kappa: float) -> None:
     from pvo_core.sun import aleatoric_covariance, unit_zenith_azimuth, wrap_angle

@@ -29,11 +29,11 @@ class SunBCNNNode(PvoNode[SunBCNNSensorConfig, None]):
         self.publisher = self.create_publisher(SunDirection, "/pvo/sun/direction", reliable(100))
         self.create_subscription(Image, "/stereo/left/image_rect", self._on_image, reliable(10))
         if self.sensor is not None:
-            card = self.sensor.card
+            card, calibration = self.sensor.card, self.sensor.calibration
             self.get_logger().info(
                 f"Sun-BCNN {self.sensor.height}x{self.sensor.width}, every {self.config.every_n} image(s), "
-                f"{self.config.samples} {self.sensor.mode} MC samples, tau {card.calibration.get('tau', 'uncalibrated')} "
-                f"(calibrated in {card.calibration.get('mode', 'an unrecorded mode')})"
+                f"{self.config.samples} {self.sensor.mode} MC samples, covariance scale {calibration.scale:.3g}, "
+                f"tau {calibration.tau:.4g} (calibrated in {card.calibration.get('mode', 'an unrecorded mode')})"
             )
 
     def _on_image(self, msg: Image) -> None:

@@ -502,7 +502,7 @@ def test_the_aleatoric_output_learns_larger_covariance_for_noisier_images(tmp_pa
     assert draws.inverse_concentration is not None
     inverse = draws.inverse_concentration.mean(axis=0)
     assert np.median(inverse[hidden]) > 5 * np.median(inverse[~hidden])
-    _, covariance = combine(draws, np.inf)
+    _, covariance = combine(draws)
     spread = np.trace(covariance, axis1=1, axis2=2)
     assert np.median(spread[hidden]) > 3 * np.median(spread[~hidden])
     assert np.all(np.linalg.eigvalsh(covariance) > 0) and np.allclose(covariance, covariance.transpose(0, 2, 1))
@@ -572,7 +572,7 @@ def test_a_tiny_classifying_model_learns_where_the_sun_is() -> None:
     model = _fit_on(config, images, targets, 250)
     draws = draw_samples(model, images, 8, seed=1)
     assert draws.inverse_concentration is not None
-    mean, covariance = combine(draws, np.inf)
+    mean, covariance = combine(draws)
     assert np.all(np.linalg.eigvalsh(covariance) > 0)
     trained = _angles_deg(torch.from_numpy(mean), targets.double())
     assert float(untrained.median()) > 30.0 and float(trained.median()) < 10.0
@@ -599,8 +599,8 @@ def test_mirrored_mc_modes_pool_the_image_and_its_mirror() -> None:
     deterministic = SunBCNN(replace(TINY, dropout=0.0))
     mirror_x = np.array([-1.0, 1.0, 1.0])
     for mode, equivariant in (("full-mirrored", True), ("full", False)):
-        mean, _ = combine(draw_samples(deterministic, images, 4, seed=0, mode=mode), np.inf)
-        mean_flipped, _ = combine(draw_samples(deterministic, flipped, 4, seed=0, mode=mode), np.inf)
+        mean, _ = combine(draw_samples(deterministic, images, 4, seed=0, mode=mode))
+        mean_flipped, _ = combine(draw_samples(deterministic, flipped, 4, seed=0, mode=mode))
         assert np.allclose(mean_flipped, mean * mirror_x, atol=1e-6) == equivariant
     with pytest.raises(ValueError, match="at least 2 samples"):
         draw_samples(model, images, 1, seed=0, mode="head-mirrored")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pvo_core.sun import zenith_azimuth_to_vector
+from pvo_core.sun import CovarianceCalibration, zenith_azimuth_to_vector
 from pvo_pseudosensors.sun_bcnn.evaluation import calibration_curve, evaluate_predictions, method_comparison, predicted_sigma
 from pvo_pseudosensors.sun_bcnn.infer import Draws
 
@@ -85,7 +85,7 @@ def test_method_comparison_on_draws_from_the_truths_distribution() -> None:
     sigma = np.full(n, np.radians(3.0))
     draws = np.stack([tangent_perturbed(centre, sigma, rng) for _ in range(samples)])
     truth = tangent_perturbed(centre, sigma, rng)
-    table = method_comparison(Draws(draws, None), truth, np.inf)
+    table = method_comparison(Draws(draws, None), truth)
     assert set(table) == {"Method I", "Method II"}
     expected_anees = (1 + 1 / samples) * (samples - 1) / (samples - 4)
     # the vector error of an isotropic tangent error: Rayleigh with scale sigma * sqrt(1 + 1/S)
@@ -100,7 +100,7 @@ def test_method_comparison_on_draws_from_the_truths_distribution() -> None:
     tau_inverse = sigma[0] ** 2
     spread = np.stack([np.full(n, sigma[0] ** 2), sigma[0] ** 2 / np.sin(zenith) ** 2], axis=1)
     expected_widened = np.mean(np.sum((1 + 1 / samples) * spread / (spread + tau_inverse), axis=1)) / 2.0
-    widened = method_comparison(Draws(draws, None), truth, 1.0 / tau_inverse)
+    widened = method_comparison(Draws(draws, None), truth, CovarianceCalibration(tau=1.0 / tau_inverse))
     for row in widened.values():
         assert row["anees_cov_Method II"] == pytest.approx(expected_widened, rel=0.08)
 
@@ -111,6 +111,6 @@ def test_method_two_mean_fails_across_the_azimuth_cut_as_the_text_has_it() -> No
     zenith = np.full(2, 1.0)
     draws = zenith_azimuth_to_vector(zenith, np.array([np.pi - 0.01, -np.pi + 0.01]))[:, None, :]
     truth = zenith_azimuth_to_vector(np.array([1.0]), np.array([np.pi]))
-    table = method_comparison(Draws(draws, None), truth, np.inf)
+    table = method_comparison(Draws(draws, None), truth)
     assert table["Method I"]["vector_mean_deg"] < 0.1
     assert table["Method II"]["vector_mean_deg"] > 90.0

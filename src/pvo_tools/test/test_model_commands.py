@@ -90,6 +90,44 @@ def test_train_predict_eval(corpus: Path, tmp_path: Path, capsys) -> None:
     assert record["figures"]["images"] == 16.0
 
 
+def test_calibrate_writes_the_covariance_calibration(corpus: Path, tmp_path: Path, capsys) -> None:
+    """`pvo sun-bcnn calibrate` fits tau (an overconfident model) or a scale below 1 (one too wide) on the
+    validation split and writes both to the card; `predict` then states covariances with that ANEES."""
+    from pvo_core.readers import read_kitti_sun_csv
+    from pvo_core.sun import anees, zenith_azimuth_residuals
+
+    def train(model: Path, epochs: int) -> None:
+        args = ["sun-bcnn", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", str(epochs), "--batch-size", "16"]
+        assert main([*args, "--learning-rate", "0.01", *TINY]) == 0
+
+    train(tmp_path / "untrained", 1)  # no prediction near the truth: nothing to calibrate on
+    capsys.readouterr()
+    assert main(["sun-bcnn", "calibrate", "--model", str(tmp_path / "untrained"), "--corpus", str(corpus)]) == 2
+    assert "none of the 16 validation predictions is within cosine distance 0.3" in capsys.readouterr().err
+
+    model = tmp_path / "model"
+    train(model, 8)
+    capsys.readouterr()
+    assert main(["sun-bcnn", "calibrate", "--model", str(model), "--corpus", str(corpus), "--mode", "head"]) == 0
+    printed = capsys.readouterr().out
+    assert "covariance scale" in printed and "ANEES over the" in printed and "over all" in printed
+    calibration = yaml.safe_load((model / "model.yaml").read_text())["calibration"]
+    assert calibration["mode"] == "head" and calibration["images"] == 16.0
+    assert calibration["scale"] <= 1.0 and (calibration["scale"] == 1.0 or calibration["tau"] == float("inf"))
+
+    predictions = tmp_path / "validation.csv"
+    assert main(["sun-bcnn", "predict", str(corpus / "0002"), "--model", str(model), "-o", str(predictions)]) == 0
+    rows = np.loadtxt(predictions, delimiter=",", skiprows=1)
+    truth = read_kitti_sun_csv(corpus / "0002" / "sun.csv")[rows[:, 0].astype(int)]
+    residuals, covariances = zenith_azimuth_residuals(rows[:, 1:4], truth), rows[:, 6:10].reshape(-1, 2, 2)
+    keep = 1.0 - np.sum(rows[:, 1:4] * truth, axis=1) < 0.3
+    assert anees(residuals, covariances) == pytest.approx(calibration["anees_all"], rel=1e-6)
+    if calibration["tau"] != float("inf"):
+        assert anees(residuals[keep], covariances[keep]) == pytest.approx(1.0, rel=1e-6)
+    elif calibration["scale"] < 1.0:
+        assert np.sqrt(anees(residuals[keep], covariances[keep]) * calibration["anees_all"]) == pytest.approx(1.0, rel=1e-6)
+
+
 def test_predict_takes_a_shipped_models_name(corpus: Path, tmp_path: Path) -> None:
     from pvo_pseudosensors.learning.checkpoint import shipped_model
 

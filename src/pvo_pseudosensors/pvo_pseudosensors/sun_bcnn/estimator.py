@@ -12,7 +12,7 @@ from pvo_core.sun import unit_zenith_azimuth
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import SHIPPED
-from .infer import MODES, combine, draw_samples, load_sun_bcnn, model_mode
+from .infer import MODES, card_calibration, combine, draw_samples, load_sun_bcnn, model_mode
 
 Array = NDArray[np.float64]
 
@@ -66,7 +66,7 @@ class SunBCNNSensor:
         self.model, self.card = load_sun_bcnn(resolve_model(config.model))
         self.height, self.width = (int(v) for v in self.card.input["size"])
         self.colour = bool(self.card.input.get("colour", False))
-        self.tau = float(self.card.calibration.get("tau", np.inf))
+        self.calibration = card_calibration(self.card)
         self.mode = model_mode(self.card, self.config.mode)
         self.count = 0
 
@@ -86,6 +86,6 @@ class SunBCNNSensor:
         seed = self.config.seed + self.count
         self.count += 1
         draws = draw_samples(self.model, tensor, self.config.samples, seed, self.mode)
-        mean, covariance = combine(draws, self.tau)
+        mean, covariance = combine(draws, self.calibration)
         zenith, azimuth = unit_zenith_azimuth(mean)
         return SunEstimate(mean[0], float(zenith[0]), float(azimuth[0]), covariance[0])

@@ -12,6 +12,8 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 from pvo_core.sun import (
+    UNCALIBRATED,
+    CovarianceCalibration,
     aleatoric_covariance,
     angle_mean,
     angular_errors,
@@ -68,17 +70,22 @@ def calibration_curve(rows: Array, truth: Array, bins: int = 8) -> tuple[Array, 
     return predicted, actual
 
 
-def method_comparison(draws: Draws, truth: Array, tau: float) -> dict[str, dict[str, float]]:
+def method_comparison(
+    draws: Draws, truth: Array, calibration: CovarianceCalibration = UNCALIBRATED
+) -> dict[str, dict[str, float]]:
     """Tables 5.7 and 5.8 over MC draws (S, N, 3) of N images: errors of the Method I (normalised vector mean)
     and Method II (mean of the angles) means, and the ANEES of each covariance — Method I (the vectors'
     covariance mapped to angles) and Method II (the angles' covariance) — with each mean; both covariances
-    get the same tau^-1 I and aleatoric terms."""
+    get the same aleatoric term and the same ``calibration``."""
     mean_one, covariance_two = sample_mean_and_covariance(draws.vectors)
     means = {"Method I": mean_one, "Method II": angle_mean(draws.vectors)}
-    extra = np.zeros_like(covariance_two) + (0.0 if np.isinf(tau) else np.eye(2) / tau)
+    aleatoric = np.zeros_like(covariance_two)
     if draws.inverse_concentration is not None:
-        extra = extra + aleatoric_covariance(mean_one, draws.inverse_concentration.mean(axis=0))
-    covariances = {"Method I": vector_covariance_in_angles(draws.vectors, mean_one) + extra, "Method II": covariance_two + extra}
+        aleatoric = aleatoric_covariance(mean_one, draws.inverse_concentration.mean(axis=0))
+    covariances = {
+        "Method I": calibration.apply(vector_covariance_in_angles(draws.vectors, mean_one) + aleatoric),
+        "Method II": calibration.apply(covariance_two + aleatoric),
+    }
     true_zenith, true_azimuth = unit_zenith_azimuth(truth)
     out: dict[str, dict[str, float]] = {}
     for mean_name, mean in means.items():
@@ -108,7 +115,7 @@ def time_per_image(model: SunBCNN, card: ModelCard, count: int, mode: str, sampl
         draw_samples(model, tensors[0], samples, 0, mode)  # warm-up
         start = time.perf_counter()
         for k, tensor in enumerate(tensors):
-            combine(draw_samples(model, tensor, samples, k, mode), np.inf)
+            combine(draw_samples(model, tensor, samples, k, mode))
         return 1000.0 * (time.perf_counter() - start) / len(tensors)
     finally:
         torch.set_num_threads(threads)

@@ -1,4 +1,4 @@
-"""Sun-BCNN on a sequence: MC-dropout samples per image, Method I mean and Method II covariance + tau, and
+"""Sun-BCNN on a sequence: MC-dropout samples per image, Method I mean and Method II covariance (calibrated), and
 the prediction file. Its evaluation against the true sun vectors is :mod:`.evaluation`."""
 
 from __future__ import annotations
@@ -10,7 +10,13 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 from pvo_core.readers import SUN_PREDICTIONS_HEADER
-from pvo_core.sun import aleatoric_covariance, sample_mean_and_covariance, unit_zenith_azimuth
+from pvo_core.sun import (
+    UNCALIBRATED,
+    CovarianceCalibration,
+    aleatoric_covariance,
+    sample_mean_and_covariance,
+    unit_zenith_azimuth,
+)
 
 from ..learning.checkpoint import ModelCard, load_model
 from ..learning.data import FrameDataset, Source
@@ -82,18 +88,26 @@ def predict_sequence(
     seed: int = 0,
     cache_dir: Path | None = None,
     mode: str | None = None,
-    tau: float | None = None,
+    calibration: CovarianceCalibration | None = None,
 ) -> SunPredictions:
     """Every left image of ``sequence`` through ``samples`` dropout passes (seeded) in ``mode`` (:data:`MODES`;
-    default: the one the card's τ was calibrated in, :func:`model_mode`). tau: the model precision added to the
-    covariance (default: the card's ``calibration.tau``, infinite until calibrated)."""
+    default: the one the card's calibration was fitted in, :func:`model_mode`). calibration: how the model's
+    covariance becomes the stated one (default: the card's, :func:`card_calibration`)."""
     frames, draws = sample_sequence(model, card, sequence, samples, batch, seed, cache_dir, mode)
-    return predictions_from_draws(frames, draws, float(card.calibration.get("tau", np.inf)) if tau is None else tau)
+    return predictions_from_draws(frames, draws, card_calibration(card) if calibration is None else calibration)
 
 
-def predictions_from_draws(frames: NDArray[np.int64], draws: Draws, tau: float) -> SunPredictions:
+def card_calibration(card: ModelCard) -> CovarianceCalibration:
+    """The covariance calibration of a model card (``calibration.tau`` and ``calibration.scale``; none until
+    `pvo sun-bcnn calibrate` fitted them)."""
+    return CovarianceCalibration.from_mapping(card.calibration)
+
+
+def predictions_from_draws(
+    frames: NDArray[np.int64], draws: Draws, calibration: CovarianceCalibration = UNCALIBRATED
+) -> SunPredictions:
     """Method I mean, the covariance of :func:`combine` and their angles, per frame."""
-    mean, covariance = combine(draws, tau)
+    mean, covariance = combine(draws, calibration)
     zenith, azimuth = unit_zenith_azimuth(mean)
     return SunPredictions(frames, mean, zenith, azimuth, covariance)
 
@@ -193,13 +207,14 @@ def draw_samples(model: SunBCNN, images: torch.Tensor, samples: int, seed: int, 
         torch.set_rng_state(state)
 
 
-def combine(draws: Draws, tau: float) -> tuple[Array, Array]:
-    """Method I mean (B, 3) and the covariance (B, 2, 2) over (zenith, azimuth): Method II's sample
-    covariance (epistemic) + tau^-1 I + the mean over passes of the aleatoric vMF covariance."""
-    mean, covariance = sample_mean_and_covariance(draws.vectors, tau)
+def combine(draws: Draws, calibration: CovarianceCalibration = UNCALIBRATED) -> tuple[Array, Array]:
+    """Method I mean (B, 3) and the covariance (B, 2, 2) over (zenith, azimuth), rad²: Method II's sample
+    covariance (epistemic) plus the mean over passes of the aleatoric vMF covariance, through ``calibration``
+    (scaled, then tau^-1 I added; uncalibrated by default)."""
+    mean, covariance = sample_mean_and_covariance(draws.vectors)
     if draws.inverse_concentration is not None:
         covariance = covariance + aleatoric_covariance(mean, draws.inverse_concentration.mean(axis=0))
-    return mean, covariance
+    return mean, calibration.apply(covariance)
 
 
 def calibrate(
@@ -211,32 +226,39 @@ def calibrate(
     max_cosine_distance: float = 0.3,
     cache_dir: Path | None = None,
 ) -> dict[str, float]:
-    """tau on ``sequences`` (the validation split) so that ANEES = 1 over the predictions within
-    ``max_cosine_distance`` of the truth (as the thesis's code); the figures before and after."""
+    """The covariance calibration on ``sequences`` (the validation split): tau so that ANEES = 1 over the
+    predictions within ``max_cosine_distance`` of the truth (the thesis's code) when the model is overconfident,
+    else the scale of :func:`pvo_core.sun.calibrate_scale` (tau cannot narrow a covariance); the figures,
+    ANEES over the kept predictions and over all, before and after."""
     from pvo_core.readers import read_kitti_sun_csv
-    from pvo_core.sun import calibrate_tau, zenith_azimuth_residuals
+    from pvo_core.sun import anees, calibrate_scale, calibrate_tau, zenith_azimuth_residuals
 
     residuals, covariances, distances = [], [], []
     for sequence in sequences:
-        predictions = predict_sequence(model, card, sequence, samples, mode=mode, tau=np.inf, cache_dir=cache_dir)
+        predictions = predict_sequence(model, card, sequence, samples, mode=mode, calibration=UNCALIBRATED, cache_dir=cache_dir)
         truth = read_kitti_sun_csv(Path(sequence) / "sun.csv")[predictions.frames]
         residuals.append(zenith_azimuth_residuals(predictions.vectors, truth))
         covariances.append(predictions.covariance)
         distances.append(1.0 - np.sum(predictions.vectors * truth, axis=1))
     r, c, d = np.vstack(residuals), np.concatenate(covariances), np.concatenate(distances)
     keep = d < max_cosine_distance
+    if not keep.any():
+        raise ValueError(
+            f"none of the {len(r)} validation predictions is within cosine distance {max_cosine_distance} of the true sun: "
+            "the model is too far off to calibrate its covariance"
+        )
     tau = calibrate_tau(r, c, keep)
-
-    def anees(extra: float) -> float:
-        widened = c[keep] + extra * np.eye(2)
-        return float(np.mean(np.einsum("ni,nij,nj->n", r[keep], np.linalg.inv(widened), r[keep])) / 2.0)
-
+    calibration = CovarianceCalibration(tau=tau, scale=calibrate_scale(r, c, keep) if np.isinf(tau) else 1.0)
+    stated = calibration.apply(c)
     return {
         "tau": tau,
+        "scale": calibration.scale,
         "images": float(len(r)),
         "kept": float(keep.sum()),
-        "anees_without_tau": anees(1e-12),
-        "anees": anees(0.0 if np.isinf(tau) else 1.0 / tau),
+        "anees_uncalibrated": anees(r[keep], c[keep]),
+        "anees": anees(r[keep], stated[keep]),
+        "anees_all_uncalibrated": anees(r, c),
+        "anees_all": anees(r, stated),
         "samples": float(samples),
         "max_cosine_distance": max_cosine_distance,
     }

@@ -355,8 +355,10 @@ def run_calibrate(args: argparse.Namespace, entry: ModelEntry) -> int:
     figures = entry.calibrate(args.model, sequences, samples=samples, mode=args.mode, cache_dir=args.corpus / ".cache")
     if "tau" in figures:
         print(
-            f"{args.model}: tau {figures['tau']:.4g} (tau^-1 {1 / figures['tau']:.4g} rad^2) on {int(figures['kept'])} of "
-            f"{int(figures['images'])} validation images; ANEES {figures['anees_without_tau']:.2f} -> {figures['anees']:.2f}"
+            f"{args.model}: tau {figures['tau']:.4g} (tau^-1 {1 / figures['tau']:.4g} rad^2), covariance scale "
+            f"{figures['scale']:.4g} on {len(sequences)} validation sequences; ANEES over the {int(figures['kept'])} of "
+            f"{int(figures['images'])} images the cosine-distance filter keeps {figures['anees_uncalibrated']:.2f} -> "
+            f"{figures['anees']:.2f}, over all {figures['anees_all_uncalibrated']:.2f} -> {figures['anees_all']:.2f}"
         )
     else:
         mode = f" ({args.mode} mode)" if args.mode else ""

@@ -277,6 +277,7 @@ def run(args: argparse.Namespace) -> int:
         MODES,
         Draws,
         calibrate,
+        card_calibration,
         load_sun_bcnn,
         model_mode,
         predict_sequence,
@@ -308,12 +309,12 @@ def run(args: argparse.Namespace) -> int:
     # 1-3: the corpus's test split
     per_model: dict[str, dict[str, Any]] = {}
     for name, (model, card) in loaded.items():
-        tau = float(card.calibration.get("tau", np.inf))
+        calibration = card_calibration(card)
         per_sequence, all_rows, all_truth, all_draws_vectors, all_inverse = [], [], [], [], []
         for sequence in test:
             say(f"{name}: predicting test sequence {sequence.name} ...")
             frames, draws = sample_sequence(model, card, sequence.root, args.samples, cache_dir=cache)
-            predictions = predictions_from_draws(frames, draws, tau)
+            predictions = predictions_from_draws(frames, draws, calibration)
             truth = read_kitti_sun_csv(sequence.root / "sun.csv")[frames]
             rows = predictions.rows()
             per_sequence.append(
@@ -351,7 +352,7 @@ def run(args: argparse.Namespace) -> int:
             "groups": groups,
             "draws": draws_all,
             "truth": truth,
-            "tau": tau,
+            "calibration": calibration,
             "card": card,
             "model": model,
         }
@@ -380,7 +381,8 @@ def run(args: argparse.Namespace) -> int:
     report += ["## 1. Accuracy on the corpus's test split (Table 5.1's columns; degrees)", ""]
     for name, result in per_model.items():
         report += [
-            f"### {name} model (`{models[name]}`, tau^-1 = {0.0 if np.isinf(result['tau']) else 1 / result['tau']:.4g} rad²)",
+            f"### {name} model (`{models[name]}`, covariance scale {result['calibration'].scale:.3g}, tau^-1 = "
+            f"{0.0 if np.isinf(result['calibration'].tau) else 1 / result['calibration'].tau:.4g} rad²)",
             "",
             "```",
         ]
@@ -426,7 +428,7 @@ def run(args: argparse.Namespace) -> int:
     report += ["```", ""]
 
     report += ["## 3. Method I vs Method II (Tables 5.7, 5.8), aleatoric model, test split", ""]
-    methods = method_comparison(default["draws"], default["truth"], default["tau"])
+    methods = method_comparison(default["draws"], default["truth"], default["calibration"])
     tables["methods"] = methods
     report += [
         "| mean | vector mean | median | std | zenith mean | azimuth mean | ANEES, cov. Method I | ANEES, cov. Method II |",
