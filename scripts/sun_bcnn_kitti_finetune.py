@@ -20,6 +20,8 @@ from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
 from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn
 from pvo_pseudosensors.sun_bcnn.model import SunTask
 from pvo_tools.experiments.sun_bcnn import (
+    FINETUNE_EPOCHS,
+    FINETUNE_LEARNING_RATE,
     KITTI_TRAIN_FRAMES,
     KITTI_VALIDATION_FRAMES,
     kitti_figures,
@@ -32,8 +34,13 @@ from pvo_tools.paths import data_directory
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", required=True, help="the synthetic model to fine-tune (directory or shipped name)")
-    parser.add_argument("--learning-rate", type=float, default=3e-4, help="default 3e-4, the experiment's")
-    parser.add_argument("--epochs", type=int, default=20, help="default 20, the experiment's")
+    parser.add_argument(
+        "--learning-rate",
+        type=float,
+        default=FINETUNE_LEARNING_RATE,
+        help=f"default {FINETUNE_LEARNING_RATE:g} (the experiment's)",
+    )
+    parser.add_argument("--epochs", type=int, default=FINETUNE_EPOCHS, help=f"default {FINETUNE_EPOCHS}, the experiment's")
     parser.add_argument("--out", "-o", type=Path, required=True, help="the fine-tuned model's directory")
     parser.add_argument("--compare", nargs="*", default=[], help="other models judged on the same frames")
     parser.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
