@@ -23,6 +23,7 @@ def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
         fusion_experiment,
         fusion_inputs,
         render_fusion_sequences,
+        with_rig_error,
     )
 
     corpus = CorpusConfig(sequences=6, frames=3, width=320, height=120, seed=7)  # test split: 0000 and 0005
@@ -60,6 +61,33 @@ def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
         assert rows["GT-Sun-10"]["smoothed"]["rot"] != rows["Without Sun"]["smoothed"]["rot"]  # the sun was fused
     changes = fusion_changes(table)
     assert set(changes) == set(FUSION_ROWS[1:])
+
+    # --fusion-rig-error: the same images, the VO on a calib.txt with the focal length 5 % too long, so every
+    # depth and hence every step it measures is 5 % too long; the camera's file and the truth untouched
+    from pvo_core.readers import KittiSequence
+
+    sequence = KittiSequence(folders[0], poses_file=folders[0] / "poses.txt")
+    camera, wrong = sequence.camera(), with_rig_error(sequence, 1.05, 0.9).camera()
+    assert wrong.f == pytest.approx(1.05 * camera.f) and wrong.baseline == pytest.approx(0.9 * camera.baseline)
+    assert (wrong.cu, wrong.cv) == (camera.cu, camera.cv) and sequence.camera() == camera
+    biased, _ = fusion_inputs(folders[0], model, card, samples=4, rig_error=(1.05, 1.0))
+    clean = inputs[0][0]
+
+    def path_length(poses: np.ndarray) -> float:
+        return float(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1).sum())
+
+    np.testing.assert_array_equal(biased.ground_truth, clean.ground_truth)
+    assert path_length(biased.vo_poses) / path_length(clean.vo_poses) == pytest.approx(1.05, abs=0.02)
+
+
+def test_rig_error_option_is_two_scales() -> None:
+    from pvo_tools.experiments.sun_bcnn import parse_rig_error
+
+    assert parse_rig_error(None) is None and parse_rig_error("1.03,1") == (1.03, 1.0)
+    with pytest.raises(ValueError, match="give two scales, FOCAL,BASELINE"):
+        parse_rig_error("1.03")
+    with pytest.raises(ValueError, match="each scale must be in \\[0.5, 2\\]"):
+        parse_rig_error("3,1")
 
 
 def test_a_staged_kitti_clip_carries_its_camera_for_turned_camera_fine_tuning(tmp_path: Path) -> None:

@@ -6,15 +6,17 @@
 2. Cloud cover (§5.10.1): sunny against overcast test sequences.
 3. Method I against Method II (Tables 5.7, 5.8): the mean and the covariance of the MC samples.
 4. Fusion (Table 5.2 on synthetic): the first test sequences rendered longer, this project's VO fused with
-   GT-Sun-10/20/30 and with Sun-BCNN at every 10th frame; online and smoothed ARMSE against VO alone.
+   GT-Sun-10/20/30 and with Sun-BCNN at every 10th frame; online and smoothed ARMSE against VO alone; with
+   --fusion-rig-error, again with the VO run on a wrong calibration (a VO whose rotation drifts).
 5. Real images: the synthetic model on the KITTI 06 clip and the 07 left images; the synthetic model
    fine-tuned on 07 and a model trained on 07 alone, both tested on 06. 07 is split by frame (0-127 train,
-   128-159 validation: model selection and tau calibration); 06 is never trained on.
+   128-159 validation: model selection and covariance calibration); 06 is never trained on.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -136,9 +138,27 @@ def render_fusion_sequences(corpus: Path, count: int, frames: int, out: Path, jo
     return [out / f"{i:04d}" for i in indices]
 
 
-def fusion_inputs(folder: Path, model: Any, card: Any, samples: int) -> tuple[Any, list[Any]]:
+def with_rig_error(sequence: Any, focal_scale: float, baseline_scale: float) -> Any:
+    """``sequence`` (a :class:`pvo_core.readers.KittiSequence`) as a VO with a wrong calibration sees it: its
+    calib.txt's focal length times ``focal_scale`` and baseline times ``baseline_scale`` (the images as they
+    are) — what `pvo sim corpus --calib-focal-scale/--calib-baseline-scale` writes, without rendering again."""
+    wrong = copy.copy(sequence)
+    wrong.projections = {}
+    for name, projection in sequence.projections.items():
+        scaled = np.array(projection, dtype=float)
+        scaled[0, 0] *= focal_scale
+        scaled[1, 1] *= focal_scale
+        scaled[0, 3] *= focal_scale * baseline_scale  # -f b for a right camera
+        wrong.projections[name] = scaled
+    return wrong
+
+
+def fusion_inputs(
+    folder: Path, model: Any, card: Any, samples: int, rig_error: tuple[float, float] | None = None
+) -> tuple[Any, list[Any]]:
     """A rendered sequence as the sun experiment reads KITTI: ground truth, this project's stereo VO (poses
-    and motion covariances) and the camera-frame sun; and Sun-BCNN's measurements at every 10th frame."""
+    and motion covariances) and the camera-frame sun; and Sun-BCNN's measurements at every 10th frame.
+    rig_error: (focal, baseline) scales of a wrong calibration the VO runs with (:func:`with_rig_error`)."""
     from pvo_core.readers import KittiSequence, KittiSunSequence, read_kitti_sun_csv
     from pvo_frontend.offline import run_sequence
     from pvo_frontend.vo import VOConfig
@@ -149,7 +169,7 @@ def fusion_inputs(folder: Path, model: Any, card: Any, samples: int) -> tuple[An
     from .sun_sim import SUN_EVERY
 
     sequence = KittiSequence(folder, poses_file=folder / "poses.txt")
-    run = run_sequence(sequence, VOConfig())
+    run = run_sequence(sequence if rig_error is None else with_rig_error(sequence, *rig_error), VOConfig())
     sun_camera = read_kitti_sun_csv(folder / "sun.csv")
     seq = KittiSunSequence(folder.name, "pvo sim", sequence.poses, run.poses, run.relative()["covariances"], sun_camera)
     predictions = predict_sequence(model, card, folder, samples)
@@ -243,6 +263,59 @@ def format_table(results: list[Evaluated]) -> str:
     return "\n".join(lines)
 
 
+def fusion_section(
+    fused: dict[str, dict[str, dict[str, dict[str, float]]]],
+    changes: dict[str, dict[str, dict[str, float]]],
+    count: int,
+    frames: int,
+    rig_error: tuple[float, float] | None,
+) -> list[str]:
+    """Table 5.2's report lines: ARMSE per sequence and row, then the mean changes against VO alone."""
+    vo = (
+        "this project's stereo VO"
+        if rig_error is None
+        else f"this project's stereo VO run with a wrong calibration (calib.txt's focal length x{rig_error[0]:g}, baseline "
+        f"x{rig_error[1]:g}; the images as rendered)"
+    )
+    lines = [
+        f"{'### VO with a rig calibration error' if rig_error else '### The calibrated rig'}",
+        "",
+        f"{count} test sequences of the corpus rendered with {frames} frames, {vo} (covariances calibrated on the other "
+        "sequences), fused with a sun measurement at every 10th frame. ARMSE: translation (m) and rotation (rad) over "
+        "the whole run; the change is the mean over sequences of each sequence's relative change against VO alone "
+        "(negative = better).",
+        "",
+        "| sequence | row | online trans | online rot | smoothed trans | smoothed rot |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, rows in fused.items():
+        for row, m in rows.items():
+            lines.append(
+                f"| {name} | {row} | {m['online']['trans']:.3f} | {m['online']['rot']:.5f} | "
+                f"{m['smoothed']['trans']:.3f} | {m['smoothed']['rot']:.5f} |"
+            )
+    lines += ["", "| row | online trans | online rot | smoothed trans | smoothed rot |", "|---|---|---|---|---|"]
+    for row, c in changes.items():
+        lines.append(
+            f"| {row} | {100 * c['online']['trans']:+.1f} % | {100 * c['online']['rot']:+.1f} % | "
+            f"{100 * c['smoothed']['trans']:+.1f} % | {100 * c['smoothed']['rot']:+.1f} % |"
+        )
+    return [*lines, ""]
+
+
+def parse_rig_error(text: str | None) -> tuple[float, float] | None:
+    """``--fusion-rig-error FOCAL,BASELINE`` as two scales in [0.5, 2] (``ValueError``, one line, otherwise)."""
+    if text is None:
+        return None
+    try:
+        focal, baseline = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"--fusion-rig-error {text!r}: give two scales, FOCAL,BASELINE (e.g. 1.03,1)") from None
+    if not (0.5 <= focal <= 2.0 and 0.5 <= baseline <= 2.0):
+        raise ValueError(f"--fusion-rig-error {text!r}: each scale must be in [0.5, 2] (a calibration error)")
+    return focal, baseline
+
+
 def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--corpus", type=Path, required=True, help="the corpus the models were trained on (its test split)")
     parser.add_argument(
@@ -273,6 +346,12 @@ def register(parser: argparse.ArgumentParser) -> None:
         "--fusion-sequences", type=int, default=5, help="experiment 4: test sequences rendered longer and fused (0: skip)"
     )
     parser.add_argument("--fusion-frames", type=int, default=1000, help="experiment 4: frames per sequence (default 1000)")
+    parser.add_argument(
+        "--fusion-rig-error",
+        metavar="FOCAL,BASELINE",
+        help="experiment 4 again with the VO run on a wrong calibration: calib.txt's focal length and baseline times "
+        "these (e.g. 1.03,1: a VO whose rotation drifts, as on real cameras; default: the calibrated rig only)",
+    )
     parser.add_argument("--jobs", "-j", type=int, default=2, help="experiment 4: rendering processes (default 2)")
     parser.add_argument("--out", "-o", type=Path, default=Path("runs/sun-bcnn-experiment"), help="output directory")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
@@ -302,6 +381,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.finetune_learning_rate > 0.0:
         raise ValueError(f"--finetune-learning-rate {args.finetune_learning_rate}: must be positive")
+    rig_error = parse_rig_error(args.fusion_rig_error)
     if args.finetune_epochs < 1:
         raise ValueError(f"--finetune-epochs {args.finetune_epochs}: the KITTI fine-tune needs at least one epoch")
     if args.scratch_epochs is not None and args.scratch_epochs < 0:
@@ -459,37 +539,20 @@ def run(args: argparse.Namespace) -> int:
         folders = render_fusion_sequences(
             args.corpus, args.fusion_sequences, args.fusion_frames, out / "fusion-sequences", args.jobs, say
         )
-        inputs = [fusion_inputs(folder, model, card, args.samples) for folder in folders]
-        fused = fusion_experiment([seq for seq, _ in inputs], [learned for _, learned in inputs], say=say)
-        changes = fusion_changes(fused)
-        tables["fusion"] = fused
-        tables["fusion_changes"] = changes
+        rigs: list[tuple[str, tuple[float, float] | None]] = [("fusion", None)]
+        if rig_error is not None:
+            rigs.append(("fusion_rig", rig_error))
+        for key, rig in rigs:
+            inputs = [fusion_inputs(folder, model, card, args.samples, rig) for folder in folders]
+            fused = fusion_experiment([seq for seq, _ in inputs], [learned for _, learned in inputs], say=say)
+            changes = fusion_changes(fused)
+            tables[key], tables[f"{key}_changes"] = fused, changes
+            for row, c in changes.items():
+                for estimate in ("online", "smoothed"):
+                    for metric in ("trans", "rot"):
+                        figures[f"{key}.{row}.{estimate}.{metric}_change"] = c[estimate][metric]
+            report += fusion_section(fused, changes, len(folders), args.fusion_frames, rig)
         report += [
-            f"{len(folders)} test sequences of the corpus rendered with {args.fusion_frames} frames, this project's stereo VO "
-            "(covariances calibrated on the other sequences), fused with a sun measurement at every 10th frame. ARMSE: "
-            "translation (m) and rotation (rad) over the whole run; the change is the mean over sequences of each "
-            "sequence's relative change against VO alone (negative = better).",
-            "",
-            "| sequence | row | online trans | online rot | smoothed trans | smoothed rot |",
-            "|---|---|---|---|---|---|",
-        ]
-        for name, rows in fused.items():
-            for row, m in rows.items():
-                report.append(
-                    f"| {name} | {row} | {m['online']['trans']:.3f} | {m['online']['rot']:.5f} | "
-                    f"{m['smoothed']['trans']:.3f} | {m['smoothed']['rot']:.5f} |"
-                )
-        report += ["", "| row | online trans | online rot | smoothed trans | smoothed rot |", "|---|---|---|---|---|"]
-        for row, c in changes.items():
-            report.append(
-                f"| {row} | {100 * c['online']['trans']:+.1f} % | {100 * c['online']['rot']:+.1f} % | "
-                f"{100 * c['smoothed']['trans']:+.1f} % | {100 * c['smoothed']['rot']:+.1f} % |"
-            )
-            for estimate in ("online", "smoothed"):
-                for key in ("trans", "rot"):
-                    figures[f"fusion.{row}.{estimate}.{key}_change"] = c[estimate][key]
-        report += [
-            "",
             "The thesis's sliding window held two poses (thesis-code-facts §4): each pose of its trajectory is the "
             "estimate one frame after it was newest — the online estimate here is the closer match.",
             "",
