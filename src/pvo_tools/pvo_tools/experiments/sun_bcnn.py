@@ -7,7 +7,7 @@
 3. Method I against Method II (Tables 5.7, 5.8): the mean and the covariance of the MC samples.
 4. Fusion (Table 5.2 on synthetic): the first test sequences rendered longer, this project's VO fused with
    GT-Sun-10/20/30 and with Sun-BCNN at every 10th frame; online and smoothed ARMSE against VO alone; with
-   --fusion-rig-error, again with the VO run on a wrong calibration (a VO whose rotation drifts).
+   --fusion-rig-error, again with the VO run on a wrong calibration (a systematically biased VO).
 5. Real images: the synthetic model on the KITTI 06 clip and the 07 left images; the synthetic model
    fine-tuned on 07 and a model trained on 07 alone, both tested on 06. 07 is split by frame (0-127 train,
    128-159 validation: model selection and covariance calibration); 06 is never trained on.
@@ -350,7 +350,7 @@ def register(parser: argparse.ArgumentParser) -> None:
         "--fusion-rig-error",
         metavar="FOCAL,BASELINE",
         help="experiment 4 again with the VO run on a wrong calibration: calib.txt's focal length and baseline times "
-        "these (e.g. 1.03,1: a VO whose rotation drifts, as on real cameras; default: the calibrated rig only)",
+        "these (e.g. 1.03,1: a systematically biased VO, as on a badly calibrated camera; default: the calibrated rig only)",
     )
     parser.add_argument("--jobs", "-j", type=int, default=2, help="experiment 4: rendering processes (default 2)")
     parser.add_argument("--out", "-o", type=Path, default=Path("runs/sun-bcnn-experiment"), help="output directory")
