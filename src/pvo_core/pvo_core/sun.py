@@ -163,8 +163,16 @@ class CovarianceCalibration:
 
     @classmethod
     def from_mapping(cls, figures: Mapping[str, object]) -> CovarianceCalibration:
-        """From a model card's ``calibration`` block (``tau`` and ``scale``; absent: none)."""
-        return cls(float(figures.get("tau", np.inf)), float(figures.get("scale", 1.0)))  # type: ignore[arg-type]
+        """From a model card's ``calibration`` block (``tau`` and ``scale``; absent: none); ``ValueError``
+        naming the field that is not a number."""
+        values = {}
+        for name, default in (("tau", np.inf), ("scale", 1.0)):
+            value = figures.get(name, default)
+            try:
+                values[name] = float(value)  # type: ignore[arg-type]
+            except (TypeError, ValueError):
+                raise ValueError(f"covariance calibration: {name} must be a number, got {value!r}") from None
+        return cls(**values)
 
     def apply(self, covariances: ArrayLike) -> Array:
         """The stated covariances (N, 2, 2) from the model's own (N, 2, 2)."""

@@ -138,6 +138,28 @@ def test_predict_takes_a_shipped_models_name(corpus: Path, tmp_path: Path) -> No
     assert len(by_name.read_text().splitlines()) == 17 and by_name.read_text() == by_path.read_text()
 
 
+@pytest.mark.parametrize(
+    ("calibration", "message"),
+    [({"scale": -1.0}, "scale must be positive and finite, got -1.0"), ({"tau": "wide"}, "tau must be a number, got 'wide'")],
+)
+def test_a_bad_covariance_calibration_in_the_card_is_one_line(
+    corpus: Path, tmp_path: Path, capsys, calibration: dict, message: str
+) -> None:
+    from pvo_pseudosensors.learning.checkpoint import save_model
+    from pvo_pseudosensors.sun_bcnn.config import SunBCNNConfig
+    from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask
+
+    config = SunBCNNConfig(height=24, width=64, widths=(4, 8), hidden=8, bins=0, rotate=0.0)
+    card = SunTask(config).card()
+    card.calibration = calibration
+    save_model(tmp_path / "model", SunBCNN(config), card)
+    predict = ["sun-bcnn", "predict", str(corpus / "0003"), "--model", str(tmp_path / "model"), "-o", str(tmp_path / "p.csv")]
+    assert main(predict) == 2
+    error = capsys.readouterr().err
+    assert f"{tmp_path / 'model' / 'model.yaml'}: covariance calibration: {message}" in error
+    assert "Traceback" not in error and not (tmp_path / "p.csv").exists()
+
+
 def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     assert (
         main(["sun-bcnn", "predict", str(corpus / "0003"), "--model", str(tmp_path / "none"), "-o", str(tmp_path / "p.csv")]) == 2

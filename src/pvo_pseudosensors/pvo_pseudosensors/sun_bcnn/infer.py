@@ -18,7 +18,7 @@ from pvo_core.sun import (
     unit_zenith_azimuth,
 )
 
-from ..learning.checkpoint import ModelCard, load_model
+from ..learning.checkpoint import CARD, ModelCard, ModelFileError, load_model
 from ..learning.data import FrameDataset, Source
 from ..learning.spec import DataSpec
 from .model import ARCHITECTURE, SunBCNN, SunBCNNConfig
@@ -27,8 +27,14 @@ Array = NDArray[np.float64]
 
 
 def load_sun_bcnn(directory: Path) -> tuple[SunBCNN, ModelCard]:
-    """The trained network of ``directory`` (one clear line for every bad model file)."""
-    return load_model(directory, ARCHITECTURE, lambda card: SunBCNN(SunBCNNConfig.from_card(card)))
+    """The trained network of ``directory`` (one clear line for every bad model file, its covariance
+    calibration included)."""
+    model, card = load_model(directory, ARCHITECTURE, lambda card: SunBCNN(SunBCNNConfig.from_card(card)))
+    try:
+        card_calibration(card)
+    except ValueError as exc:
+        raise ModelFileError(f"{Path(directory) / CARD}: {exc}") from None
+    return model, card
 
 
 @dataclass
@@ -100,7 +106,9 @@ def predict_sequence(
 def card_calibration(card: ModelCard) -> CovarianceCalibration:
     """The covariance calibration of a model card (``calibration.tau`` and ``calibration.scale``; none until
     `pvo sun-bcnn calibrate` fitted them)."""
-    return CovarianceCalibration.from_mapping(card.calibration)
+    if card.calibration is not None and not isinstance(card.calibration, dict):
+        raise ValueError(f"calibration must be a mapping, got {card.calibration!r}")
+    return CovarianceCalibration.from_mapping(card.calibration or {})
 
 
 def predictions_from_draws(
