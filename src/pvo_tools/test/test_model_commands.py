@@ -237,6 +237,36 @@ def test_experiment_can_skip_the_kitti_scratch_baseline(corpus: Path, pvo_data: 
     assert (out / "kitti-finetuned" / "model.yaml").exists() and not (out / "kitti07-only").exists()
 
 
+def test_the_kitti_fine_tune_can_keep_synthetic_images_in_view(corpus: Path, pvo_data: Path, tmp_path: Path, capsys) -> None:
+    """`--finetune-synthetic N`: N of the corpus's training images join every fine-tune epoch (the card says which
+    and counts them); more than the training split holds, or a negative count, is one line."""
+    model = tmp_path / "model"
+    train = ["sun-bcnn", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "--batch-size", "16", *TINY]
+    assert main(train) == 0
+    out = tmp_path / "experiment"
+    args = ["experiment", "sun-bcnn", "--corpus", str(corpus), "--model", str(model), "--samples", "2", "--scratch-epochs", "0"]
+    options = ["--finetune-epochs", "1", "--fusion-sequences", "0", "--data", str(pvo_data), "-o", str(out), "-q"]
+    assert main([*args, *options, "--finetune-synthetic", "-1"]) == 2
+    assert "--finetune-synthetic -1: a number of images, 0 for none" in capsys.readouterr().err
+    assert main([*args, *options, "--finetune-synthetic", "33"]) == 2  # two training sequences of 16 frames
+    assert f"{corpus}: 33 synthetic images asked for, its training split has 32" in capsys.readouterr().err
+    assert main([*args, *options, "--finetune-synthetic", "8"]) == 0
+    tuned = yaml.safe_load((out / "kitti-finetuned" / "model.yaml").read_text())
+    assert tuned["corpus"]["synthetic"] == f"8 images of {corpus}'s training split"
+    assert tuned["training"]["train_samples"] == 128 + 8  # 07 frames 0-127 and the synthetic eight
+
+
+def test_synthetic_mix_spreads_evenly_over_the_training_split(corpus: Path) -> None:
+    """The same images every time, spread over both training sequences (frames 0 and 15 of each end)."""
+    from pvo_pseudosensors.learning import DataSpec
+    from pvo_tools.experiments.sun_bcnn import synthetic_mix
+
+    spec = DataSpec((24, 64), sun=True)
+    mix = synthetic_mix(corpus, 4, spec)
+    assert list(mix.indices) == [0, 10, 21, 31] == list(synthetic_mix(corpus, 4, spec).indices)
+    assert [int(mix[i]["sequence"]) for i in range(4)] == [0, 0, 1, 1]
+
+
 def test_training_on_two_corpora_joins_their_splits(corpus: Path, tmp_path: Path, capsys) -> None:
     import shutil
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,8 @@ KITTI_VALIDATION_FRAMES = range(128, 160)
 #: scripts/sun_bcnn_kitti_finetune.py; 3e-4 for 20 epochs before)
 FINETUNE_LEARNING_RATE = 3e-3
 FINETUNE_EPOCHS = 40
+#: synthetic training images mixed into every epoch of the KITTI fine-tune (0: the real frames alone)
+FINETUNE_SYNTHETIC = 0
 
 
 @dataclass
@@ -53,7 +56,7 @@ def evaluate(label: str, rows: Array, truth: Array) -> Evaluated:
     return Evaluated(label, rows, truth, evaluate_predictions(rows, truth))
 
 
-def stage_kitti(data: Path, sequence: str, frames: range, out: Path) -> Path:
+def stage_kitti(data: Path, sequence: str, frames: Sequence[int], out: Path) -> Path:
     """A sequence folder (links to the clip's left images, renumbered from 0, their rows of the sun CSV and the
     clip's calibration as ``calib.txt``) that the learning datasets read like a corpus sequence."""
     clip = data / "kitti" / "sequences" / sequence / "image_0"
@@ -94,6 +97,19 @@ def kitti_figures(model_name: str, staged: Path, data: Path, sequence: str, fram
     return evaluate_predictions(predictions.rows(), truth)
 
 
+def synthetic_mix(corpus: Path, count: int, spec: Any) -> Any:
+    """``count`` images of ``corpus``'s training split for a fine-tune to keep seeing: evenly spread over the split's
+    frames in corpus order (a fixed subset: the same every run), read through the corpus's decoded-image cache."""
+    import torch
+    from pvo_pseudosensors.learning import FrameDataset, corpus_sources
+
+    everything = FrameDataset(corpus_sources(corpus, "train"), spec, Path(corpus) / ".cache")
+    if not 0 < count <= len(everything):
+        raise ValueError(f"{corpus}: {count} synthetic images asked for, its training split has {len(everything)}")
+    chosen = np.unique(np.linspace(0, len(everything) - 1, count).round().astype(np.int64))
+    return torch.utils.data.Subset(everything, chosen.tolist())
+
+
 def train_on_kitti(
     task: Any,
     spec: Any,
@@ -104,14 +120,23 @@ def train_on_kitti(
     learning_rate: float,
     say: Any,
     commands: dict[str, str],
+    synthetic: Any = None,
+    frames: str = "KITTI 07 frames 0-127 (validation 128-159)",
 ) -> Path:
+    """Fine-tune (or train) ``task`` on the staged real frames ``train``, selecting on ``validation``; with
+    ``synthetic`` (a dataset, :func:`synthetic_mix`) those images join every epoch."""
+    import torch
     from pvo_pseudosensors.learning import FrameDataset, Source, TrainConfig, fit
 
     cache = out.parent / ".cache"
     train_set = FrameDataset([Source(train, "07-train", "train")], spec, cache)
     validation_set = FrameDataset([Source(validation, "07-validation", "validation")], spec, cache)
     config = TrainConfig(epochs=epochs, batch_size=16, learning_rate=learning_rate, patience=6, seed=0)
-    extra = {"corpus": {"path": "KITTI 07 frames 0-127 (validation 128-159)"}, "commands": commands}
+    corpus = {"path": frames}
+    if synthetic is not None:
+        corpus["synthetic"] = f"{len(synthetic)} images of {Path(synthetic.dataset.sources[0].root).parent}'s training split"
+        train_set = torch.utils.data.ConcatDataset([train_set, synthetic])
+    extra = {"corpus": corpus, "commands": commands}
     fit(task, train_set, validation_set, config, out, say=say, card_extra=extra)
     return out
 
@@ -337,6 +362,14 @@ def register(parser: argparse.ArgumentParser) -> None:
         help=f"the KITTI fine-tune's learning rate (default {FINETUNE_LEARNING_RATE:g})",
     )
     parser.add_argument(
+        "--finetune-synthetic",
+        type=int,
+        default=FINETUNE_SYNTHETIC,
+        metavar="N",
+        help="synthetic training images of --corpus mixed into each fine-tune epoch, so the model keeps the world it "
+        f"learned (default {FINETUNE_SYNTHETIC}: the real frames alone)",
+    )
+    parser.add_argument(
         "--scratch-epochs",
         type=int,
         help="epochs of the baseline trained on KITTI 07 alone, from scratch (default twice --finetune-epochs; 0 skips it)",
@@ -384,6 +417,8 @@ def run(args: argparse.Namespace) -> int:
     rig_error = parse_rig_error(args.fusion_rig_error)
     if args.finetune_epochs < 1:
         raise ValueError(f"--finetune-epochs {args.finetune_epochs}: the KITTI fine-tune needs at least one epoch")
+    if args.finetune_synthetic < 0:
+        raise ValueError(f"--finetune-synthetic {args.finetune_synthetic}: a number of images, 0 for none")
     if args.scratch_epochs is not None and args.scratch_epochs < 0:
         raise ValueError(f"--scratch-epochs {args.scratch_epochs}: must be 0 (skip) or a number of epochs")
     args.model = resolve_model(str(args.model))  # a shipped name (sun_bcnn) or a directory
@@ -396,6 +431,9 @@ def run(args: argparse.Namespace) -> int:
     cache = Path(args.corpus) / ".cache"
     models = {"aleatoric": args.model} | ({"homoscedastic": args.homoscedastic} if args.homoscedastic else {})
     loaded = {name: load_sun_bcnn(path) for name, path in models.items()}
+    synthetic = None  # the fine-tune's synthetic images, checked before the long work
+    if args.finetune_synthetic and not args.skip_kitti:
+        synthetic = synthetic_mix(args.corpus, args.finetune_synthetic, loaded["aleatoric"][0].config.spec)
     report = ["# pvo experiment sun-bcnn", "", f"Command: `{command}`", ""]
     figures: dict[str, float] = {}
     tables: dict[str, Any] = {}
@@ -588,6 +626,7 @@ def run(args: argparse.Namespace) -> int:
             args.finetune_learning_rate,
             say,
             {"train": command},
+            synthetic,
         )
         scratch_epochs = 2 * args.finetune_epochs if args.scratch_epochs is None else args.scratch_epochs
         kitti_models = [tuned]
