@@ -79,7 +79,7 @@ def main() -> None:
         sunny = evaluate_predictions(r[~overcast], t[~overcast]) if (~overcast).any() else None
         cloudy = evaluate_predictions(r[overcast], t[overcast]) if overcast.any() else None
         print(
-            f"{name:<28} {len(r)} images  median {every['vector_median_deg']:6.2f}  mean {every['vector_mean_deg']:6.2f}  "
+            f"{name:<28} {len(r)} images  median {every['vector_median_deg']:7.3f}  mean {every['vector_mean_deg']:6.2f}  "
             f"zenith {every['zenith_median_deg']:6.2f}  azimuth {every['azimuth_median_deg']:6.2f}  "
             f"ANEES {every['anees']:5.2f}  sunny {sunny['vector_median_deg'] if sunny else float('nan'):6.2f}  "
             f"overcast {cloudy['vector_median_deg'] if cloudy else float('nan'):6.2f}",
