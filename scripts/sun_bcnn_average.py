@@ -53,10 +53,8 @@ def main() -> None:
     model.load_state_dict(average_state([m.state_dict() for m, _ in loaded]))
 
     task = SunTask(model.config)
-    sources = [s for corpus in args.corpus for s in corpus_sources(corpus, "train")]
-    images = torch.utils.data.ConcatDataset(
-        [FrameDataset(corpus_sources(corpus, "train"), model.config.spec, corpus / ".cache") for corpus in args.corpus]
-    )
+    parts = [FrameDataset(corpus_sources(corpus, "train"), model.config.spec, corpus / ".cache") for corpus in args.corpus]
+    images = torch.utils.data.ConcatDataset(parts)
     loader = torch.utils.data.DataLoader(images, batch_size=32, shuffle=True, generator=torch.Generator().manual_seed(args.seed))
     norms = [layer for layer in model.modules() if isinstance(layer, torch.nn.modules.batchnorm._BatchNorm)]
     momenta = [layer.momentum for layer in norms]
@@ -75,9 +73,10 @@ def main() -> None:
 
     card.calibration = {}
     card.created = ""
+    sequences = sum(len(part.sources) for part in parts)
     card.notes = (
         f"Snapshot average of {', '.join(args.models)}: the mean of their weights, batch-norm statistics re-estimated "
-        f"over one pass of {len(sources)} training sequences ({', '.join(str(c) for c in args.corpus)}), the training "
+        f"over one pass of {sequences} training sequences ({', '.join(str(c) for c in args.corpus)}), the training "
         f"augmentation, seed {args.seed}."
     )
     card.commands = {
@@ -91,4 +90,9 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from pvo_pseudosensors.learning.checkpoint import ModelFileError
+
+    try:
+        main()
+    except (ModelFileError, ValueError, OSError) as exc:  # a bad model, corpus or count: one line, no traceback
+        raise SystemExit(f"{Path(__file__).name}: {exc}") from None

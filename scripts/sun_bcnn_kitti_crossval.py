@@ -114,4 +114,9 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from pvo_pseudosensors.learning.checkpoint import ModelFileError
+
+    try:
+        main()
+    except (ModelFileError, ValueError, OSError) as exc:  # a bad model, corpus or count: one line, no traceback
+        raise SystemExit(f"{Path(__file__).name}: {exc}") from None

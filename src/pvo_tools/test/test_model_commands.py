@@ -257,7 +257,8 @@ def test_the_kitti_fine_tune_can_keep_synthetic_images_in_view(corpus: Path, pvo
 
 
 def test_synthetic_mix_spreads_evenly_over_the_training_split(corpus: Path) -> None:
-    """The same images every time, spread over both training sequences (frames 0 and 15 of each end)."""
+    """The same images every time, spread over both training sequences (frames 0 and 10 of the first, 5 and 15
+    of the second: from the split's first image to its last)."""
     from pvo_pseudosensors.learning import DataSpec
     from pvo_tools.experiments.sun_bcnn import synthetic_mix
 
