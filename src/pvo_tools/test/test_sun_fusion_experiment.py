@@ -79,6 +79,28 @@ def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
     np.testing.assert_array_equal(biased.ground_truth, clean.ground_truth)
     assert path_length(biased.vo_poses) / path_length(clean.vo_poses) == pytest.approx(1.05, abs=0.02)
 
+    # --fusion-lens: the same drive rendered through the thesis's lens; the truth, the sun and calib.txt as without it,
+    # the images bent (barrel distortion pulls the border towards the centre)
+    import cv2
+    from pvo_tools.experiments.sun_bcnn import fusion_rigs
+
+    bent = render_fusion_sequences(
+        tmp_path / "corpus", 1, 30, tmp_path / "lens", jobs=1, say=lambda _: None, lens=(-0.3, 0.2, 0.01)
+    )
+    assert [f.name for f in bent] == ["0000"]
+    for name in ("poses.txt", "sun.csv", "calib.txt"):
+        assert (bent[0] / name).read_text() == (folders[0] / name).read_text()
+    straight = cv2.imread(str(folders[0] / "image_0" / "000010.png"), cv2.IMREAD_GRAYSCALE).astype(float)
+    through_lens = cv2.imread(str(bent[0] / "image_0" / "000010.png"), cv2.IMREAD_GRAYSCALE).astype(float)
+    assert straight.shape == through_lens.shape and np.abs(straight - through_lens).mean() > 5.0
+    rigs = fusion_rigs(folders, (1.03, 1.0), (-0.3, 0.2, 0.01), bent)
+    assert [(r.key, r.folders, r.rig_error) for r in rigs] == [
+        ("fusion", folders, None),
+        ("fusion_rig", folders, (1.03, 1.0)),
+        ("fusion_lens", bent, None),
+    ]
+    assert "k = -0.3, 0.2, 0.01" in rigs[2].vo
+
 
 def test_rig_error_option_is_two_scales() -> None:
     from pvo_tools.experiments.sun_bcnn import parse_rig_error
@@ -88,6 +110,20 @@ def test_rig_error_option_is_two_scales() -> None:
         parse_rig_error("1.03")
     with pytest.raises(ValueError, match="each scale must be in \\[0.5, 2\\]"):
         parse_rig_error("3,1")
+
+
+def test_lens_option_is_up_to_three_finite_coefficients() -> None:
+    from pvo_tools.experiments.sun_bcnn import fusion_rigs, parse_lens
+
+    assert parse_lens(None) == () and parse_lens([-0.3, 0.2, 0.01]) == (-0.3, 0.2, 0.01) and parse_lens([-0.1]) == (-0.1,)
+    with pytest.raises(ValueError, match="give k1 \\[k2 k3\\], finite"):
+        parse_lens([-0.3, 0.2, 0.01, 0.0])
+    with pytest.raises(ValueError, match="give k1 \\[k2 k3\\], finite"):
+        parse_lens([float("nan")])
+    with pytest.raises(ValueError, match="a lens that distorts nothing is the calibrated rig"):
+        parse_lens([0.0, 0.0])
+    with pytest.raises(ValueError, match="needs its sequences rendered through the lens"):
+        fusion_rigs([Path("a")], None, (-0.3,), None)
 
 
 def test_a_staged_kitti_clip_carries_its_camera_for_turned_camera_fine_tuning(tmp_path: Path) -> None:

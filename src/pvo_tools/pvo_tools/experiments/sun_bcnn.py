@@ -7,7 +7,8 @@
 3. Method I against Method II (Tables 5.7, 5.8): the mean and the covariance of the MC samples.
 4. Fusion (Table 5.2 on synthetic): the first test sequences rendered longer, this project's VO fused with
    GT-Sun-10/20/30 and with Sun-BCNN at every 10th frame; online and smoothed ARMSE against VO alone; with
-   --fusion-rig-error, again with the VO run on a wrong calibration (a systematically biased VO).
+   --fusion-rig-error, again with the VO run on a wrong calibration (a systematically biased VO); with --fusion-lens,
+   again on the same drives rendered through a lens calib.txt does not model (a VO that drifts, as viso2 on KITTI).
 5. Real images: the synthetic model on the KITTI 06 clip and the 07 left images; the synthetic model
    fine-tuned on 07 and a model trained on 07 alone, both tested on 06. 07 is split by frame (0-127 train,
    128-159 validation: model selection and covariance calibration); 06 is never trained on.
@@ -144,21 +145,26 @@ def train_on_kitti(
 FUSION_ROWS = ("Without Sun", "GT-Sun-10", "GT-Sun-20", "GT-Sun-30", "Sun-BCNN")
 
 
-def render_fusion_sequences(corpus: Path, count: int, frames: int, out: Path, jobs: int, say: Any) -> list[Path]:
+def render_fusion_sequences(
+    corpus: Path, count: int, frames: int, out: Path, jobs: int, say: Any, lens: Sequence[float] = ()
+) -> list[Path]:
     """The first ``count`` test sequences of ``corpus`` rendered again with ``frames`` frames each into ``out``
     (the same draws — place, time, path, speed, preset, camera, degradations: plans depend on (seed, index)
-    only — in a world generated along the longer path); resumes like `pvo sim corpus`."""
+    only — in a world generated along the longer path); resumes like `pvo sim corpus`. lens: plumb-bob k1 [k2
+    k3] on every sequence (`pvo sim corpus --lens-distortion`): the same drives seen through an uncalibrated lens,
+    calib.txt and the sun as without it."""
     import yaml
     from pvo_core.readers import read_corpus_manifest
     from pvo_sim.corpus import CorpusConfig, render_corpus
 
     manifest = read_corpus_manifest(corpus)
     values = dict(yaml.safe_load(manifest.path.read_text())["corpus"])
-    values.update(presets=tuple(values["presets"]), split=tuple(values["split"]), frames=frames)
+    values.update(presets=tuple(values["presets"]), split=tuple(values["split"]), frames=frames, lens_distortion=tuple(lens))
     indices = [int(s.name) for s in manifest.split("test")][:count]
     if len(indices) < count:
         raise ValueError(f"{manifest.path}: {len(indices)} test sequences, {count} asked for")
-    say(f"rendering test sequences {', '.join(f'{i:04d}' for i in indices)} with {frames} frames into {out} ...")
+    through = f" through the lens {tuple(lens)}" if lens else ""
+    say(f"rendering test sequences {', '.join(f'{i:04d}' for i in indices)} with {frames} frames{through} into {out} ...")
     render_corpus(CorpusConfig(**values), out, jobs=jobs, indices=indices)
     return [out / f"{i:04d}" for i in indices]
 
@@ -288,22 +294,66 @@ def format_table(results: list[Evaluated]) -> str:
     return "\n".join(lines)
 
 
+@dataclass(frozen=True)
+class FusionRig:
+    """One rig of experiment 4: its key in metrics.json, the report's heading, what the VO runs on (the report's
+    words), the rendered sequences and the calibration error the VO runs with (None: calib.txt as written)."""
+
+    key: str
+    title: str
+    vo: str
+    folders: list[Path]
+    rig_error: tuple[float, float] | None = None
+
+
+def fusion_rigs(
+    folders: list[Path],
+    rig_error: tuple[float, float] | None = None,
+    lens: Sequence[float] = (),
+    lens_folders: list[Path] | None = None,
+) -> list[FusionRig]:
+    """The calibrated rig, then (``--fusion-rig-error``) the VO on a wrong calib.txt, then (``--fusion-lens``) the
+    same drives rendered through an uncalibrated lens."""
+    rigs = [FusionRig("fusion", "The calibrated rig", "this project's stereo VO", folders)]
+    if rig_error is not None:
+        rigs.append(
+            FusionRig(
+                "fusion_rig",
+                "VO with a rig calibration error",
+                f"this project's stereo VO run with a wrong calibration (calib.txt's focal length x{rig_error[0]:g}, "
+                f"baseline x{rig_error[1]:g}; the images as rendered)",
+                folders,
+                rig_error,
+            )
+        )
+    if lens:
+        if lens_folders is None:
+            raise ValueError("a lens rig needs its sequences rendered through the lens")
+        coefficients = ", ".join(f"{k:g}" for k in lens)
+        rigs.append(
+            FusionRig(
+                "fusion_lens",
+                "VO through an uncalibrated lens",
+                f"this project's stereo VO on the same drives rendered through a lens (plumb-bob k = {coefficients}) that "
+                "calib.txt does not model, so its images are processed as if undistorted and the VO drifts; Sun-BCNN reads "
+                "the same distorted images",
+                lens_folders,
+            )
+        )
+    return rigs
+
+
 def fusion_section(
     fused: dict[str, dict[str, dict[str, dict[str, float]]]],
     changes: dict[str, dict[str, dict[str, float]]],
     count: int,
     frames: int,
-    rig_error: tuple[float, float] | None,
+    title: str = "The calibrated rig",
+    vo: str = "this project's stereo VO",
 ) -> list[str]:
-    """Table 5.2's report lines: ARMSE per sequence and row, then the mean changes against VO alone."""
-    vo = (
-        "this project's stereo VO"
-        if rig_error is None
-        else f"this project's stereo VO run with a wrong calibration (calib.txt's focal length x{rig_error[0]:g}, baseline "
-        f"x{rig_error[1]:g}; the images as rendered)"
-    )
+    """Table 5.2's report lines for one rig: ARMSE per sequence and row, then the mean changes against VO alone."""
     lines = [
-        f"{'### VO with a rig calibration error' if rig_error else '### The calibrated rig'}",
+        f"### {title}",
         "",
         f"{count} test sequences of the corpus rendered with {frames} frames, {vo} (covariances calibrated on the other "
         "sequences), fused with a sun measurement at every 10th frame. ARMSE: translation (m) and rotation (rad) over "
@@ -339,6 +389,16 @@ def parse_rig_error(text: str | None) -> tuple[float, float] | None:
     if not (0.5 <= focal <= 2.0 and 0.5 <= baseline <= 2.0):
         raise ValueError(f"--fusion-rig-error {text!r}: each scale must be in [0.5, 2] (a calibration error)")
     return focal, baseline
+
+
+def parse_lens(coefficients: Sequence[float] | None) -> tuple[float, ...]:
+    """``--fusion-lens K1 [K2 K3]`` as plumb-bob coefficients (``ValueError``, one line, otherwise)."""
+    lens = tuple(coefficients or ())
+    if len(lens) > 3 or not all(np.isfinite(lens)):
+        raise ValueError(f"--fusion-lens {' '.join(f'{k:g}' for k in lens)}: give k1 [k2 k3], finite (e.g. -0.3 0.2 0.01)")
+    if lens and not any(lens):
+        raise ValueError("--fusion-lens 0: a lens that distorts nothing is the calibrated rig")
+    return lens
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -385,6 +445,15 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="experiment 4 again with the VO run on a wrong calibration: calib.txt's focal length and baseline times "
         "these (e.g. 1.03,1: a systematically biased VO, as on a badly calibrated camera; default: the calibrated rig only)",
     )
+    parser.add_argument(
+        "--fusion-lens",
+        type=float,
+        nargs="+",
+        default=(),
+        metavar="K",
+        help="experiment 4 again on the same drives rendered through an uncalibrated lens, plumb-bob k1 [k2 k3] (e.g. "
+        "-0.3 0.2 0.01, the thesis's lens of ch. 6: the VO drifts, as on a camera nobody calibrated; default: none)",
+    )
     parser.add_argument("--jobs", "-j", type=int, default=2, help="experiment 4: rendering processes (default 2)")
     parser.add_argument("--out", "-o", type=Path, default=Path("runs/sun-bcnn-experiment"), help="output directory")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
@@ -415,6 +484,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.finetune_learning_rate > 0.0:
         raise ValueError(f"--finetune-learning-rate {args.finetune_learning_rate}: must be positive")
     rig_error = parse_rig_error(args.fusion_rig_error)
+    lens = parse_lens(args.fusion_lens)
     if args.finetune_epochs < 1:
         raise ValueError(f"--finetune-epochs {args.finetune_epochs}: the KITTI fine-tune needs at least one epoch")
     if args.finetune_synthetic < 0:
@@ -577,11 +647,16 @@ def run(args: argparse.Namespace) -> int:
         folders = render_fusion_sequences(
             args.corpus, args.fusion_sequences, args.fusion_frames, out / "fusion-sequences", args.jobs, say
         )
-        rigs: list[tuple[str, tuple[float, float] | None]] = [("fusion", None)]
-        if rig_error is not None:
-            rigs.append(("fusion_rig", rig_error))
-        for key, rig in rigs:
-            inputs = [fusion_inputs(folder, model, card, args.samples, rig) for folder in folders]
+        lens_folders = (
+            render_fusion_sequences(
+                args.corpus, args.fusion_sequences, args.fusion_frames, out / "fusion-sequences-lens", args.jobs, say, lens
+            )
+            if lens
+            else None
+        )
+        for rig in fusion_rigs(folders, rig_error, lens, lens_folders):
+            key = rig.key
+            inputs = [fusion_inputs(folder, model, card, args.samples, rig.rig_error) for folder in rig.folders]
             fused = fusion_experiment([seq for seq, _ in inputs], [learned for _, learned in inputs], say=say)
             changes = fusion_changes(fused)
             tables[key], tables[f"{key}_changes"] = fused, changes
@@ -589,7 +664,7 @@ def run(args: argparse.Namespace) -> int:
                 for estimate in ("online", "smoothed"):
                     for metric in ("trans", "rot"):
                         figures[f"{key}.{row}.{estimate}.{metric}_change"] = c[estimate][metric]
-            report += fusion_section(fused, changes, len(folders), args.fusion_frames, rig)
+            report += fusion_section(fused, changes, len(rig.folders), args.fusion_frames, rig.title, rig.vo)
         report += [
             "The thesis's sliding window held two poses (thesis-code-facts §4): each pose of its trajectory is the "
             "estimate one frame after it was newest — the online estimate here is the closer match.",
