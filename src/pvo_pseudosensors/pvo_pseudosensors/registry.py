@@ -128,6 +128,7 @@ def _sun_bcnn() -> ModelEntry:
             "bins": "0: regress the sun vector (the thesis); N: classify it into N directions over the sphere",
             "decode_radius": "with bins: the answer is the mean within this many bin spacings of the most probable "
             "bin (inf: the whole sphere)",
+            "equalize": "histogram-equalise every image the network reads (training and prediction alike)",
         },
     )
 

@@ -717,3 +717,38 @@ def test_batch_normalised_mc_passes_keep_the_running_statistics() -> None:
     old_card = SunTask(TINY).card()  # a card written before the option: no batch_norm key
     del old_card.hyperparameters["batch_norm"]
     assert SunBCNNConfig.from_card(old_card).batch_norm is False
+
+
+def test_histogram_equalisation_matches_opencv_per_channel() -> None:
+    import cv2
+    from pvo_pseudosensors.sun_bcnn.model import equalize_histograms
+
+    rng = np.random.default_rng(5)
+    grey = [(rng.beta(2.0, 5.0, size=(30, 50)) * 180 + 30).astype(np.uint8) for _ in range(4)]
+    batch = torch.from_numpy(np.stack(grey)[:, None] / 255.0).float()
+    equalised = (equalize_histograms(batch)[:, 0].numpy() * 255).round().astype(np.uint8)
+    for image, ours in zip(grey, equalised, strict=True):
+        np.testing.assert_array_equal(ours, cv2.equalizeHist(image))
+    colour = torch.from_numpy(np.stack(grey[:3])[None] / 255.0).float()  # one image, three different channels
+    np.testing.assert_array_equal(equalize_histograms(colour)[0], equalize_histograms(batch[:3])[:, 0])
+    flat = torch.full((1, 1, 8, 8), 77 / 255.0)  # one grey level: nothing to spread
+    assert torch.equal(equalize_histograms(flat), flat)
+
+
+def test_an_equalising_model_reads_any_order_preserving_rescaling_of_an_image_alike() -> None:
+    """With ``equalize`` the network's input is the order of the grey levels: a darker exposure or another
+    camera's response curve (an order-preserving map of the levels) gives the same answer; without it, not.
+    The card says so, and a card written before the option reads as without it."""
+    torch.manual_seed(0)
+    levels = torch.randint(0, 128, (2, 1, *SIZE))  # 8-bit images that use levels 0-127
+    image = levels / 255.0
+    rescaled = (2 * levels + 1) / 255.0  # the same order, twice the contrast, brighter
+    for equalize in (True, False):
+        model = SunBCNN(replace(TINY, equalize=equalize)).eval()
+        with torch.no_grad():
+            same = torch.allclose(model(image), model(rescaled), atol=1e-6)
+        assert same is equalize
+    card = SunTask(replace(TINY, equalize=True)).card()
+    assert card.input["normalisation"].startswith("histogram-equalised") and SunBCNNConfig.from_card(card).equalize
+    del card.hyperparameters["equalize"]
+    assert SunBCNNConfig.from_card(card).equalize is False

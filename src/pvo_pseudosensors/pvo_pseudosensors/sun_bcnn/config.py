@@ -34,7 +34,9 @@ class SunBCNNConfig:
     (soft targets about the true sun, a cross-entropy loss; the answer is the probability-weighted mean direction
     about the most probable bin): a distribution keeps "ahead or behind" and "low or high" apart where a
     regressed vector averages them; decode_radius: how far about the most probable bin that mean reaches, in bin
-    spacings (inf: the whole sphere)."""
+    spacings (inf: the whole sphere); equalize: every image the network reads is histogram-equalised first (each
+    channel over its 256 grey levels, inside the network, so training, prediction and the node see the same): its
+    answer then depends on the order of the grey levels, not on how a camera or renderer spread them."""
 
     height: int = 94
     width: int = 310
@@ -50,6 +52,7 @@ class SunBCNNConfig:
     batch_norm: bool = False
     bins: int = 256
     decode_radius: float = 4.0
+    equalize: bool = False
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths or not 0.0 <= self.dropout < 1.0:

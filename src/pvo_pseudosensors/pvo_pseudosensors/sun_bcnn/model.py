@@ -72,7 +72,7 @@ class SunBCNN(nn.Module):
 
     def stem(self, image: torch.Tensor) -> torch.Tensor:
         """(B, C, H, W) in [0, 1] -> the first block's features, before its dropout."""
-        x = image - 0.5
+        x = (equalize_histograms(image) if self.config.equalize else image) - 0.5
         for layer in self.features[: self.stem_length]:
             x = layer(x)
         return x
@@ -156,6 +156,29 @@ def decode_bins(logits: torch.Tensor, directions: torch.Tensor, radius: float = 
     mode = directions[logits.argmax(dim=1)]
     near = (mode @ directions.T) > math.cos(angle)
     return nn.functional.normalize((probabilities * near) @ directions, dim=1)
+
+
+GREY_LEVELS = 256
+
+
+def equalize_histograms(images: torch.Tensor) -> torch.Tensor:
+    """(B, C, H, W) in [0, 1] -> each channel of each image histogram-equalised over 256 grey levels, as OpenCV's
+    ``equalizeHist`` does to the 8-bit image (level v -> round(255 (cdf(v) - cdf(v_min)) / (n - cdf(v_min))), v_min
+    the darkest level present); a channel of one grey level is left as it is. No gradient flows to the images."""
+    count, channels, height, width = images.shape
+    pixels = height * width
+    with torch.no_grad():
+        levels = (images.clamp(0.0, 1.0) * (GREY_LEVELS - 1)).round().long().reshape(count * channels, pixels)
+        histogram = torch.zeros(count * channels, GREY_LEVELS, dtype=torch.float64)
+        histogram.scatter_add_(1, levels, torch.ones_like(levels, dtype=torch.float64))
+        cdf = histogram.cumsum(1)
+        darkest = cdf.gather(1, levels.amin(1, keepdim=True))  # pixels at the darkest level present
+        spread = pixels - darkest
+        lookup = ((cdf - darkest) * (GREY_LEVELS - 1) / spread.clamp_min(1.0)).round().clamp(0, GREY_LEVELS - 1)
+        equalised = lookup.gather(1, levels).to(images.dtype) / (GREY_LEVELS - 1)
+        flat = images.reshape(count * channels, pixels)
+        equalised = torch.where(spread > 0, equalised, flat)
+    return equalised.reshape(images.shape)
 
 
 def photometric_jitter(images: torch.Tensor) -> torch.Tensor:
@@ -274,5 +297,9 @@ class SunTask:
         return ModelCard(
             architecture=ARCHITECTURE,
             hyperparameters=asdict(self.config),
-            input={"size": list(spec.size), "colour": spec.colour, "normalisation": "grey levels / 255, minus 0.5"},
+            input={
+                "size": list(spec.size),
+                "colour": spec.colour,
+                "normalisation": ("histogram-equalised, " if self.config.equalize else "") + "grey levels / 255, minus 0.5",
+            },
         )
