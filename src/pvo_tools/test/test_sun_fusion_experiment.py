@@ -37,6 +37,15 @@ def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
     assert [f.name for f in folders] == ["0000", "0005"]
     import yaml
 
+    presets = {
+        e["name"]: e["config"]["preset"] for e in yaml.safe_load((tmp_path / "corpus" / "manifest.yaml").read_text())["sequences"]
+    }
+    for preset in set(presets[f.name] for f in folders):  # --fusion-preset: the first test sequences of one preset
+        picked = render_fusion_sequences(tmp_path / "corpus", 1, 30, tmp_path / preset, jobs=1, say=lambda _: None, preset=preset)
+        assert [presets[f.name] for f in picked] == [preset] and picked[0].name in [f.name for f in folders]
+    with pytest.raises(ValueError, match="test sequences of the nowhere preset, 1 asked for"):
+        render_fusion_sequences(tmp_path / "corpus", 1, 30, tmp_path / "long", jobs=1, say=lambda _: None, preset="nowhere")
+
     short = {e["name"]: e["config"] for e in yaml.safe_load((tmp_path / "corpus" / "manifest.yaml").read_text())["sequences"]}
     long = {e["name"]: e["config"] for e in yaml.safe_load((tmp_path / "long" / "manifest.yaml").read_text())["sequences"]}
     for folder in folders:  # the same draws (place, time, path, preset, camera, degradations), only longer

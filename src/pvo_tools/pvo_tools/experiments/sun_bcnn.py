@@ -146,13 +146,20 @@ FUSION_ROWS = ("Without Sun", "GT-Sun-10", "GT-Sun-20", "GT-Sun-30", "Sun-BCNN")
 
 
 def render_fusion_sequences(
-    corpus: Path, count: int, frames: int, out: Path, jobs: int, say: Any, lens: Sequence[float] = ()
+    corpus: Path,
+    count: int,
+    frames: int,
+    out: Path,
+    jobs: int,
+    say: Any,
+    lens: Sequence[float] = (),
+    preset: str | None = None,
 ) -> list[Path]:
     """The first ``count`` test sequences of ``corpus`` rendered again with ``frames`` frames each into ``out``
     (the same draws — place, time, path, speed, preset, camera, degradations: plans depend on (seed, index)
     only — in a world generated along the longer path); resumes like `pvo sim corpus`. lens: plumb-bob k1 [k2
     k3] on every sequence (`pvo sim corpus --lens-distortion`): the same drives seen through an uncalibrated lens,
-    calib.txt and the sun as without it."""
+    calib.txt and the sun as without it. preset: the first ``count`` test sequences of that preset only (None: of any)."""
     import yaml
     from pvo_core.readers import read_corpus_manifest
     from pvo_sim.corpus import CorpusConfig, render_corpus
@@ -160,9 +167,10 @@ def render_fusion_sequences(
     manifest = read_corpus_manifest(corpus)
     values = dict(yaml.safe_load(manifest.path.read_text())["corpus"])
     values.update(presets=tuple(values["presets"]), split=tuple(values["split"]), frames=frames, lens_distortion=tuple(lens))
-    indices = [int(s.name) for s in manifest.split("test")][:count]
+    indices = [int(s.name) for s in manifest.split("test") if preset is None or s.preset == preset][:count]
     if len(indices) < count:
-        raise ValueError(f"{manifest.path}: {len(indices)} test sequences, {count} asked for")
+        which = "" if preset is None else f" of the {preset} preset"
+        raise ValueError(f"{manifest.path}: {len(indices)} test sequences{which}, {count} asked for")
     through = f" through the lens {tuple(lens)}" if lens else ""
     say(f"rendering test sequences {', '.join(f'{i:04d}' for i in indices)} with {frames} frames{through} into {out} ...")
     render_corpus(CorpusConfig(**values), out, jobs=jobs, indices=indices)
@@ -350,12 +358,14 @@ def fusion_section(
     frames: int,
     title: str = "The calibrated rig",
     vo: str = "this project's stereo VO",
+    preset: str | None = None,
 ) -> list[str]:
     """Table 5.2's report lines for one rig: ARMSE per sequence and row, then the mean changes against VO alone."""
     lines = [
         f"### {title}",
         "",
-        f"{count} test sequences of the corpus rendered with {frames} frames, {vo} (covariances calibrated on the other "
+        f"{count} {preset + ' ' if preset else ''}test sequences of the corpus rendered with {frames} frames, {vo} "
+        "(covariances calibrated on the other "
         "sequences), fused with a sun measurement at every 10th frame. ARMSE: translation (m) and rotation (rad) over "
         "the whole run; the change is the mean over sequences of each sequence's relative change against VO alone "
         "(negative = better).",
@@ -444,6 +454,10 @@ def register(parser: argparse.ArgumentParser) -> None:
         metavar="FOCAL,BASELINE",
         help="experiment 4 again with the VO run on a wrong calibration: calib.txt's focal length and baseline times "
         "these (e.g. 1.03,1: a systematically biased VO, as on a badly calibrated camera; default: the calibrated rig only)",
+    )
+    parser.add_argument(
+        "--fusion-preset",
+        help="experiment 4: the first test sequences of this preset (urban, planetary; default: the first of any)",
     )
     parser.add_argument(
         "--fusion-lens",
@@ -644,12 +658,28 @@ def run(args: argparse.Namespace) -> int:
         )
     report += ["", "## 4. Fusion on long synthetic sequences (Table 5.2)", ""]
     if args.fusion_sequences:
+        # a folder per preset: a render's manifest lists the sequences of its last call only
+        preset_suffix = f"-{args.fusion_preset}" if args.fusion_preset else ""
         folders = render_fusion_sequences(
-            args.corpus, args.fusion_sequences, args.fusion_frames, out / "fusion-sequences", args.jobs, say
+            args.corpus,
+            args.fusion_sequences,
+            args.fusion_frames,
+            out / f"fusion-sequences{preset_suffix}",
+            args.jobs,
+            say,
+            (),
+            args.fusion_preset,
         )
         lens_folders = (
             render_fusion_sequences(
-                args.corpus, args.fusion_sequences, args.fusion_frames, out / "fusion-sequences-lens", args.jobs, say, lens
+                args.corpus,
+                args.fusion_sequences,
+                args.fusion_frames,
+                out / f"fusion-sequences-lens{preset_suffix}",
+                args.jobs,
+                say,
+                lens,
+                args.fusion_preset,
             )
             if lens
             else None
@@ -664,7 +694,7 @@ def run(args: argparse.Namespace) -> int:
                 for estimate in ("online", "smoothed"):
                     for metric in ("trans", "rot"):
                         figures[f"{key}.{row}.{estimate}.{metric}_change"] = c[estimate][metric]
-            report += fusion_section(fused, changes, len(rig.folders), args.fusion_frames, rig.title, rig.vo)
+            report += fusion_section(fused, changes, len(rig.folders), args.fusion_frames, rig.title, rig.vo, args.fusion_preset)
         report += [
             "The thesis's sliding window held two poses (thesis-code-facts §4): each pose of its trajectory is the "
             "estimate one frame after it was newest — the online estimate here is the closer match.",
