@@ -230,6 +230,10 @@ def test_experiment_can_skip_the_kitti_scratch_baseline(corpus: Path, pvo_data: 
     assert "--scratch-epochs -1: must be 0 (skip) or a number of epochs" in capsys.readouterr().err
     assert main([*args, *options, "--finetune-epochs", "0"]) == 2
     assert "--finetune-epochs 0: the KITTI fine-tune needs at least one epoch" in capsys.readouterr().err
+    assert main([*args, *options, "--fusion-sequences", "1", "--fusion-preset", "nowhere"]) == 2
+    assert "--fusion-preset nowhere: 0 test sequences of it in" in capsys.readouterr().err
+    assert main([*args, *options, "--fusion-lens", "0"]) == 2
+    assert "--fusion-lens 0: a lens that distorts nothing is the calibrated rig" in capsys.readouterr().err
     assert not out.exists()
     assert main([*args, *options, "--scratch-epochs", "0"]) == 0
     report = (out / "report.md").read_text()

@@ -506,12 +506,20 @@ def run(args: argparse.Namespace) -> int:
     if args.scratch_epochs is not None and args.scratch_epochs < 0:
         raise ValueError(f"--scratch-epochs {args.scratch_epochs}: must be 0 (skip) or a number of epochs")
     args.model = resolve_model(str(args.model))  # a shipped name (sun_bcnn) or a directory
-    session = ExperimentRun.start(args)
-    say, command, out = session.say, session.command, session.out
     manifest = read_corpus_manifest(args.corpus)
     test = manifest.split("test")
     if not test:
         raise ValueError(f"{manifest.path}: no sequence in the test split")
+    if args.fusion_sequences and args.fusion_preset:  # before anything is written
+        of_preset = sum(s.preset == args.fusion_preset for s in test)
+        if of_preset < args.fusion_sequences:
+            presets = ", ".join(sorted({s.preset for s in test}))
+            raise ValueError(
+                f"--fusion-preset {args.fusion_preset}: {of_preset} test sequences of it in {manifest.path}, "
+                f"{args.fusion_sequences} asked for (its test split's presets: {presets})"
+            )
+    session = ExperimentRun.start(args)
+    say, command, out = session.say, session.command, session.out
     cache = Path(args.corpus) / ".cache"
     models = {"aleatoric": args.model} | ({"homoscedastic": args.homoscedastic} if args.homoscedastic else {})
     loaded = {name: load_sun_bcnn(path) for name, path in models.items()}
