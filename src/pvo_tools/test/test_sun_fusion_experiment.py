@@ -13,6 +13,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports mujoco
 
 
 def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
+    from pvo_core.readers import read_corpus_manifest
     from pvo_pseudosensors.learning.checkpoint import save_model
     from pvo_pseudosensors.sun_bcnn.config import SunBCNNConfig
     from pvo_pseudosensors.sun_bcnn.model import SunBCNN, SunTask
@@ -43,6 +44,9 @@ def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
     for preset in set(presets[f.name] for f in folders):  # --fusion-preset: the first test sequences of one preset
         picked = render_fusion_sequences(tmp_path / "corpus", 1, 30, tmp_path / preset, jobs=1, say=lambda _: None, preset=preset)
         assert [presets[f.name] for f in picked] == [preset] and picked[0].name in [f.name for f in folders]
+    validation = [s.name for s in read_corpus_manifest(tmp_path / "corpus").split("validation")]
+    picked = render_fusion_sequences(tmp_path / "corpus", 1, 30, tmp_path / "validation", 1, lambda _: None, split="validation")
+    assert [f.name for f in picked] == validation[:1] and (picked[0] / "sun.csv").is_file()
     with pytest.raises(ValueError, match="test sequences of the nowhere preset, 1 asked for"):
         render_fusion_sequences(tmp_path / "corpus", 1, 30, tmp_path / "long", jobs=1, say=lambda _: None, preset="nowhere")
 

@@ -154,12 +154,14 @@ def render_fusion_sequences(
     say: Any,
     lens: Sequence[float] = (),
     preset: str | None = None,
+    split: str = "test",
 ) -> list[Path]:
     """The first ``count`` test sequences of ``corpus`` rendered again with ``frames`` frames each into ``out``
     (the same draws — place, time, path, speed, preset, camera, degradations: plans depend on (seed, index)
     only — in a world generated along the longer path); resumes like `pvo sim corpus`. lens: plumb-bob k1 [k2
     k3] on every sequence (`pvo sim corpus --lens-distortion`): the same drives seen through an uncalibrated lens,
-    calib.txt and the sun as without it. preset: the first ``count`` test sequences of that preset only (None: of any)."""
+    calib.txt and the sun as without it. preset: the first ``count`` of that preset only (None: of any). split:
+    another split's sequences instead (``validation``: drives a choice may be made on)."""
     import yaml
     from pvo_core.readers import read_corpus_manifest
     from pvo_sim.corpus import CorpusConfig, render_corpus
@@ -167,12 +169,12 @@ def render_fusion_sequences(
     manifest = read_corpus_manifest(corpus)
     values = dict(yaml.safe_load(manifest.path.read_text())["corpus"])
     values.update(presets=tuple(values["presets"]), split=tuple(values["split"]), frames=frames, lens_distortion=tuple(lens))
-    indices = [int(s.name) for s in manifest.split("test") if preset is None or s.preset == preset][:count]
+    indices = [int(s.name) for s in manifest.split(split) if preset is None or s.preset == preset][:count]
     if len(indices) < count:
         which = "" if preset is None else f" of the {preset} preset"
-        raise ValueError(f"{manifest.path}: {len(indices)} test sequences{which}, {count} asked for")
+        raise ValueError(f"{manifest.path}: {len(indices)} {split} sequences{which}, {count} asked for")
     through = f" through the lens {tuple(lens)}" if lens else ""
-    say(f"rendering test sequences {', '.join(f'{i:04d}' for i in indices)} with {frames} frames{through} into {out} ...")
+    say(f"rendering {split} sequences {', '.join(f'{i:04d}' for i in indices)} with {frames} frames{through} into {out} ...")
     render_corpus(CorpusConfig(**values), out, jobs=jobs, indices=indices)
     return [out / f"{i:04d}" for i in indices]
 
