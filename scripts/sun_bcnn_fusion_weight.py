@@ -18,8 +18,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -35,20 +33,28 @@ def main() -> None:
     args = parser.parse_args()
     try:
         scales = [float(v) for v in args.scales.split(",")]
-        if not scales or min(scales) <= 0.0 or args.sequences < 2:
-            raise ValueError
     except ValueError:
-        sys.exit(f"sun_bcnn_fusion_weight.py: --scales {args.scales!r} must be positive numbers and --sequences at least 2")
+        scales = []
+    if not scales or min(scales) <= 0.0:
+        sys.exit(f"sun_bcnn_fusion_weight.py: --scales {args.scales!r}: give positive numbers, comma-separated")
+    if args.sequences < 2:
+        sys.exit(
+            f"sun_bcnn_fusion_weight.py: --sequences {args.sequences}: at least 2 (each drive's VO is calibrated on the others)"
+        )
 
     import torch
     from pvo_pseudosensors.learning.checkpoint import ModelFileError
     from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
     from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn
-    from pvo_tools.experiments.sun_bcnn import fusion_inputs, parse_lens, render_fusion_sequences
-    from pvo_tools.experiments.sun_sim import SUN_EVERY, calibration_input, experiment_config, run_fusion, sequence_vo
+    from pvo_tools.experiments.sun_bcnn import (
+        fusion_changes,
+        fusion_experiment,
+        fusion_inputs,
+        parse_lens,
+        render_fusion_sequences,
+    )
 
-    from pvo_core import metrics
-    from pvo_fusion import SunMeasurement, calibrate_vo
+    from pvo_fusion import SunMeasurement
 
     torch.set_num_threads(2)
     try:
@@ -59,28 +65,20 @@ def main() -> None:
         )
     except (ValueError, OSError, ModelFileError) as exc:
         sys.exit(f"sun_bcnn_fusion_weight.py: {exc}")
-    config = experiment_config()
     inputs = [fusion_inputs(folder, model, card, 25) for folder in folders]
     sequences = [seq for seq, _ in inputs]
-    changes = {scale: {"trans": [], "rot": []} for scale in scales}
-    for i, (seq, learned) in enumerate(inputs):
-        calibration = calibrate_vo((calibration_input(s) for j, s in enumerate(sequences) if j != i), SUN_EVERY)
-        vo = sequence_vo(seq, calibration)
-        alone = metrics.armse(seq.ground_truth, run_fusion(seq, vo, None, config).online_poses)
-        line = f"{args.out} {seq.name}: VO {alone['trans']:.3f} m {alone['rot']:.4f} rad"
-        for scale in scales:
-            sun = [SunMeasurement(m.stamp, m.direction, m.covariance * scale) for m in learned]
-            fused = metrics.armse(seq.ground_truth, run_fusion(seq, vo, sun, config).online_poses)
-            for key in ("trans", "rot"):
-                changes[scale][key].append(fused[key] / alone[key] - 1.0)
-            line += f" | x{scale:g} {fused['trans']:.3f} {fused['rot']:.4f}"
-        print(line, flush=True)
-    for scale in scales:
-        print(
-            f"{args.out} scale {scale:g}: mean change trans {100 * np.mean(changes[scale]['trans']):+.1f} % "
-            f"rot {100 * np.mean(changes[scale]['rot']):+.1f} %",
-            flush=True,
-        )
+    for scale in scales:  # experiment 4's fusion, its Sun-BCNN row with the covariance scaled
+        scaled = [[SunMeasurement(m.stamp, m.direction, m.covariance * scale) for m in learned] for _, learned in inputs]
+        table = fusion_experiment(sequences, scaled, rows=("Without Sun", "Sun-BCNN"))
+        for name, rows in table.items():
+            alone, fused = rows["Without Sun"]["online"], rows["Sun-BCNN"]["online"]
+            print(
+                f"{args.out} {name} x{scale:g}: VO {alone['trans']:.3f} m {alone['rot']:.4f} rad, "
+                f"fused {fused['trans']:.3f} m {fused['rot']:.4f} rad",
+                flush=True,
+            )
+        change = fusion_changes(table)["Sun-BCNN"]["online"]
+        print(f"{args.out} scale {scale:g}: mean change trans {100 * change['trans']:+.1f} % rot {100 * change['rot']:+.1f} %")
 
 
 if __name__ == "__main__":

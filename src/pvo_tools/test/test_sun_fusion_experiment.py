@@ -74,6 +74,9 @@ def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
         assert rows["GT-Sun-10"]["smoothed"]["rot"] != rows["Without Sun"]["smoothed"]["rot"]  # the sun was fused
     changes = fusion_changes(table)
     assert set(changes) == set(FUSION_ROWS[1:])
+    some = fusion_experiment([seq for seq, _ in inputs], [learned for _, learned in inputs], rows=("Without Sun", "Sun-BCNN"))
+    assert some["0000"] == {row: table["0000"][row] for row in ("Without Sun", "Sun-BCNN")}  # the same fusion, fewer rows
+    assert set(fusion_changes(some)) == {"Sun-BCNN"} and fusion_changes(some)["Sun-BCNN"] == changes["Sun-BCNN"]
 
     # --fusion-rig-error: the same images, the VO on a calib.txt with the focal length 5 % too long, so every
     # depth and hence every step it measures is 5 % too long; the camera's file and the truth untouched

@@ -223,10 +223,11 @@ def fusion_inputs(
 
 
 def fusion_experiment(
-    sequences: list[Any], learned: list[list[Any]], seed: int = 0, say: Any = None
+    sequences: list[Any], learned: list[list[Any]], seed: int = 0, say: Any = None, rows: Sequence[str] = FUSION_ROWS
 ) -> dict[str, dict[str, dict[str, dict[str, float]]]]:
-    """Table 5.2 on the rendered sequences: per sequence and row (FUSION_ROWS), ARMSE/CRMSE of the online
-    (newest-state) and the fixed-lag smoothed estimates. VO covariances calibrated on the other sequences."""
+    """Table 5.2 on the rendered sequences: per sequence and row (``rows``, a subset of FUSION_ROWS; "Without Sun"
+    first), ARMSE/CRMSE of the online (newest-state) and the fixed-lag smoothed estimates. VO covariances calibrated on
+    the other sequences."""
     from pvo_core import metrics
     from pvo_fusion import calibrate_vo
 
@@ -237,8 +238,8 @@ def fusion_experiment(
     for i, seq in enumerate(sequences):
         calibration = calibrate_vo((calibration_input(s) for j, s in enumerate(sequences) if j != i), SUN_EVERY)
         vo = sequence_vo(seq, calibration)
-        rows: dict[str, dict[str, dict[str, float]]] = {}
-        for row in FUSION_ROWS:
+        fused: dict[str, dict[str, dict[str, float]]] = {}
+        for row in rows:
             if row == "Without Sun":
                 sun = None
             elif row == "Sun-BCNN":
@@ -247,17 +248,17 @@ def fusion_experiment(
                 level = float(row.split("-")[-1])
                 sun = sun_measurements(seq, level, sun_seed(seed, seq.name, level))
             result = run_fusion(seq, vo, sun, config)
-            rows[row] = {
+            fused[row] = {
                 "online": metrics.armse(seq.ground_truth, result.online_poses),
                 "smoothed": metrics.armse(seq.ground_truth, result.poses),
             }
             if say:
-                m = rows[row]
+                m = fused[row]
                 say(
                     f"{seq.name} {row:>11}: online trans {m['online']['trans']:7.3f} m rot {1e3 * m['online']['rot']:6.2f} e-3, "
                     f"smoothed trans {m['smoothed']['trans']:7.3f} m rot {1e3 * m['smoothed']['rot']:6.2f} e-3"
                 )
-        table[seq.name] = rows
+        table[seq.name] = fused
     return table
 
 
@@ -267,7 +268,7 @@ def fusion_changes(table: dict[str, dict[str, dict[str, dict[str, float]]]]) -> 
 
     names = list(table)
     out: dict[str, dict[str, dict[str, float]]] = {}
-    for row in FUSION_ROWS[1:]:
+    for row in [r for r in next(iter(table.values()), {}) if r != "Without Sun"]:
         out[row] = {}
         for estimate in ("online", "smoothed"):
             out[row][estimate] = {
