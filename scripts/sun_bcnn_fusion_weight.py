@@ -8,8 +8,13 @@ split): how much the fusion should trust Sun-BCNN, measured where a choice may b
 Renders the first --sequences validation sequences of --preset with --frames frames into OUT (resumes; with --lens
 through that uncalibrated lens, as `pvo experiment sun-bcnn --fusion-lens`), runs the VO and the model on each, and
 fuses them as experiment 4 does (VO covariances calibrated on the other drives, a sun reading every 10th frame) with the
-model's covariance times each of --scales. Prints per drive the online ARMSE (translation m, rotation rad) of the VO
-alone and at each scale, then the mean change against the VO alone per scale.
+model's covariance times each of --scales, then (at scale 1) with each of --biases as the fusion's offset state of the
+learned sun (SIGMA:WALK, rad and rad/√s: `inputs.sun.bias_sigma` and `inputs.sun.bias_walk_sigma`, the same for
+zenith and azimuth). Prints per drive the online ARMSE (translation m, rotation rad) of the VO alone and with each
+setting, then the mean change against the VO alone per setting (online, then smoothed).
+
+    python scripts/sun_bcnn_fusion_weight.py --corpus data/corpus-sun --preset planetary --scales 1 \
+        --biases 0.1:0.002,0.25:0.01 -o runs/sun52/val-planetary
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=1000)
     parser.add_argument("--lens", type=float, nargs="+", default=(), metavar="K", help="plumb-bob k1 [k2 k3]")
     parser.add_argument("--scales", default="1,3,10,30,100", help="covariance scales, comma-separated")
+    parser.add_argument("--biases", default="", help="offset states SIGMA:WALK (rad, rad/√s), comma-separated")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("-o", "--out", type=Path, required=True, help="folder of the rendered drives")
     args = parser.parse_args()
@@ -37,6 +43,12 @@ def main() -> None:
         scales = []
     if not scales or min(scales) <= 0.0:
         sys.exit(f"sun_bcnn_fusion_weight.py: --scales {args.scales!r}: give positive numbers, comma-separated")
+    try:
+        biases = [tuple(float(v) for v in item.split(":")) for item in args.biases.split(",") if item]
+    except ValueError:
+        biases = [()]
+    if any(len(b) != 2 or min(b) <= 0.0 for b in biases):
+        sys.exit(f"sun_bcnn_fusion_weight.py: --biases {args.biases!r}: give SIGMA:WALK positive pairs, comma-separated")
     if args.sequences < 2:
         sys.exit(
             f"sun_bcnn_fusion_weight.py: --sequences {args.sequences}: at least 2 (each drive's VO is calibrated on the others)"
@@ -67,18 +79,28 @@ def main() -> None:
         sys.exit(f"sun_bcnn_fusion_weight.py: {exc}")
     inputs = [fusion_inputs(folder, model, card, 25) for folder in folders]
     sequences = [seq for seq, _ in inputs]
-    for scale in scales:  # experiment 4's fusion, its Sun-BCNN row with the covariance scaled
+    settings = [(scale, None) for scale in scales] + [(1.0, bias) for bias in biases]
+    alone = fusion_experiment(sequences, [[] for _ in sequences], rows=("Without Sun",))  # the same for every setting
+    for scale, bias in settings:  # experiment 4's fusion, its Sun-BCNN row with the covariance scaled or an offset state
+        label = f"x{scale:g}" if bias is None else f"bias {bias[0]:g}:{bias[1]:g}"
+        fusion = None if bias is None else {"inputs.sun.bias_sigma": (bias[0],) * 2, "inputs.sun.bias_walk_sigma": (bias[1],) * 2}
         scaled = [[SunMeasurement(m.stamp, m.direction, m.covariance * scale) for m in learned] for _, learned in inputs]
-        table = fusion_experiment(sequences, scaled, rows=("Without Sun", "Sun-BCNN"))
+        learned_only = fusion_experiment(sequences, scaled, rows=("Sun-BCNN",), learned_fusion=fusion)
+        table = {name: {**alone[name], **learned_only[name]} for name in alone}
         for name, rows in table.items():
-            alone, fused = rows["Without Sun"]["online"], rows["Sun-BCNN"]["online"]
+            vo, fused = rows["Without Sun"]["online"], rows["Sun-BCNN"]["online"]
             print(
-                f"{args.out} {name} x{scale:g}: VO {alone['trans']:.3f} m {alone['rot']:.4f} rad, "
+                f"{args.out} {name} {label}: VO {vo['trans']:.3f} m {vo['rot']:.4f} rad, "
                 f"fused {fused['trans']:.3f} m {fused['rot']:.4f} rad",
                 flush=True,
             )
-        change = fusion_changes(table)["Sun-BCNN"]["online"]
-        print(f"{args.out} scale {scale:g}: mean change trans {100 * change['trans']:+.1f} % rot {100 * change['rot']:+.1f} %")
+        change = fusion_changes(table)["Sun-BCNN"]
+        online, smoothed = change["online"], change["smoothed"]
+        print(
+            f"{args.out} {label}: mean change trans {100 * online['trans']:+.1f} % rot {100 * online['rot']:+.1f} % "
+            f"(smoothed {100 * smoothed['trans']:+.1f} % / {100 * smoothed['rot']:+.1f} %)",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

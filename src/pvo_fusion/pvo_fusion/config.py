@@ -86,7 +86,14 @@ class VOInputConfig:
 
 @dataclass(frozen=True)
 class SunInputConfig:
-    """``/pvo/sun/direction``: zenith/azimuth factor with a Huber loss (k on the whitened residual)."""
+    """``/pvo/sun/direction``: zenith/azimuth factor with a Huber loss (k on the whitened residual).
+
+    ``bias_sigma`` (rad, zenith and azimuth) > 0 gives the readings a shared offset state b: each reading is
+    ``f(s_meas) = f(C_map,k^T s_map) + b + noise``, b starts as N(0, bias_sigma²) and walks by
+    ``bias_walk_sigma`` (rad/√s) between readings. For a learned sun (Sun-BCNN), whose errors are mostly an offset
+    shared by a drive's readings: fused as independent they rotate a good VO towards the offset; with the state the
+    offset is learned from the readings and only the heading drift faster than its walk is corrected. (0, 0): no
+    state, every reading independent (a sun sensor with white noise, GT-Sun-N)."""
 
     enabled: bool = True
     huber_k: float = 1.345
@@ -95,6 +102,12 @@ class SunInputConfig:
     reference_direction: tuple[float, ...] = (0.0, 0.0, 1.0)
     reference_table: str = ""
     ephemeris_time_offset: float = 0.0
+    bias_sigma: tuple[float, ...] = (0.0, 0.0)
+    bias_walk_sigma: tuple[float, ...] = (0.0, 0.0)
+
+    @property
+    def has_bias(self) -> bool:
+        return max(self.bias_sigma, default=0.0) > 0.0
 
 
 @dataclass(frozen=True)
@@ -169,6 +182,7 @@ def validate(config: FusionConfig) -> None:
         "inputs.correction.gate_probability": config.inputs.correction.gate_probability,
         "inputs.rotation.gate_probability": config.inputs.rotation.gate_probability,
     }
+    sun_bias = (*config.inputs.sun.bias_sigma, *config.inputs.sun.bias_walk_sigma)
     checks: list[tuple[bool, str]] = [
         (config.window.lag > 0.0, "window.lag must be positive"),
         (config.window.lag_unit in LAG_UNITS, f"window.lag_unit must be one of {', '.join(LAG_UNITS)}"),
@@ -202,6 +216,18 @@ def validate(config: FusionConfig) -> None:
         (config.output.max_correction_sigma >= 0.0, "output.max_correction_sigma must be >= 0 (0 = off)"),
         (config.inputs.sun.reference in SUN_REFERENCES, f"inputs.sun.reference must be one of {', '.join(SUN_REFERENCES)}"),
         (len(config.inputs.sun.reference_direction) == 3, "inputs.sun.reference_direction needs 3 values"),
+        (
+            len(config.inputs.sun.bias_sigma) == 2 and min(config.inputs.sun.bias_sigma) >= 0.0,
+            "inputs.sun.bias_sigma needs 2 values >= 0 (rad, zenith and azimuth; 0 0 = no bias state)",
+        ),
+        (
+            len(config.inputs.sun.bias_walk_sigma) == 2 and min(config.inputs.sun.bias_walk_sigma) >= 0.0,
+            "inputs.sun.bias_walk_sigma needs 2 values >= 0 (rad/√s)",
+        ),
+        (
+            not config.inputs.sun.has_bias or min(sun_bias, default=0.0) > 0.0,
+            "inputs.sun.bias_sigma and inputs.sun.bias_walk_sigma: all four > 0 for a bias state (bias_sigma 0 0: none)",
+        ),
         (config.inputs.rotation.max_covariance_det > 0.0, "inputs.rotation.max_covariance_det must be positive"),
         (config.stamp_tolerance >= 0.0, "stamp_tolerance must be >= 0"),
         (config.max_pending >= 0, "max_pending must be >= 0"),

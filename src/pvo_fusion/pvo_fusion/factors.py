@@ -9,7 +9,9 @@ Jacobian below is with respect to that tangent vector.
   perturbation ``exp(eps) T_to,from``; then ``T_from,to = T_to,from^-1`` is perturbed on the RIGHT by
   ``-eps``, so its GTSAM covariance is the message's with the blocks swapped (:func:`between_measurement`).
 - Sun (thesis §5.5, eq. 5.7): ``e = f(C_map,k^T s_map) - f(s_meas)``, ``f(s) = [zenith; azimuth]``,
-  azimuth difference wrapped to (-pi, pi]; 2x2 measurement covariance, Huber loss.
+  azimuth difference wrapped to (-pi, pi]; 2x2 measurement covariance, Huber loss. With a sun bias state
+  ``b`` (a ``Vector2`` in radians, zenith and azimuth): ``e = f(C_map,k^T s_map) + b - f(s_meas)``, ``de/db = I``;
+  the bias walks by ``BetweenFactorVector(b_i, b_j, 0, Q (t_j - t_i))``.
 - Relative rotation (thesis eq. 7.22, HydraNet): ``e = Log(C_from,to_meas^T C_map,from^T C_map,to)``
   with the message's 3x3 rotation covariance.
 """
@@ -77,8 +79,11 @@ def sun_error(rotation_map_cam: Array, sun_map: Array, measured_zenith_azimuth: 
     return error, jacobian
 
 
-def sun_factor(key: int, sun_map: Array, measured_direction: Array, covariance: Array, huber_k: float) -> gtsam.CustomFactor:
-    """A unary sun factor on pose ``key`` (Huber on the whitened 2-D residual; ``huber_k <= 0``: plain L2)."""
+def sun_factor(
+    key: int, sun_map: Array, measured_direction: Array, covariance: Array, huber_k: float, bias_key: int | None = None
+) -> gtsam.CustomFactor:
+    """A sun factor on pose ``key`` (Huber on the whitened 2-D residual; ``huber_k <= 0``: plain L2); with
+    ``bias_key``, on the pose and the readings' (zenith, azimuth) offset state, which is added to the prediction."""
     sun_map = np.asarray(sun_map, dtype=float)
     measured = zenith_azimuth(np.asarray(measured_direction, dtype=float))
     gaussian = gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float))
@@ -91,9 +96,20 @@ def sun_factor(key: int, sun_map: Array, measured_direction: Array, covariance: 
         e, jacobian = sun_error(rotation, sun_map, measured)
         if jacobians is not None:
             jacobians[0] = jacobian
+            if bias_key is not None:
+                jacobians[1] = np.eye(2)
+        if bias_key is not None:
+            e = e + values.atVector(this.keys()[1])
+            e[1] = wrap_angle(e[1])
         return e
 
-    return gtsam.CustomFactor(noise, [key], error)
+    return gtsam.CustomFactor(noise, [key] if bias_key is None else [key, bias_key], error)
+
+
+def sun_bias_walk(bias_from: int, bias_to: int, walk_sigma: Array, seconds: float) -> gtsam.BetweenFactorVector:
+    """The sun offset's random walk between two readings ``seconds`` apart: ``b_to - b_from ~ N(0, walk_sigma² t)``."""
+    sigma = np.asarray(walk_sigma, dtype=float) * np.sqrt(max(seconds, 1e-3))
+    return gtsam.BetweenFactorVector(bias_from, bias_to, np.zeros(2), gtsam.noiseModel.Diagonal.Sigmas(sigma))
 
 
 def so3_inv_right_jacobian(phi: Array) -> Array:

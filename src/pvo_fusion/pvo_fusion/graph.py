@@ -8,6 +8,7 @@ remaining states (thesis §5.4.2). The factors (see :mod:`.factors`):
     prior      x_0 ~ N(T_map,cam_0, Σ_prior)                          PriorFactorPose3
     VO         x_{k-1}^-1 x_k ~ T_{k-1,k} (RelativePose, Σ_vo)          BetweenFactorPose3
     sun        f(C_map,k^T s_map(t_k)) ~ f(s_k) (SunDirection, R_s)     sun_factor (Huber)
+               (+ b_k with a sun bias state: b_0 ~ N(0, Σ_b), b_k - b_k-1 ~ N(0, Q Δt)   sun_bias_walk)
     correction x_{k-Δp}^-1 x_k ~ T_{k-Δp,k} (DPC-Net, Σ_c)             BetweenFactorPose3
     rotation   C_{j}^T C_k ~ C_{j,k} (HydraNet, Σ_hn)                   rotation_factor
 
@@ -25,18 +26,27 @@ from __future__ import annotations
 import bisect
 import time
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import X
+from gtsam.symbol_shorthand import B, X
 from numpy.typing import ArrayLike, NDArray
 from pvo_core.covariance import gtsam_to_ros_covariance, is_positive_definite, ros_to_gtsam_covariance
 from pvo_core.lie import se3_exp, se3_inverse, se3_log
 
 from .checkpoint import FusionCheckpoint
 from .config import FusionConfig
-from .factors import between_measurement, rotation_error, rotation_factor, sun_error, sun_factor, zenith_azimuth
+from .factors import (
+    between_measurement,
+    rotation_error,
+    rotation_factor,
+    sun_bias_walk,
+    sun_error,
+    sun_factor,
+    wrap_angle,
+    zenith_azimuth,
+)
 from .measurements import RelativeMeasurement, SunMeasurement, relative_problem, sun_problem
 from .sun_reference import SunReference
 
@@ -53,6 +63,15 @@ class FusedPose:
     stamp: int
     pose: Array
     covariance: Array | None = None
+
+
+@dataclass
+class _Batch:
+    """New factors, variables and their smoother timestamps, added in one update."""
+
+    factors: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)
+    values: gtsam.Values = field(default_factory=gtsam.Values)
+    timestamps: gtsam.FixedLagSmootherKeyTimestampMap = field(default_factory=gtsam.FixedLagSmootherKeyTimestampMap)
 
 
 @dataclass
@@ -117,6 +136,8 @@ class FusionGraph:
         self._first_stamp: int | None = None
         self._last_motion: tuple[Array, Array] | None = None
         self._last_velocity: tuple[Array, Array, float] | None = None  # T_k,k-1, its covariance, its interval (s)
+        self._sun_bias: deque[tuple[int, int]] = deque()  # live sun offset states (key, stamp), oldest first
+        self._next_bias = 0
 
     def set_initial_pose(self, pose: ArrayLike, covariance: ArrayLike | None = None) -> None:
         """Prior of the first state (T_map,cam, 4x4; optional ROS-order left covariance). Before the first VO."""
@@ -169,10 +190,15 @@ class FusionGraph:
 
     def _find(self, stamp: int) -> int | None:
         """Key of the live state within tolerance of ``stamp``."""
+        live = self._find_stamp(stamp)
+        return None if live is None else self._keys[live]
+
+    def _find_stamp(self, stamp: int) -> int | None:
+        """Stamp of the live state within tolerance of ``stamp``."""
         stamps = self._stamps
         i = bisect.bisect_left(stamps, stamp - self._tolerance_ns)
         if i < len(stamps) and abs(stamps[i] - stamp) <= self._tolerance_ns:
-            return self._keys[stamps[i]]
+            return stamps[i]
         return None
 
     def _timestamp(self, stamp: int, index: int) -> float:
@@ -246,10 +272,10 @@ class FusionGraph:
         self._next_index += 1
         self._update(factors, values, timestamps)
         # Buffered measurements for this frame are gated against the updated window, then added.
-        late = gtsam.NonlinearFactorGraph()
+        late = _Batch()
         self._attach_pending(m.stamp, late)
-        if late.size() > 0:
-            self._update(late, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+        if late.factors.size() > 0:
+            self._update(late.factors, late.values, late.timestamps)
         return self._count("vo", ACCEPTED)
 
     def _bridge(self, newest: int, stamp: int) -> tuple[Array, Array]:
@@ -321,13 +347,13 @@ class FusionGraph:
             return self._count(kind, BUFFERED)
         if stamp < self._stamps[0] - self._tolerance_ns:
             return self._count(kind, "dropped.older_than_window")
-        factors = gtsam.NonlinearFactorGraph()
-        outcome = self._make_factor(kind, m, factors)
+        batch = _Batch()
+        outcome = self._make_factor(kind, m, batch)
         if outcome == ACCEPTED:
-            self._update(factors, gtsam.Values(), gtsam.FixedLagSmootherKeyTimestampMap())
+            self._update(batch.factors, batch.values, batch.timestamps)
         return self._count(kind, outcome)
 
-    def _attach_pending(self, stamp: int, factors: gtsam.NonlinearFactorGraph) -> None:
+    def _attach_pending(self, stamp: int, batch: _Batch) -> None:
         """Move buffered measurements that now have their state into ``factors``."""
         keep: deque[_Pending] = deque()
         for item in self._pending:
@@ -336,17 +362,17 @@ class FusionGraph:
                 keep.append(item)
                 continue
             self.counts[f"{item.kind}.{BUFFERED}"] -= 1
-            self._count(item.kind, self._make_factor(item.kind, item.measurement, factors))
+            self._count(item.kind, self._make_factor(item.kind, item.measurement, batch))
         self._pending = keep
 
     # ------------------------------------------------------------------ factor construction
-    def _make_factor(self, kind: str, m: RelativeMeasurement | SunMeasurement, factors: gtsam.NonlinearFactorGraph) -> str:
+    def _make_factor(self, kind: str, m: RelativeMeasurement | SunMeasurement, batch: _Batch) -> str:
         key = self._find(m.stamp)
         if key is None:
             return "dropped.no_state_at_stamp"
         if kind == "sun":
             assert isinstance(m, SunMeasurement)
-            return self._make_sun(key, m, factors)
+            return self._make_sun(key, m, batch)
         assert isinstance(m, RelativeMeasurement)
         reference_key = self._find(m.reference_stamp)
         if reference_key is None:
@@ -370,11 +396,11 @@ class FusionGraph:
             j_from = -predicted.inverse().AdjointMap()
             if not self._gate("correction", e, [reference_key, key], np.hstack([j_from, j_to]), cov):
                 return "gated"
-        factors.add(factor)
+        batch.factors.add(factor)
         self.factor_counts[kind] += 1
         return ACCEPTED
 
-    def _make_sun(self, key: int, m: SunMeasurement, factors: gtsam.NonlinearFactorGraph) -> str:
+    def _make_sun(self, key: int, m: SunMeasurement, batch: _Batch) -> str:
         if self.sun_reference is None:
             return "rejected.no_reference" if self.config.inputs.sun.reference != "ephemeris" else "rejected.no_gps_origin"
         sun_map = self.sun_reference.direction(m.stamp)
@@ -382,9 +408,52 @@ class FusionGraph:
             return "rejected.no_reference_at_stamp"
         covariance = np.asarray(m.covariance, dtype=float)
         e, jacobian = sun_error(self._estimates[key].rotation().matrix(), sun_map, zenith_azimuth(np.asarray(m.direction)))
-        if not self._gate("sun", e, [key], jacobian, covariance):
+        if not self.config.inputs.sun.has_bias:
+            if not self._gate("sun", e, [key], jacobian, covariance):
+                return "gated"
+            batch.factors.add(sun_factor(key, sun_map, m.direction, covariance, self.config.inputs.sun.huber_k))
+            self.factor_counts["sun"] += 1
+            return ACCEPTED
+        return self._make_biased_sun(key, m, sun_map, e, jacobian, covariance, batch)
+
+    def _make_biased_sun(
+        self, key: int, m: SunMeasurement, sun_map: Array, e: Array, jacobian: Array, covariance: Array, batch: _Batch
+    ) -> str:
+        """The sun factor on the pose and a new offset state b_k, chained to the previous live one by its walk (a
+        new chain from the prior when there is none). Gated on the innovation with b_k predicted from b_k-1."""
+        sun = self.config.inputs.sun
+        stamp = self._find_stamp(m.stamp)
+        assert stamp is not None
+        previous = self._sun_bias[-1] if self._sun_bias else None
+        walk_variance = np.zeros(2)
+        if previous is not None:
+            walk_variance = np.asarray(sun.bias_walk_sigma, dtype=float) ** 2 * max((stamp - previous[1]) * 1e-9, 1e-3)
+        solved = previous is not None and self._estimates.has_vector(previous[0])
+        if solved:
+            assert previous is not None
+            offset = self._estimates.vector(previous[0])
+            e_biased = e + offset
+            e_biased[1] = wrap_angle(float(e_biased[1]))
+            joint_jacobian = np.hstack([jacobian, np.eye(2)])
+            ok = self._gate("sun", e_biased, [key, previous[0]], joint_jacobian, covariance + np.diag(walk_variance))
+        else:
+            # no offset solved yet: b_k-1 (or the prior) as N(0, Σ_b), the pose's own covariance
+            offset = np.zeros(2)
+            ok = self._gate("sun", e, [key], jacobian, covariance + np.diag(np.asarray(sun.bias_sigma, dtype=float) ** 2))
+        if not ok:
             return "gated"
-        factors.add(sun_factor(key, sun_map, m.direction, covariance, self.config.inputs.sun.huber_k))
+        bias_key = B(self._next_bias)
+        self._next_bias += 1
+        batch.values.insert(bias_key, offset)
+        batch.timestamps.insert((bias_key, self._timestamp(stamp, gtsam.Symbol(key).index())))
+        if previous is None:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sun.bias_sigma, dtype=float))
+            batch.factors.add(gtsam.PriorFactorVector(bias_key, np.zeros(2), noise))
+            self.factor_counts["sun_bias_prior"] += 1
+        else:
+            batch.factors.add(sun_bias_walk(previous[0], bias_key, np.asarray(sun.bias_walk_sigma), (stamp - previous[1]) * 1e-9))
+        self._sun_bias.append((bias_key, stamp))
+        batch.factors.add(sun_factor(key, sun_map, m.direction, covariance, sun.huber_k, bias_key))
         self.factor_counts["sun"] += 1
         return ACCEPTED
 
@@ -445,6 +514,8 @@ class FusionGraph:
             stamp = self._stamps.pop(0)
             key = self._keys.pop(stamp)
             self._finished.append(FusedPose(stamp, self._estimates[key].matrix()))
+        while self._sun_bias and not estimate.exists(self._sun_bias[0][0]):
+            self._sun_bias.popleft()
         self._estimates.refresh(estimate)
         self.last_update_seconds = time.perf_counter() - start
 
@@ -453,9 +524,9 @@ class FusionGraph:
         last = self._estimates[self._keys[stamp]]
         for s in self._stamps:
             self._finished.append(FusedPose(s, self._estimates[self._keys[s]].matrix()))
-        index = self._next_index
+        index, bias_index = self._next_index, self._next_bias
         self._reset_smoother()
-        self._next_index = index
+        self._next_index, self._next_bias = index, bias_index
         self._initial_pose = last.matrix()
         self._initial_covariance = np.eye(6) * self.config.inputs.vo.lost_variance
         self._start(stamp)
@@ -472,7 +543,7 @@ class FusionGraph:
         return self._estimates[key].matrix()
 
     def _joint_covariance(self, keys: list[int]) -> Array:
-        """Joint marginal covariance (GTSAM order/perturbation, 6n x 6n) of live states.
+        """Joint marginal covariance (GTSAM order/perturbation; 6 rows per pose, 2 per sun offset) of live states.
 
         iSAM2: from its Bayes tree (QR-factorised, cost independent of the lag); batch: dense QR of the window.
         """
@@ -485,18 +556,20 @@ class FusionGraph:
         return self._dense_joint_covariance(keys)
 
     def _dense_joint_covariance(self, keys: list[int]) -> Array:
-        """Joint marginal covariance of live states by dense QR of the relinearised window."""
+        """Joint marginal covariance of live states (poses: 6, sun offsets: 2) by dense QR of the relinearised window."""
         graph = self._smoother.getFactors()
         linear = graph.linearize(self._smoother.calculateEstimate())
-        live = [self._keys[s] for s in self._stamps]
+        live = [self._keys[s] for s in self._stamps] + [k for k, _ in self._sun_bias if self._estimates.has_vector(k)]
         ordering = gtsam.Ordering()
         for key in live:
             ordering.push_back(key)
         a, _ = linear.jacobian(ordering)
         r = np.linalg.qr(a, mode="r")
         # Σ = (RᵀR)^-1; only the requested blocks are needed.
-        index = {k: i for i, k in enumerate(live)}
-        cols = np.concatenate([np.arange(6 * index[k], 6 * index[k] + 6) for k in keys])
+        sizes = [2 if gtsam.Symbol(k).chr() == ord("b") else 6 for k in live]
+        starts = dict(zip(live, np.concatenate([[0], np.cumsum(sizes)[:-1]]), strict=True))
+        size = dict(zip(live, sizes, strict=True))
+        cols = np.concatenate([np.arange(starts[k], starts[k] + size[k]) for k in keys])
         n = r.shape[1]
         rhs = np.zeros((n, len(cols)))
         rhs[cols, np.arange(len(cols))] = 1.0
@@ -548,3 +621,10 @@ class _Estimates:
     def refresh(self, values: gtsam.Values) -> None:
         self._values = values
         self._added.clear()
+
+    def has_vector(self, key: int) -> bool:
+        """Whether the smoother has solved the vector state ``key`` (a sun offset) yet."""
+        return bool(self._values.exists(key))
+
+    def vector(self, key: int) -> Array:
+        return np.asarray(self._values.atVector(key), dtype=float)

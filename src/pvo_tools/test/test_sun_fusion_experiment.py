@@ -77,6 +77,11 @@ def test_test_sequences_rendered_longer_and_fused(tmp_path: Path) -> None:
     some = fusion_experiment([seq for seq, _ in inputs], [learned for _, learned in inputs], rows=("Without Sun", "Sun-BCNN"))
     assert some["0000"] == {row: table["0000"][row] for row in ("Without Sun", "Sun-BCNN")}  # the same fusion, fewer rows
     assert set(fusion_changes(some)) == {"Sun-BCNN"} and fusion_changes(some)["Sun-BCNN"] == changes["Sun-BCNN"]
+    offset = {"inputs.sun.bias_sigma": (0.2, 0.2), "inputs.sun.bias_walk_sigma": (0.01, 0.01)}  # the learned sun's only
+    biased_table = fusion_experiment([seq for seq, _ in inputs], [learned for _, learned in inputs], learned_fusion=offset)
+    for name, rows in biased_table.items():
+        assert {r: v for r, v in rows.items() if r != "Sun-BCNN"} == {r: v for r, v in table[name].items() if r != "Sun-BCNN"}
+    assert any(biased_table[n]["Sun-BCNN"] != table[n]["Sun-BCNN"] for n in table)
 
     # --fusion-rig-error: the same images, the VO on a calib.txt with the focal length 5 % too long, so every
     # depth and hence every step it measures is 5 % too long; the camera's file and the truth untouched
