@@ -15,6 +15,10 @@ setting, then the mean change against the VO alone per setting (online, then smo
 
     python scripts/sun_bcnn_fusion_weight.py --corpus data/corpus-sun --preset planetary --scales 1 \
         --biases 0.1:0.002,0.25:0.01 -o runs/sun52/val-planetary
+
+With --write-card SIGMA:WALK it renders and fuses nothing: it records that offset state in --model's card
+(`calibration.fusion`, read by `pvo experiment sun-bcnn` and `pvo demo`) with --chosen-by (how it was chosen) as the
+card's `commands.fusion`.
 """
 
 from __future__ import annotations
@@ -34,8 +38,10 @@ def main() -> None:
     parser.add_argument("--lens", type=float, nargs="+", default=(), metavar="K", help="plumb-bob k1 [k2 k3]")
     parser.add_argument("--scales", default="1,3,10,30,100", help="covariance scales, comma-separated")
     parser.add_argument("--biases", default="", help="offset states SIGMA:WALK (rad, rad/√s), comma-separated")
+    parser.add_argument("--write-card", metavar="SIGMA:WALK", help="record this offset state in --model's card, then stop")
+    parser.add_argument("--chosen-by", default="", help="with --write-card: the commands and rule that chose it")
     parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("-o", "--out", type=Path, required=True, help="folder of the rendered drives")
+    parser.add_argument("-o", "--out", type=Path, help="folder of the rendered drives (required but with --write-card)")
     args = parser.parse_args()
     try:
         scales = [float(v) for v in args.scales.split(",")]
@@ -54,6 +60,11 @@ def main() -> None:
             f"sun_bcnn_fusion_weight.py: --sequences {args.sequences}: at least 2 (each drive's VO is calibrated on the others)"
         )
 
+    if args.write_card:
+        write_card(args.model, args.write_card, args.chosen_by)
+        return
+    if args.out is None:
+        parser.error("the following arguments are required: -o/--out")
     import torch
     from pvo_pseudosensors.learning.checkpoint import ModelFileError
     from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
@@ -101,6 +112,33 @@ def main() -> None:
             f"(smoothed {100 * smoothed['trans']:+.1f} % / {100 * smoothed['rot']:+.1f} %)",
             flush=True,
         )
+
+
+def write_card(model: str, setting: str, chosen_by: str) -> None:
+    """Record the offset state SIGMA:WALK (rad, rad/√s; zenith and azimuth alike) in the model's card."""
+    from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
+    from pvo_pseudosensors.learning.checkpoint import write_card as write
+    from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
+
+    try:
+        sigma, walk = (float(v) for v in setting.split(":"))
+    except ValueError:
+        sigma = walk = -1.0
+    if min(sigma, walk) <= 0.0:
+        sys.exit(f"sun_bcnn_fusion_weight.py: --write-card {setting!r}: give SIGMA:WALK, two positive numbers")
+    if not chosen_by:
+        sys.exit("sun_bcnn_fusion_weight.py: --write-card needs --chosen-by (the commands and rule that chose it)")
+    try:
+        directory = resolve_model(model)
+        card = read_card(directory)
+    except (ModelFileError, OSError) as exc:
+        sys.exit(f"sun_bcnn_fusion_weight.py: {exc}")
+    card.calibration = {
+        **(card.calibration or {}),
+        "fusion": {"inputs.sun.bias_sigma": [sigma, sigma], "inputs.sun.bias_walk_sigma": [walk, walk]},
+    }
+    card.commands = {**card.commands, "fusion": chosen_by}
+    print(f"{write(directory, card)}: calibration.fusion = offset state σ {sigma:g} rad, walk {walk:g} rad/√s")
 
 
 if __name__ == "__main__":

@@ -114,3 +114,23 @@ def test_method_two_mean_fails_across_the_azimuth_cut_as_the_text_has_it() -> No
     table = method_comparison(Draws(draws, None), truth)
     assert table["Method I"]["vector_mean_deg"] < 0.1
     assert table["Method II"]["vector_mean_deg"] > 90.0
+
+
+def test_a_cards_fusion_settings_are_read_and_a_foreign_entry_is_named() -> None:
+    from pvo_pseudosensors.learning.checkpoint import ModelCard
+    from pvo_pseudosensors.sun_bcnn.infer import card_fusion
+
+    from pvo_fusion.config import from_flat
+
+    card = ModelCard("sun-bcnn", {}, {}, calibration={"tau": 4.0})
+    assert card_fusion(card) == {}  # a card without the block: readings fused as independent
+    offset = {"inputs.sun.bias_sigma": [0.25, 0.25], "inputs.sun.bias_walk_sigma": [0.01, 0.01]}
+    card.calibration["fusion"] = offset
+    assert card_fusion(card) == offset
+    assert from_flat(card_fusion(card)).inputs.sun.has_bias  # what the demo and the experiment hand to the fusion
+    card.calibration["fusion"] = {"inputs.vo.covariance_scale": [2.0] * 6}
+    with pytest.raises(ValueError, match="'inputs.vo.covariance_scale' is not a fusion parameter of the sun"):
+        card_fusion(card)
+    card.calibration["fusion"] = [0.25, 0.01]
+    with pytest.raises(ValueError, match="calibration.fusion must be a mapping"):
+        card_fusion(card)

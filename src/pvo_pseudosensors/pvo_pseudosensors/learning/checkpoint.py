@@ -45,7 +45,7 @@ class ModelCard:
     def to_yaml(self) -> str:
         import yaml
 
-        return yaml.safe_dump(_plain(asdict(self)), sort_keys=False)
+        return yaml.safe_dump(_plain(asdict(self)), sort_keys=False, width=120, allow_unicode=True)
 
 
 def _plain(value: Any) -> Any:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -109,6 +110,19 @@ def card_calibration(card: ModelCard) -> CovarianceCalibration:
     if card.calibration is not None and not isinstance(card.calibration, dict):
         raise ValueError(f"calibration must be a mapping, got {card.calibration!r}")
     return CovarianceCalibration.from_mapping(card.calibration or {})
+
+
+def card_fusion(card: ModelCard) -> dict[str, Any]:
+    """How the fusion should weigh this model's readings (``calibration.fusion``: dotted ``inputs.sun.*`` fusion
+    parameters, e.g. the offset state ``inputs.sun.bias_sigma`` chosen on validation drives); {} when the card has none.
+    ``ValueError`` naming the entry that is not a fusion setting of the sun."""
+    block = (card.calibration or {}).get("fusion") or {}
+    if not isinstance(block, dict):
+        raise ValueError(f"calibration.fusion must be a mapping of fusion parameters, got {block!r}")
+    for name in block:
+        if not str(name).startswith("inputs.sun."):
+            raise ValueError(f"calibration.fusion: {name!r} is not a fusion parameter of the sun (inputs.sun.*)")
+    return dict(block)
 
 
 def predictions_from_draws(

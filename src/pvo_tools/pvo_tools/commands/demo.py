@@ -227,6 +227,15 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         "inputs.sun.reference": "table",
         "inputs.sun.reference_table": str(reference_table.resolve()),
     }
+    if learned:  # how the fusion weighs the learned sun: its card says (an offset shared by a drive's readings)
+        from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
+        from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
+        from pvo_pseudosensors.sun_bcnn.infer import card_fusion
+
+        try:
+            fusion_overrides.update(card_fusion(read_card(resolve_model(settings.sun_model))))
+        except (ModelFileError, ValueError) as exc:
+            raise PvoError(f"{settings.sun_model}: {exc}") from None
     rotation_config = None
     if learned and settings.hydranet:
         from pvo_pseudosensors.hydranet.estimator import HydraNetSensorConfig

@@ -478,6 +478,12 @@ def register(parser: argparse.ArgumentParser) -> None:
         help="experiment 4 again on the same drives rendered through an uncalibrated lens, plumb-bob k1 [k2 k3] (e.g. "
         "-0.3 0.2 0.01, the thesis's lens of ch. 6: the VO drifts, as on a camera nobody calibrated; default: none)",
     )
+    parser.add_argument(
+        "--independent-sun",
+        action="store_true",
+        help="experiment 4: fuse Sun-BCNN's readings as independent, without the offset state its card's "
+        "calibration.fusion sets (the experiment before stop 52)",
+    )
     parser.add_argument("--jobs", "-j", type=int, default=2, help="experiment 4: rendering processes (default 2)")
     parser.add_argument("--out", "-o", type=Path, default=Path("runs/sun-bcnn-experiment"), help="output directory")
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
@@ -702,10 +708,25 @@ def run(args: argparse.Namespace) -> int:
             if lens
             else None
         )
+        from pvo_pseudosensors.sun_bcnn.infer import card_fusion
+
+        learned_fusion = {} if args.independent_sun else card_fusion(card)
+        if learned_fusion:
+            settings = ", ".join(f"`{name}: {value}`" for name, value in learned_fusion.items())
+            how = (
+                f"with the settings of the model's card (`calibration.fusion`): {settings} — a (zenith, azimuth) offset "
+                "shared by a drive's readings; the GT-Sun rows' readings have none."
+            )
+        else:
+            why = "`--independent-sun`" if args.independent_sun else "the card has no `calibration.fusion`"
+            how = f"as independent ({why})."
+        report += [f"The Sun-BCNN row fuses the readings {how}", ""]
         for rig in fusion_rigs(folders, rig_error, lens, lens_folders):
             key = rig.key
             inputs = [fusion_inputs(folder, model, card, args.samples, rig.rig_error) for folder in rig.folders]
-            fused = fusion_experiment([seq for seq, _ in inputs], [learned for _, learned in inputs], say=say)
+            fused = fusion_experiment(
+                [seq for seq, _ in inputs], [learned for _, learned in inputs], say=say, learned_fusion=learned_fusion
+            )
             changes = fusion_changes(fused)
             tables[key], tables[f"{key}_changes"] = fused, changes
             for row, c in changes.items():
