@@ -427,7 +427,7 @@ class FusionGraph:
         previous = self._sun_bias[-1] if self._sun_bias else None
         walk_variance = np.zeros(2)
         if previous is not None:
-            walk_variance = np.asarray(sun.bias_walk_sigma, dtype=float) ** 2 * max((stamp - previous[1]) * 1e-9, 1e-3)
+            walk_variance = np.asarray(sun.bias_walk_sigma, dtype=float) ** 2 * max(abs(stamp - previous[1]) * 1e-9, 1e-3)
         solved = previous is not None and self._estimates.has_vector(previous[0])
         if solved:
             assert previous is not None
@@ -451,7 +451,9 @@ class FusionGraph:
             batch.factors.add(gtsam.PriorFactorVector(bias_key, np.zeros(2), noise))
             self.factor_counts["sun_bias_prior"] += 1
         else:
-            batch.factors.add(sun_bias_walk(previous[0], bias_key, np.asarray(sun.bias_walk_sigma), (stamp - previous[1]) * 1e-9))
+            # a late reading (older than the previous one) walks back over the same |interval|
+            seconds = abs(stamp - previous[1]) * 1e-9
+            batch.factors.add(sun_bias_walk(previous[0], bias_key, np.asarray(sun.bias_walk_sigma), seconds))
         self._sun_bias.append((bias_key, stamp))
         batch.factors.add(sun_factor(key, sun_map, m.direction, covariance, sun.huber_k, bias_key))
         self.factor_counts["sun"] += 1

@@ -343,6 +343,26 @@ def test_bad_sun_measurements_are_rejected_with_reasons() -> None:
     assert graph.counts["sun.gated"] == 1
 
 
+def test_with_a_sun_offset_state_bad_late_and_wild_readings_are_handled_as_without_it() -> None:
+    truth = truth_trajectory(60)
+    rng = np.random.default_rng(13)
+    graph = FusionGraph(from_flat(BIAS), FixedSunReference(SUN_MAP))
+    for m in vo_stream(truth, None):
+        graph.add_vo(m)
+    good = sun_at(truth, 55)
+    assert graph.add_sun(SunMeasurement(good.stamp, good.direction * np.nan, good.covariance)) == "rejected.non_finite_direction"
+    assert graph.factor_counts["sun"] == 0 and not graph._sun_bias  # nothing fused, no offset state made
+    for k in (50, 30, 40):  # the 30 arrives after the 50: the offset walks back over the same interval
+        assert graph.add_sun(sun_at(truth, k, 1.0, rng)) == "accepted"
+    assert [stamp for _, stamp in graph._sun_bias] == [T0 + k * STEP_NS for k in (50, 30, 40)]
+    wrong = np.cross(good.direction, [0.0, 1.0, 0.0])
+    wrong /= np.linalg.norm(wrong)  # 90 degrees off: beyond what the offset's prior and walk allow, gated
+    assert graph.add_sun(SunMeasurement(good.stamp, wrong, good.covariance)) == "gated"
+    assert graph.factor_counts["sun"] == 3 and graph.factor_counts["sun_bias_prior"] == 1
+    fused = np.array([p.pose for p in graph.trajectory()])
+    assert np.all(np.isfinite(fused)) and rotation_rms(fused, truth[-len(fused) :]) < 0.01
+
+
 def test_sun_without_a_gps_origin_is_rejected_not_fused() -> None:
     truth = truth_trajectory(12)
     graph = FusionGraph()  # reference: ephemeris, and no origin set
