@@ -234,6 +234,13 @@ def test_experiment_can_skip_the_kitti_scratch_baseline(corpus: Path, pvo_data: 
     assert "--fusion-preset nowhere: 0 test sequences of it in" in capsys.readouterr().err
     assert main([*args, *options, "--fusion-lens", "0"]) == 2
     assert "--fusion-lens 0: a lens that distorts nothing is the calibrated rig" in capsys.readouterr().err
+    card = yaml.safe_load((model / "model.yaml").read_text())
+    card["calibration"]["fusion"] = {"inputs.sun.bias_sigma": [0.5, 0.5]}  # an offset state with no walk
+    (model / "model.yaml").write_text(yaml.safe_dump(card, sort_keys=False))
+    assert main([*args, *options]) == 2
+    assert f"{model}: the card's calibration.fusion: invalid fusion configuration" in capsys.readouterr().err
+    card["calibration"].pop("fusion")
+    (model / "model.yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     assert not out.exists()
     assert main([*args, *options, "--scratch-epochs", "0"]) == 0
     report = (out / "report.md").read_text()

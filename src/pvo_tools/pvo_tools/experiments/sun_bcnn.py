@@ -492,6 +492,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
     from pvo_core.results import RunResult
+    from pvo_pseudosensors.learning.checkpoint import read_card
     from pvo_pseudosensors.learning.training import FineTune
     from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
     from pvo_pseudosensors.sun_bcnn.evaluation import calibration_curve, method_comparison, time_per_image
@@ -501,6 +502,7 @@ def run(args: argparse.Namespace) -> int:
         Draws,
         calibrate,
         card_calibration,
+        card_fusion,
         load_sun_bcnn,
         model_mode,
         predict_sequence,
@@ -510,6 +512,7 @@ def run(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.sun_bcnn.model import SunTask
 
     from ..plots import pyplot
+    from .sun_sim import experiment_config
 
     if not args.finetune_learning_rate > 0.0:
         raise ValueError(f"--finetune-learning-rate {args.finetune_learning_rate}: must be positive")
@@ -534,6 +537,12 @@ def run(args: argparse.Namespace) -> int:
                 f"--fusion-preset {args.fusion_preset}: {of_preset} test sequences of it in {manifest.path}, "
                 f"{args.fusion_sequences} asked for (its test split's presets: {presets})"
             )
+    card = read_card(args.model)  # how experiment 4 fuses the learned sun: its card's calibration.fusion
+    try:
+        learned_fusion = {} if args.independent_sun else card_fusion(card)
+        experiment_config(learned_fusion)
+    except ValueError as exc:
+        raise ValueError(f"{args.model}: the card's calibration.fusion: {exc}") from None
     session = ExperimentRun.start(args)
     say, command, out = session.say, session.command, session.out
     cache = Path(args.corpus) / ".cache"
@@ -708,9 +717,6 @@ def run(args: argparse.Namespace) -> int:
             if lens
             else None
         )
-        from pvo_pseudosensors.sun_bcnn.infer import card_fusion
-
-        learned_fusion = {} if args.independent_sun else card_fusion(card)
         if learned_fusion:
             settings = ", ".join(f"`{name}: {value}`" for name, value in learned_fusion.items())
             how = (
