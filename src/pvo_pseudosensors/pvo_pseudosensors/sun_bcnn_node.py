@@ -17,6 +17,7 @@ from pvo_msgs.msg import SunDirection
 from pvo_ros import ERROR, OK, WARN, PvoNode, reliable, run_node, stamp_to_nanoseconds
 
 from .sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
+from .sun_bcnn.infer import card_fusion
 
 
 class SunBCNNNode(PvoNode[SunBCNNSensorConfig, None]):
@@ -35,6 +36,14 @@ class SunBCNNNode(PvoNode[SunBCNNSensorConfig, None]):
                 f"{self.config.samples} {self.sensor.mode} MC samples, covariance scale {calibration.scale:.3g}, "
                 f"tau {calibration.tau:.4g} (calibrated in {card.calibration.get('mode', 'an unrecorded mode')})"
             )
+            try:
+                fusion = card_fusion(card)
+            except ValueError as exc:
+                fusion = {}
+                self.problem(f"the model card's fusion settings are unusable: {exc}")
+            if fusion:  # the fusion node cannot read the card: say what it should be given
+                settings = " ".join(f"-p {name}:=[{','.join(f'{v:g}' for v in value)}]" for name, value in fusion.items())
+                self.get_logger().info(f"its card asks the fusion node for: {settings}")
 
     def _on_image(self, msg: Image) -> None:
         stamp = stamp_to_nanoseconds(msg.header.stamp)
