@@ -78,8 +78,15 @@ def sun_variants() -> list[Variant]:
     ]
 
 
-def test_every_bad_input_is_counted_and_the_estimate_equals_the_clean_run(ros_context) -> None:
-    fusion = FusionNode(context=ros_context, parameter_overrides=[Parameter("publish_path", value=False)])
+OFFSET_STATE = {"inputs.sun.bias_sigma": [0.5, 0.5], "inputs.sun.bias_walk_sigma": [0.03, 0.03]}  # the learned sun's
+
+
+@pytest.mark.parametrize("offset_state", [False, True], ids=["independent-sun", "sun-offset-state"])
+def test_every_bad_input_is_counted_and_the_estimate_equals_the_clean_run(ros_context, offset_state: bool) -> None:
+    settings = OFFSET_STATE if offset_state else {}
+    overrides = [Parameter("publish_path", value=False)] + [Parameter(name, value=v) for name, v in settings.items()]
+    fusion = FusionNode(context=ros_context, parameter_overrides=overrides)
+    assert fusion.graph.config.inputs.sun.has_bias == offset_state
     io = Node("io", context=ros_context)
     odometry: list[Odometry] = []
     io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
@@ -123,7 +130,7 @@ def test_every_bad_input_is_counted_and_the_estimate_equals_the_clean_run(ros_co
     for key, count in expected.items():
         assert fusion.graph.counts[key] == count, key
     assert fusion.graph.counts["vo.accepted"] == 6 and len(odometry) == 6
-    clean = FusionGraph(from_flat({}))
+    clean = FusionGraph(from_flat(settings))
     for k in range(1, 7):
         clean.add_vo(RelativeMeasurement(T0 + k * DT, T0 + (k - 1) * DT, STEP, COV))
     np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), clean.pose(), atol=1e-9)
