@@ -51,6 +51,14 @@ def test_demo_runs_sun_bcnn_where_the_bag_has_gps(tmp_path: Path, ros_env) -> No
     params = (sample / "params.yaml").read_text()
     assert "sun_bcnn:" in params and "hydranet:" in params and "dpc_net:" in params and "simulated_sun" not in params
     assert "probe.model: probe_sim" in params  # stereo_vo with the shipped PROBE model of this rig
+    import yaml
+    from pvo_pseudosensors.learning.checkpoint import read_card
+    from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
+    from pvo_pseudosensors.sun_bcnn.infer import card_fusion
+
+    fusion_parameters = yaml.safe_load(params)["fusion"]["ros__parameters"]
+    asked = card_fusion(read_card(resolve_model("sun_bcnn")))  # how the shipped model's card says to fuse it
+    assert asked and all(fusion_parameters[name] == list(value) for name, value in asked.items())
     record = json.loads((sample / "metrics.json").read_text())
     for key in ("vo", "fused_smoothed", "fused_online"):
         assert record["figures"][f"agreement_with_ros_free.{key}_max_position_difference_m"] < 1e-6
