@@ -17,7 +17,7 @@ from pvo_msgs.msg import SunDirection
 from pvo_ros import ERROR, OK, WARN, PvoNode, reliable, run_node, stamp_to_nanoseconds
 
 from .sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
-from .sun_bcnn.infer import card_fusion
+from .sun_bcnn.infer import card_fusion, fusion_arguments
 
 
 class SunBCNNNode(PvoNode[SunBCNNSensorConfig, None]):
@@ -42,8 +42,7 @@ class SunBCNNNode(PvoNode[SunBCNNSensorConfig, None]):
                 fusion = {}
                 self.problem(f"the model card's fusion settings are unusable: {exc}")
             if fusion:  # the fusion node cannot read the card: say what it should be given
-                settings = " ".join(f"-p {name}:=[{','.join(f'{v:g}' for v in value)}]" for name, value in fusion.items())
-                self.get_logger().info(f"its card asks the fusion node for: {settings}")
+                self.get_logger().info(f"its card asks the fusion node for: {fusion_arguments(fusion)}")
 
     def _on_image(self, msg: Image) -> None:
         stamp = stamp_to_nanoseconds(msg.header.stamp)

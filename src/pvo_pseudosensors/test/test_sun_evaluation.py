@@ -118,7 +118,7 @@ def test_method_two_mean_fails_across_the_azimuth_cut_as_the_text_has_it() -> No
 
 def test_a_cards_fusion_settings_are_read_and_a_foreign_entry_is_named() -> None:
     from pvo_pseudosensors.learning.checkpoint import ModelCard
-    from pvo_pseudosensors.sun_bcnn.infer import card_fusion
+    from pvo_pseudosensors.sun_bcnn.infer import card_fusion, fusion_arguments
 
     from pvo_fusion.config import from_flat
 
@@ -128,6 +128,10 @@ def test_a_cards_fusion_settings_are_read_and_a_foreign_entry_is_named() -> None
     card.calibration["fusion"] = offset
     assert card_fusion(card) == offset
     assert from_flat(card_fusion(card)).inputs.sun.has_bias  # what the demo and the experiment hand to the fusion
+    assert fusion_arguments(offset) == "-p inputs.sun.bias_sigma:=[0.25,0.25] -p inputs.sun.bias_walk_sigma:=[0.01,0.01]"
+    assert fusion_arguments({"inputs.sun.huber_k": 1.5, "inputs.sun.enabled": True}) == (
+        "-p inputs.sun.huber_k:=1.5 -p inputs.sun.enabled:=True"  # scalars too: a card may set any sun parameter
+    )
     card.calibration["fusion"] = {"inputs.vo.covariance_scale": [2.0] * 6}
     with pytest.raises(ValueError, match="'inputs.vo.covariance_scale' is not a fusion parameter of the sun"):
         card_fusion(card)

@@ -125,6 +125,18 @@ def card_fusion(card: ModelCard) -> dict[str, Any]:
     return dict(block)
 
 
+def fusion_arguments(settings: dict[str, Any]) -> str:
+    """``settings`` (dotted fusion parameters) as ``--ros-args`` words for the fusion node: ``-p name:=value``, a list
+    as ``[a,b]``."""
+
+    def value_text(value: Any) -> str:
+        if isinstance(value, list | tuple):
+            return "[" + ",".join(value_text(v) for v in value) + "]"
+        return f"{value:g}" if isinstance(value, float) else str(value)
+
+    return " ".join(f"-p {name}:={value_text(value)}" for name, value in settings.items())
+
+
 def predictions_from_draws(
     frames: NDArray[np.int64], draws: Draws, calibration: CovarianceCalibration = UNCALIBRATED
 ) -> SunPredictions:

@@ -234,6 +234,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
 
         try:
             fusion_overrides.update(card_fusion(read_card(resolve_model(settings.sun_model))))
+            fusion_from_flat(fusion_overrides)  # a bad card entry is one line here, not a fusion node dying later
         except (ModelFileError, ValueError) as exc:
             raise PvoError(f"{settings.sun_model}: {exc}") from None
     rotation_config = None
