@@ -176,7 +176,7 @@ def _hydranet() -> ModelEntry:
         return evaluate_rotations(rows[:, 2:6], rows[:, 6:].reshape(-1, 3, 3), truth)
 
     def calibrate(model_dir, sequences, samples=None, mode=None, cache_dir=None):
-        """The inference mode (plain | mirrored, default plain) written into the card, with its figures on the
+        """The inference mode (plain | mirrored | reversed, default plain) written into the card, with its figures on the
         validation ``sequences`` pooled over their pairs (MC sampling does not apply: ``samples`` is unused)."""
         from pvo_core.trajectory import read_kitti_poses
 
@@ -187,7 +187,7 @@ def _hydranet() -> ModelEntry:
 
         mode = mode or "plain"
         if mode not in MODES:
-            raise ValueError(f"--mode {mode}: HydraNet runs {' or '.join(MODES)}")
+            raise ValueError(f"--mode {mode}: HydraNet runs {', '.join(MODES[:-1])} or {MODES[-1]}")
         model, card = load_hydranet(model_dir)
         card.calibration = {**(card.calibration or {}), "mode": mode}
         quaternions, covariances, truth = [], [], []

@@ -284,6 +284,59 @@ def test_mirrored_inference_pools_the_heads_of_a_pair_and_of_its_mirror_image() 
     assert not torch.allclose(plain.quaternion, output.quaternion)  # the mirror image's heads count
 
 
+def test_reversed_inference_pools_the_inverted_heads_of_the_pair_read_backwards() -> None:
+    torch.manual_seed(3)
+    model = HydraNet(TINY)
+    forward, backward = torch.randn(3, 2, 48, 144), torch.randn(3, 2, 48, 144)
+    output = predict_rotations(model, forward, reversed_flow=backward)
+    heads, root = model(forward)
+    back_heads, back_root = model(backward)
+    inverse = torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
+    pooled = torch.cat([heads.double(), back_heads.double() * inverse], dim=1)  # 2H heads, all of C_k,k-1
+    torch.testing.assert_close(output.quaternion, quat.mean(pooled))
+    torch.testing.assert_close(output.epistemic, quat.epistemic_covariance(pooled, quat.mean(pooled)))
+    # Sigma_a of C_k-1,k carried to C_k,k-1's left tangent space: Exp(e) q -> q^-1 Exp(-e) = Exp(-R e) q^-1
+    rotation = torch.from_numpy(np.stack([quaternion_to_rotation(q) for q in output.quaternion.numpy()]))
+    aleatoric = torch.linalg.inv(root.double() @ root.double().transpose(-1, -2))
+    back_aleatoric = torch.linalg.inv(back_root.double() @ back_root.double().transpose(-1, -2))
+    expected = 0.5 * (aleatoric + rotation @ back_aleatoric @ rotation.transpose(-1, -2))
+    torch.testing.assert_close(output.aleatoric, expected)
+    # exactly time-reversal equivariant: the pair read the other way gives the inverse rotation, its covariance
+    # carried by that rotation
+    swapped = predict_rotations(model, backward, reversed_flow=forward)
+    torch.testing.assert_close(swapped.quaternion, output.quaternion * inverse)
+    torch.testing.assert_close(swapped.covariance, rotation.transpose(-1, -2) @ output.covariance @ rotation)
+    with pytest.raises(ValueError, match="reversed inputs"):
+        predict_rotations(model, forward, reversed_flow=backward[:2])
+
+
+def test_the_card_mode_runs_reversed_through_the_sensor_and_the_sequence_call_alike(rotations, tmp_path: Path) -> None:
+    import cv2
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+    from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_flows, predict_sequence
+    from pvo_pseudosensors.registry import models
+
+    torch.manual_seed(0)
+    directory = save_model(tmp_path / "model", HydraNet(TINY), HydraTask(TINY).card())
+    source = rotations["validation"][0]
+    models()["hydranet"].calibrate(directory, [source.root], mode="reversed")
+    model, card = load_hydranet(directory)
+    assert card.calibration["mode"] == "reversed"
+    predictions = predict_sequence(model, card, source.root)
+    pairs = FlowPairs([source], TINY.size, reverse=True, targets=False).pairs[0]
+    forward, backward = (torch.from_numpy(np.asarray(f, dtype=np.float32)) for f in (pairs.forward, pairs.backward))
+    reversed_, _, _ = predict_flows(model, forward, reversed_flows=backward)
+    plain, _, _ = predict_flows(model, forward)
+    np.testing.assert_allclose(predictions.quaternions, reversed_, atol=1e-12)
+    assert np.abs(predictions.quaternions - plain).max() > 1e-6
+    sensor = HydraNetSensor(HydraNetSensorConfig(model=str(directory)))
+    paths = source.images("left", False)
+    estimates = [sensor.estimate(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), (k + 1) * 10**8) for k, p in enumerate(paths[:3])]
+    for k in (1, 2):
+        np.testing.assert_allclose(estimates[k].quaternion, predictions.quaternions[k - 1], atol=1e-5)
+        np.testing.assert_allclose(estimates[k].covariance, predictions.covariance[k - 1], rtol=1e-3, atol=1e-12)
+
+
 def test_the_card_mode_runs_mirrored_through_the_sensor_and_the_sequence_call_alike(rotations, tmp_path: Path) -> None:
     import cv2
     from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
@@ -294,7 +347,7 @@ def test_the_card_mode_runs_mirrored_through_the_sensor_and_the_sequence_call_al
     torch.manual_seed(0)
     directory = save_model(tmp_path / "model", HydraNet(TINY), HydraTask(TINY).card())
     source = rotations["validation"][0]
-    with pytest.raises(ValueError, match="--mode full: HydraNet runs plain or mirrored"):
+    with pytest.raises(ValueError, match="--mode full: HydraNet runs plain, mirrored or reversed"):
         models()["hydranet"].calibrate(directory, [source.root], mode="full")
     figures = models()["hydranet"].calibrate(directory, [source.root], mode="mirrored")
     model, card = load_hydranet(directory)

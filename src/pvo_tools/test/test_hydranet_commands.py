@@ -68,7 +68,7 @@ def test_calibrate_sets_the_inference_mode_that_predict_then_uses(corpus: Path, 
     assert main(["hydranet", "predict", str(corpus / "0003"), "--model", str(model), "-o", str(plain)]) == 0
     capsys.readouterr()
     assert main(["hydranet", "calibrate", "--model", str(model), "--corpus", str(corpus), "--mode", "sideways"]) == 2
-    assert "--mode sideways: HydraNet runs plain or mirrored" in capsys.readouterr().err
+    assert "--mode sideways: HydraNet runs plain, mirrored or reversed" in capsys.readouterr().err
     assert main(["hydranet", "calibrate", "--model", str(model), "--corpus", str(corpus), "--mode", "mirrored"]) == 0
     printed = capsys.readouterr().out
     assert "(mirrored mode) on 1 validation sequences" in printed and "ANEES" in printed

@@ -84,7 +84,7 @@ class HydraNetSensor:
         self.model, self.card = load_hydranet(resolve_model(config.model))
         self.height, self.width = (int(v) for v in self.card.input["size"])
         self.texture = HydraNetConfig.from_card(self.card).texture
-        self.mirrored = inference_mode(self.card)
+        self.mode = inference_mode(self.card)
         self.previous: NDArray[np.uint8] | None = None
         self.previous_stamp = 0
         self.previous_shape: tuple[int, ...] = ()
@@ -109,7 +109,10 @@ class HydraNetSensor:
         if shape != previous_shape:
             raise ValueError(f"image size changed from {previous_shape} to {shape}: this image starts a new pair")
         flow = torch.from_numpy(network_input(previous, dense_flow(previous, resized), self.texture))[None]
-        output = predict_rotations(self.model, flow, self.mirrored)
+        backward = None
+        if self.mode == "reversed":
+            backward = torch.from_numpy(network_input(resized, dense_flow(resized, previous), self.texture))[None]
+        output = predict_rotations(self.model, flow, self.mode == "mirrored", backward)
         return RotationEstimate(
             previous_stamp,
             stamp,

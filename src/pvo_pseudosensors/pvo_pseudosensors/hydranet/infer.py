@@ -133,11 +133,23 @@ class RotationPredictions:
 
 
 def predict_flows(
-    model: RotationNetwork, flows: torch.Tensor, batch: int = 64, mirrored: bool = False
+    model: RotationNetwork,
+    flows: torch.Tensor,
+    batch: int = 64,
+    mirrored: bool = False,
+    reversed_flows: torch.Tensor | None = None,
 ) -> tuple[Array, Array, Array]:
     """Quaternions (N, 4), Sigma_e and Sigma_a (N, 3, 3) for network inputs (N, C, H, W), in batches
-    (``mirrored``: :func:`~.model.predict_rotations`' mirrored inference)."""
-    parts = [predict_rotations(model, flows[start : start + batch], mirrored) for start in range(0, len(flows), batch)]
+    (``mirrored``, ``reversed_flows``: :func:`~.model.predict_rotations`' mirrored and reversed inference)."""
+    parts = [
+        predict_rotations(
+            model,
+            flows[start : start + batch],
+            mirrored,
+            None if reversed_flows is None else reversed_flows[start : start + batch],
+        )
+        for start in range(0, len(flows), batch)
+    ]
     return tuple(torch.cat([getattr(p, name) for p in parts]).numpy() for name in ("quaternion", "epistemic", "aleatoric"))  # type: ignore[return-value]
 
 
@@ -145,16 +157,22 @@ def predict_sequence(
     model: RotationNetwork, card: ModelCard, sequence: Path, batch: int = 64, cache_dir: Path | None = None
 ) -> RotationPredictions:
     """Every consecutive pair of ``sequence``'s left images (KITTI layout; poses.txt not needed), run as the
-    card's ``calibration.mode`` says (plain or mirrored)."""
+    card's ``calibration.mode`` says (plain, mirrored or reversed)."""
     config = HydraNetConfig.from_card(card)
-    mirrored = inference_mode(card)
+    mode = inference_mode(card)
     sequence = Path(sequence)
-    data = FlowPairs([Source(sequence, sequence.name)], config.size, reverse=False, cache_dir=cache_dir, targets=False)
+    reverse = mode == "reversed"
+    data = FlowPairs([Source(sequence, sequence.name)], config.size, reverse=reverse, cache_dir=cache_dir, targets=False)
     pairs = data.pairs[0]
-    flows = np.asarray(pairs.forward, dtype=np.float32)
-    if config.texture:
-        flows = np.stack([network_input(image[0], flow, True) for image, flow in zip(pairs.images[:-1], flows, strict=True)])
-    flows = torch.from_numpy(flows)
-    quaternions, epistemic, aleatoric = predict_flows(model, flows, batch, mirrored)
-    frames = np.arange(1, len(flows) + 1)
+
+    def inputs(flows: NDArray[np.floating], starts: NDArray[np.uint8]) -> torch.Tensor:
+        flows = np.asarray(flows, dtype=np.float32)
+        if config.texture:  # the texture of the image each flow starts from
+            flows = np.stack([network_input(image[0], flow, True) for image, flow in zip(starts, flows, strict=True)])
+        return torch.from_numpy(flows)
+
+    forward = inputs(pairs.forward, pairs.images[:-1])
+    backward = inputs(pairs.backward, pairs.images[1:]) if reverse and pairs.backward is not None else None
+    quaternions, epistemic, aleatoric = predict_flows(model, forward, batch, mode == "mirrored", backward)
+    frames = np.arange(1, len(forward) + 1)
     return RotationPredictions(frames - 1, frames, quaternions, epistemic, aleatoric)

@@ -220,39 +220,57 @@ class RotationOutput:
         return self.epistemic + self.aleatoric
 
 
-#: How a trained model is run (its card's ``calibration.mode``): "plain", or "mirrored" — each pair also through
-#: its mirror image, the two sets of heads pooled (:func:`predict_rotations`).
-MODES = ("plain", "mirrored")
+#: How a trained model is run (its card's ``calibration.mode``): "plain"; "mirrored" — each pair also through its
+#: mirror image; "reversed" — each pair also as the flow from the later image to the earlier. The sets of heads
+#: are pooled (:func:`predict_rotations`).
+MODES = ("plain", "mirrored", "reversed")
+
+#: C_k-1,k's quaternion (w, x, y, z) times these is C_k,k-1's: the inverse rotation.
+INVERSE_QUATERNION_SIGNS = (1.0, -1.0, -1.0, -1.0)
 
 
-def predict_rotations(model: RotationNetwork, flow: torch.Tensor, mirrored: bool = False) -> RotationOutput:
+def predict_rotations(
+    model: RotationNetwork, flow: torch.Tensor, mirrored: bool = False, reversed_flow: torch.Tensor | None = None
+) -> RotationOutput:
     """The estimate for a batch of network inputs (B, C, H, W): eval mode (the heads' dropout off, as the
     authors' code), no gradients. ``mirrored``: the inputs also go through the network mirrored left-right
     (:func:`mirror_flow`); those H heads, mirrored back, join the H heads of the inputs as they are, so the mean
     (eq. 7.14) and Sigma_e (eq. 7.16) are over 2H heads — a disagreement between a pair and its mirror image
     shows as epistemic spread — and Sigma_a is the mean of the two aleatoric outputs (the mirrored one
-    conjugated by the mirror, diag(1, -1, -1) on the rotation vector)."""
+    conjugated by the mirror, diag(1, -1, -1) on the rotation vector). ``reversed_flow``: the same pairs' inputs
+    from the later image to the earlier (B, C, H, W), which the network reads as C_k-1,k; those heads, inverted,
+    are pooled the same way, their Sigma_a carried into C_k,k-1's left tangent space (R Sigma R^T, R = C_k,k-1)."""
     model.eval()
     with torch.no_grad():
         heads, root = model(flow)
         heads, root = heads.double(), root.double()
-        aleatoric = torch.linalg.inv(root @ root.transpose(-1, -2))
+        aleatoric = [torch.linalg.inv(root @ root.transpose(-1, -2))]
         if mirrored:
             mirror_heads, mirror_root = model(mirror_flow(flow))
             signs = torch.tensor(MIRROR_QUATERNION_SIGNS, dtype=torch.float64)
             heads = torch.cat([heads, mirror_heads.double() * signs], dim=-2)
             axes = torch.diag(signs[1:])
             mirror_root = mirror_root.double()
-            mirror_aleatoric = axes @ torch.linalg.inv(mirror_root @ mirror_root.transpose(-1, -2)) @ axes
-            aleatoric = 0.5 * (aleatoric + mirror_aleatoric)
+            aleatoric.append(axes @ torch.linalg.inv(mirror_root @ mirror_root.transpose(-1, -2)) @ axes)
+        inverse = None
+        if reversed_flow is not None:
+            if reversed_flow.shape != flow.shape:
+                raise ValueError(f"reversed inputs {tuple(reversed_flow.shape)} do not match the inputs {tuple(flow.shape)}")
+            reverse_heads, reverse_root = model(reversed_flow)
+            heads = torch.cat([heads, reverse_heads.double() * torch.tensor(INVERSE_QUATERNION_SIGNS, dtype=torch.float64)], -2)
+            reverse_root = reverse_root.double()
+            inverse = torch.linalg.inv(reverse_root @ reverse_root.transpose(-1, -2))
     mean = quat.mean(heads)
-    return RotationOutput(mean, quat.epistemic_covariance(heads, mean), aleatoric)
+    if inverse is not None:
+        rotation = quat.rotation_matrix(mean)
+        aleatoric.append(rotation @ inverse @ rotation.transpose(-1, -2))
+    return RotationOutput(mean, quat.epistemic_covariance(heads, mean), torch.stack(aleatoric).mean(dim=0))
 
 
-def inference_mode(card: Any) -> bool:
-    """Whether ``card``'s model runs mirrored (``calibration.mode``; plain when unset, as models before it);
-    ValueError naming an unknown mode."""
+def inference_mode(card: Any) -> str:
+    """How ``card``'s model runs (``calibration.mode``, one of :data:`MODES`; plain when unset, as models before
+    it); ValueError naming an unknown mode."""
     mode = (card.calibration or {}).get("mode", "plain")
     if mode not in MODES:
         raise ValueError(f"unknown HydraNet mode {mode!r} in the model card: choose one of {', '.join(MODES)}")
-    return mode == "mirrored"
+    return str(mode)

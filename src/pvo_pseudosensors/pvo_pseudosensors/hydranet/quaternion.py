@@ -52,6 +52,17 @@ def exp(phi: torch.Tensor) -> torch.Tensor:
     return torch.cat([torch.cos(half), phi * scale], dim=-1)
 
 
+def rotation_matrix(q: torch.Tensor) -> torch.Tensor:
+    """The rotation matrices (..., 3, 3) of unit quaternions (..., 4)."""
+    w, x, y, z = q.unbind(-1)
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return torch.stack([torch.stack(row, dim=-1) for row in rows], dim=-2)
+
+
 def align_signs(heads: torch.Tensor) -> torch.Tensor:
     """Heads (..., H, 4) with each sign chosen to agree with the first head's (q and -q are one rotation)."""
     reference = heads[..., :1, :]

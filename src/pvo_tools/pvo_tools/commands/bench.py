@@ -235,16 +235,22 @@ def bench_hydranet(args: argparse.Namespace) -> int:
     size = (sensor.width, sensor.height)
     small = [cv2.resize(i, size, interpolation=cv2.INTER_AREA) for i in images]
     flow = torch.from_numpy(dense_flow(small[0], small[1]))[None]
-    heads = sensor.model.head_count * (2 if sensor.mirrored else 1)  # mirrored: the pair and its mirror image
+    mirrored, reversed_flow = sensor.mode == "mirrored", None
+    if sensor.mode == "reversed":
+        reversed_flow = torch.from_numpy(dense_flow(small[1], small[0]))[None]
+    heads = sensor.model.head_count * (1 if sensor.mode == "plain" else 2)  # the pair and its mirror image or reverse
     stages = {
         "resize": lambda k: cv2.resize(images[k], size, interpolation=cv2.INTER_AREA),
-        "Farneback flow": lambda k: dense_flow(small[k - 1], small[k]),
-        f"network ({heads} heads, Sigma)": lambda k: predict_rotations(sensor.model, flow, sensor.mirrored),
+        f"Farneback flow{' x2' if reversed_flow is not None else ''}": lambda k: (
+            dense_flow(small[k - 1], small[k]),
+            reversed_flow is not None and dense_flow(small[k], small[k - 1]),
+        ),
+        f"network ({heads} heads, Sigma)": lambda k: predict_rotations(sensor.model, flow, mirrored, reversed_flow),
         "sensor total": lambda k: sensor.estimate(images[k], (k + 1) * 100_000_000),
     }
     print(
         f"pvo bench hydranet: {sensor.height}x{sensor.width} flow from {images[0].shape[1]}x{images[0].shape[0]} images, "
-        f"{len(images) - 1} pairs of the KITTI 06 clip, one core, {'mirrored' if sensor.mirrored else 'plain'} inference"
+        f"{len(images) - 1} pairs of the KITTI 06 clip, one core, {sensor.mode} inference"
     )
     for name, stage in stages.items():
         best: list[float] = []

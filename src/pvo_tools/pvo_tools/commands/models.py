@@ -129,7 +129,7 @@ def _calibrate_parser(actions: Any, entry: ModelEntry) -> None:
     calibrate.add_argument(
         "--mode",
         help="sun-bcnn's MC sampling: full | head | full-mirrored | head-mirrored (default head-mirrored); "
-        "hydranet's inference: plain | mirrored (default plain)",
+        "hydranet's inference: plain | mirrored | reversed (default plain)",
     )
     calibrate.add_argument("--max-sequences", type=int, default=0, help="at most this many sequences (0: all)")
 
