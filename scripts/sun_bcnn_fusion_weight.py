@@ -5,7 +5,14 @@ split): how much the fusion should trust Sun-BCNN, measured where a choice may b
     python scripts/sun_bcnn_fusion_weight.py --corpus data/corpus-sun --preset urban --lens -0.3 0.2 0.01 \
         -o runs/sun51/val-urban-lens
 
-Renders the first --sequences validation sequences of --preset with --frames frames into OUT (resumes; with --lens
+With --drives it takes rendered drives as they are (the 48 long validation drives of `pvo dpc-net drives
+runs/dpc/vlong`: KITTI 03, 04, 10 windows and their mirror images, clean, through the thesis's lens and with
+calib.txt's focal length 3 % long — rigs whose VO drifts; OUT only labels the output):
+
+    python scripts/sun_bcnn_fusion_weight.py --drives runs/dpc/vlong/calib/* --scales 1 --biases 0.5:0.03 \
+        -o runs/sun53/calib
+
+Otherwise it renders the first --sequences validation sequences of --preset with --frames frames into OUT (resumes; with --lens
 through that uncalibrated lens, as `pvo experiment sun-bcnn --fusion-lens`), runs the VO and the model on each, and
 fuses them as experiment 4 does (VO covariances calibrated on the other drives, a sun reading every 10th frame) with the
 model's covariance times each of --scales, then (at scale 1) with each of --biases as the fusion's offset state of the
@@ -40,6 +47,13 @@ def main() -> None:
     parser.add_argument("--biases", default="", help="offset states SIGMA:WALK (rad, rad/√s), comma-separated")
     parser.add_argument("--write-card", metavar="SIGMA:WALK", help="record this offset state in --model's card, then stop")
     parser.add_argument("--chosen-by", default="", help="with --write-card: the commands and rule that chose it")
+    parser.add_argument(
+        "--drives",
+        type=Path,
+        nargs="+",
+        help="rendered validation drives to use as they are (e.g. runs/dpc/vlong/calib/*, `pvo dpc-net drives`), "
+        "instead of rendering --corpus's; each drive's VO is calibrated on the others given",
+    )
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("-o", "--out", type=Path, help="folder of the rendered drives (required but with --write-card)")
     args = parser.parse_args()
@@ -55,6 +69,8 @@ def main() -> None:
         biases = [()]
     if any(len(b) != 2 or min(b) <= 0.0 for b in biases):
         sys.exit(f"sun_bcnn_fusion_weight.py: --biases {args.biases!r}: give SIGMA:WALK positive pairs, comma-separated")
+    if args.drives is not None and len(args.drives) < 2:
+        sys.exit("sun_bcnn_fusion_weight.py: --drives: at least 2 (each drive's VO is calibrated on the others)")
     if args.sequences < 2:
         sys.exit(
             f"sun_bcnn_fusion_weight.py: --sequences {args.sequences}: at least 2 (each drive's VO is calibrated on the others)"
@@ -83,9 +99,15 @@ def main() -> None:
     try:
         lens = parse_lens(args.lens)
         model, card = load_sun_bcnn(resolve_model(args.model))
-        folders = render_fusion_sequences(
-            args.corpus, args.sequences, args.frames, args.out, args.jobs, print, lens, args.preset, split="validation"
-        )
+        if args.drives is not None:
+            folders = [Path(d) for d in args.drives]
+            missing = [str(d) for d in folders if not (d / "poses.txt").is_file() or not (d / "sun.csv").is_file()]
+            if missing:
+                raise ValueError(f"not a rendered drive (poses.txt and sun.csv): {', '.join(missing)}")
+        else:
+            folders = render_fusion_sequences(
+                args.corpus, args.sequences, args.frames, args.out, args.jobs, print, lens, args.preset, split="validation"
+            )
     except (ValueError, OSError, ModelFileError) as exc:
         sys.exit(f"sun_bcnn_fusion_weight.py: {exc}")
     inputs = [fusion_inputs(folder, model, card, 25) for folder in folders]

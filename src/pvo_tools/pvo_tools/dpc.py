@@ -170,17 +170,21 @@ def render_drives(
     return {rig: paths for rig, paths in folders.items() if rig in rigs}
 
 
+#: Files of a rendered drive that a wrong calib.txt leaves as they are (linked into the miscalibrated rig).
+UNCHANGED_SENSORS = ("sun.csv", "gps.csv", "imu.csv")
+
+
 def miscalibrate(source: Path, out: Path, focal_scale: float) -> Path:
-    """``source``'s sequence (its images and poses linked) with ``calib.txt``'s focal length (and so the P1
-    baseline term, -f b) times ``focal_scale``, and its ``sim.yaml`` saying so: what `pvo sim --focal-scale`
-    writes for the same images."""
+    """``source``'s sequence (its images, poses and the sensors a calibration does not change — sun, GPS, IMU —
+    linked) with ``calib.txt``'s focal length (and so the P1 baseline term, -f b) times ``focal_scale``, and its
+    ``sim.yaml`` saying so: what `pvo sim --focal-scale` writes for the same images."""
     import yaml
     from pvo_core.readers.kitti import read_kitti_calibration
 
     out.mkdir(parents=True, exist_ok=True)
-    for name in ("image_0", "image_1", "poses.txt", "times.txt"):
+    for name in ("image_0", "image_1", "poses.txt", "times.txt", *UNCHANGED_SENSORS):
         link = out / name
-        if not link.exists():
+        if not link.exists() and (source / name).exists():
             link.symlink_to((source / name).resolve())
     lines = []
     for key, matrix in read_kitti_calibration(source / "calib.txt").items():

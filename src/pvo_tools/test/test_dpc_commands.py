@@ -289,6 +289,30 @@ def test_the_report_says_how_a_card_weighs_its_corrections() -> None:
     assert "nothing fused" in fusion_summary(SimpleNamespace(calibration=refused))
 
 
+def test_a_miscalibrated_drive_links_what_the_calibration_does_not_change(tmp_path: Path) -> None:
+    """The focal-length rig shares the clean drive's images, truth and sensors (the sun, for Sun-BCNN's fusion on it)
+    and scales calib.txt's focal length, the -f b term with it."""
+    from pvo_core.readers.kitti import read_kitti_calibration
+    from pvo_tools import dpc
+
+    source = tmp_path / "clean"
+    (source / "image_0").mkdir(parents=True)
+    (source / "image_1").mkdir()
+    for name in ("poses.txt", "times.txt", "sun.csv", "gps.csv"):
+        (source / name).write_text(f"{name}\n")
+    p0 = "7.0e+02 0 3.1e+02 0 0 7.0e+02 9.4e+01 0 0 0 1 0"
+    p1 = "7.0e+02 0 3.1e+02 -3.78e+02 0 7.0e+02 9.4e+01 0 0 0 1 0"
+    (source / "calib.txt").write_text(f"P0: {p0}\nP1: {p1}\n")
+    (source / "sim.yaml").write_text("config:\n  degradations:\n    focal_scale: 1.0\n")
+    out = dpc.miscalibrate(source, tmp_path / "calib", 1.03)
+    for name in ("image_0", "image_1", "poses.txt", "times.txt", "sun.csv", "gps.csv"):
+        assert (out / name).is_symlink() and (out / name).resolve() == (source / name).resolve()
+    assert not (out / "imu.csv").exists()  # the clean drive has none
+    calibration = read_kitti_calibration(out / "calib.txt")
+    assert calibration["P0"].reshape(3, 4)[0, 0] == pytest.approx(721.0)
+    assert calibration["P1"].reshape(3, 4)[0, 3] == pytest.approx(-378.0 * 1.03)
+
+
 def test_drives_refuses_a_short_test_drive(tmp_path: Path, capsys) -> None:
     assert main(["dpc-net", "drives", str(tmp_path / "d"), "--split", "test", "--frames", "50"]) == 2
     assert "--frames must be >= 100 (segment errors need 100 m and more), got 50" in capsys.readouterr().err
