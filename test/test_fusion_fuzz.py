@@ -78,7 +78,7 @@ def sun_variants() -> list[Variant]:
     ]
 
 
-OFFSET_STATE = {"inputs.sun.bias_sigma": [0.5, 0.5], "inputs.sun.bias_walk_sigma": [0.03, 0.03]}  # the learned sun's
+OFFSET_STATE = {"inputs.sun.bias_sigma": [0.1, 0.1], "inputs.sun.bias_walk_sigma": [0.002, 0.002]}  # the learned sun's
 
 
 @pytest.mark.parametrize("offset_state", [False, True], ids=["independent-sun", "sun-offset-state"])
