@@ -293,6 +293,7 @@ def test_a_miscalibrated_drive_links_what_the_calibration_does_not_change(tmp_pa
     """The focal-length rig shares the clean drive's images, truth and sensors (the sun, for Sun-BCNN's fusion on it)
     and scales calib.txt's focal length, the -f b term with it."""
     from pvo_core.readers.kitti import read_kitti_calibration
+
     from pvo_tools import dpc
 
     source = tmp_path / "clean"
