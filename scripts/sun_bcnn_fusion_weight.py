@@ -71,6 +71,8 @@ def main() -> None:
         sys.exit(f"sun_bcnn_fusion_weight.py: --biases {args.biases!r}: give SIGMA:WALK positive pairs, comma-separated")
     if args.drives is not None and len(args.drives) < 2:
         sys.exit("sun_bcnn_fusion_weight.py: --drives: at least 2 (each drive's VO is calibrated on the others)")
+    if args.drives is not None and args.lens:
+        sys.exit("sun_bcnn_fusion_weight.py: --lens renders drives through a lens; --drives takes rendered ones as they are")
     if args.sequences < 2:
         sys.exit(
             f"sun_bcnn_fusion_weight.py: --sequences {args.sequences}: at least 2 (each drive's VO is calibrated on the others)"

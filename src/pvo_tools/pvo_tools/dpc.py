@@ -184,7 +184,7 @@ def miscalibrate(source: Path, out: Path, focal_scale: float) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     for name in ("image_0", "image_1", "poses.txt", "times.txt", *UNCHANGED_SENSORS):
         link = out / name
-        if not link.exists() and (source / name).exists():
+        if not link.exists() and (name not in UNCHANGED_SENSORS or (source / name).exists()):  # sensors: when recorded
             link.symlink_to((source / name).resolve())
     lines = []
     for key, matrix in read_kitti_calibration(source / "calib.txt").items():
