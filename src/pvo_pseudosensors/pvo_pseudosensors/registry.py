@@ -199,11 +199,13 @@ def _hydranet() -> ModelEntry:
             truth.append(true_relative_rotations(poses, predictions.earlier, predictions.frames))
         figures = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth))
         members = (card.calibration or {}).get("members")  # an ensemble stays one
+        density = (card.calibration or {}).get("feature_density")  # `pvo hydranet density`'s, kept
         card.calibration = {
             **figures,
             "sequences": float(len(sequences)),
             "mode": mode,
             **({"members": members} if members else {}),
+            **({"feature_density": density} if density else {}),
         }
         write_card(model_dir, card)
         return figures

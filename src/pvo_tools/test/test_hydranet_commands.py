@@ -120,6 +120,9 @@ def test_the_experiments_finetuning_tunes_an_ensemble_member_by_member(corpus: P
         assert main([*args, "--batch-size", "8", "--threads", "1", "--seed", seed, *TINY]) == 0
         models.append(tmp_path / seed)
     assert main(["hydranet", "ensemble", *map(str, models), "-o", str(tmp_path / "ensemble")]) == 0
+    assert (
+        main(["hydranet", "calibrate", "--model", str(tmp_path / "ensemble"), "--corpus", str(corpus), "--mode", "reversed"]) == 0
+    )
     _, card = load_hydranet(tmp_path / "ensemble")
     size = HydraNetConfig.from_card(card).size
     data = (FlowPairs([Source(corpus / "0000", "a")], size, reverse=True), FlowPairs([Source(corpus / "0002", "b")], size))
@@ -129,6 +132,7 @@ def test_the_experiments_finetuning_tunes_an_ensemble_member_by_member(corpus: P
         out = finetune(tmp_path / "ensemble", card, data, loop, tmp_path / "tuned", extra)
     tuned, tuned_card = load_hydranet(out)
     assert isinstance(tuned, HydraEnsemble) and tuned_card.calibration["members"] == ["members/member-1"]
+    assert tuned_card.calibration["mode"] == "reversed"  # tuned and judged as the model runs
     assert tuned_card.commands["ensemble"] == "pvo experiment hydranet ..."
     for i, original in enumerate(models):  # each member started from its own weights and moved
         before = load_hydranet(original)[0].state_dict()
@@ -249,3 +253,28 @@ def test_the_fusion_reference_takes_the_true_rotations_with_hydranets_covariance
         np.testing.assert_allclose(b.covariance, a.covariance)
         assert (a.stamp, a.reference_stamp) == (b.stamp, b.reference_stamp) == (stamps[k + 1], stamps[k])
         assert a.rotation_only and b.rotation_only
+
+
+def test_density_writes_its_card_entry_and_prints_its_figures(corpus: Path, tmp_path: Path, capsys) -> None:
+    import torch
+    from pvo_pseudosensors.hydranet.config import HydraNetConfig
+    from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask
+    from pvo_pseudosensors.learning.checkpoint import save_model
+
+    torch.manual_seed(0)
+    small = HydraNetConfig(height=48, width=144, widths=(8, 16), feature=8, heads=4, head_hidden=8)
+    model = save_model(tmp_path / "model", HydraNet(small), HydraTask(small).card())
+    args = ["hydranet", "density", "--model", str(model), "--corpus", str(corpus), "--shift-corpus", str(corpus)]
+    assert main(args) == 0  # 11 urban training pairs over 8 features
+    printed = capsys.readouterr().out
+    assert "feature density over 8 units fitted on 11 pairs" in printed
+    assert "validation 11 pairs" in printed and "shift      11 pairs" in printed and "ANEES" in printed
+    card = yaml.safe_load((model / "model.yaml").read_text())
+    assert card["calibration"]["feature_density"]["file"] == "feature_density.safetensors"
+    assert card["calibration"]["feature_density"]["quantile"] == 0.95
+    wide = HydraNetConfig(height=48, width=144, widths=(8, 16), feature=16, heads=4, head_hidden=8)
+    other = save_model(tmp_path / "wide", HydraNet(wide), HydraTask(wide).card())
+    assert main(["hydranet", "density", "--model", str(other), "--corpus", str(corpus), "--shift-corpus", str(corpus)]) == 2
+    assert "a density over 16 features needs more pairs than that, got 11" in capsys.readouterr().err
+    assert main([*args, "--preset", "desert"]) == 2
+    assert "no desert sequence in the train split" in capsys.readouterr().err

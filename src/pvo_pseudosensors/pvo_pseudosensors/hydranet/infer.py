@@ -9,11 +9,14 @@ from pathlib import Path
 import numpy as np
 import torch
 from numpy.typing import NDArray
+from pvo_core.lie import quaternion_to_rotation as quat_to_matrix
 from pvo_core.readers import ROTATION_PREDICTIONS_HEADER
+from pvo_core.trajectory import read_kitti_poses
 
 from ..learning.checkpoint import CARD, ModelCard, ModelFileError, load_model
 from ..learning.data import Source
 from .config import ARCHITECTURE, HydraNetConfig
+from .density import QUANTILE, SHRINKAGE, FeatureDensity, fit_density, fit_gamma, normalised_errors
 from .flow import FlowPairs, network_input
 from .model import HydraEnsemble, HydraNet, RotationNetwork, inference_mode, predict_rotations
 
@@ -27,6 +30,19 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
     directory = Path(directory)
     model, card = _load_one(directory)
     members = (card.calibration or {}).get("members") or []
+    density_entry = (card.calibration or {}).get("feature_density")
+    if density_entry is not None:
+        if members:
+            raise ModelFileError(f"{directory / CARD}: an ensemble cannot carry a feature density (its members' features differ)")
+        try:
+            model.density = FeatureDensity.load(directory, density_entry)
+        except ValueError as error:
+            raise ModelFileError(f"{directory / CARD}: {error}") from None
+        if model.density.features != model.config.feature:
+            raise ModelFileError(
+                f"{directory / CARD}: the feature density is over {model.density.features} units, the network gives "
+                f"{model.config.feature}"
+            )
     if not members:
         return model, card
     if not isinstance(members, list) or not all(isinstance(m, str) for m in members):
@@ -85,6 +101,8 @@ def write_ensemble(models: list[Path], out: Path, command: str = "") -> Path:
         _, card = load_hydranet(path)
         if (card.calibration or {}).get("members"):
             raise ValueError(f"{path}: already an ensemble; give its members instead")
+        if (card.calibration or {}).get("feature_density"):
+            raise ValueError(f"{path}: carries a feature density, which is of its own features; an ensemble cannot use it")
         cards.append(card)
     inputs = [HydraNetConfig.from_card(c) for c in cards]
     if len({_network_input(c) for c in inputs}) > 1:
@@ -153,15 +171,12 @@ def predict_flows(
     return tuple(torch.cat([getattr(p, name) for p in parts]).numpy() for name in ("quaternion", "epistemic", "aleatoric"))  # type: ignore[return-value]
 
 
-def predict_sequence(
-    model: RotationNetwork, card: ModelCard, sequence: Path, batch: int = 64, cache_dir: Path | None = None
-) -> RotationPredictions:
-    """Every consecutive pair of ``sequence``'s left images (KITTI layout; poses.txt not needed), run as the
-    card's ``calibration.mode`` says (plain, mirrored or reversed)."""
-    config = HydraNetConfig.from_card(card)
-    mode = inference_mode(card)
+def sequence_inputs(
+    config: HydraNetConfig, sequence: Path, reverse: bool = False, cache_dir: Path | None = None
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The network inputs (N, C, H, W) of every consecutive pair of ``sequence``'s left images, forward, and
+    (``reverse``) from the later image to the earlier (else None)."""
     sequence = Path(sequence)
-    reverse = mode == "reversed"
     data = FlowPairs([Source(sequence, sequence.name)], config.size, reverse=reverse, cache_dir=cache_dir, targets=False)
     pairs = data.pairs[0]
 
@@ -173,6 +188,126 @@ def predict_sequence(
 
     forward = inputs(pairs.forward, pairs.images[:-1])
     backward = inputs(pairs.backward, pairs.images[1:]) if reverse and pairs.backward is not None else None
+    return forward, backward
+
+
+def sequence_features(
+    model: HydraNet, card: ModelCard, sequence: Path, batch: int = 64, cache_dir: Path | None = None
+) -> torch.Tensor:
+    """The body's features (N, feature) of every consecutive pair of ``sequence``'s left images, read forward."""
+    forward, _ = sequence_inputs(HydraNetConfig.from_card(card), sequence, cache_dir=cache_dir)
+    model.eval()
+    with torch.no_grad():
+        return torch.cat([model.forward_features(forward[i : i + batch])[2] for i in range(0, len(forward), batch)]).double()
+
+
+def predict_sequence(
+    model: RotationNetwork, card: ModelCard, sequence: Path, batch: int = 64, cache_dir: Path | None = None
+) -> RotationPredictions:
+    """Every consecutive pair of ``sequence``'s left images (KITTI layout; poses.txt not needed), run as the
+    card's ``calibration.mode`` says (plain, mirrored or reversed)."""
+    mode = inference_mode(card)
+    forward, backward = sequence_inputs(HydraNetConfig.from_card(card), sequence, mode == "reversed", cache_dir)
     quaternions, epistemic, aleatoric = predict_flows(model, forward, batch, mode == "mirrored", backward)
     frames = np.arange(1, len(forward) + 1)
     return RotationPredictions(frames - 1, frames, quaternions, epistemic, aleatoric)
+
+
+#: A sequence directory and the flow cache its pairs are kept in (None: none).
+CachedSequence = tuple[Path, "Path | None"]
+
+
+@dataclass
+class DensityCalibration:
+    """What :func:`calibrate_density` fitted and measured: the density (gamma fitted), the pairs it was fitted on,
+    and the figures (:func:`~.evaluation.evaluate_rotations`' keys, plus ``widened``: the share of pairs whose
+    covariance grows) of the in-distribution validation pairs and of the shift's pairs, without and with it."""
+
+    density: FeatureDensity
+    fitting_pairs: int
+    validation_before: dict[str, float]
+    validation_after: dict[str, float]
+    shift_before: dict[str, float]
+    shift_after: dict[str, float]
+
+
+def calibrate_density(
+    directory: Path,
+    fitting: list[CachedSequence],
+    validation: list[CachedSequence],
+    shift: list[CachedSequence],
+    quantile: float = QUANTILE,
+    components: int | None = None,
+    shrinkage: float = SHRINKAGE,
+) -> DensityCalibration:
+    """Fit a :class:`~.density.FeatureDensity` for the model in ``directory`` (:mod:`.density`): the Gaussian of its
+    features over the ``fitting`` sequences' pairs (``shrinkage``; along its ``components`` leading directions,
+    None: all), the median and ``quantile`` over the in-distribution ``validation`` ones, gamma so that the ANEES
+    over the ``shift`` sequences' pairs (a shift of the input the model was not trained on) is 1; written into the
+    card (``calibration.feature_density`` and the density file beside the weights; the card's other calibration
+    kept). Every sequence needs its poses.txt but the fitting ones."""
+    from ..learning.checkpoint import write_card
+    from .evaluation import evaluate_rotations, rotation_errors, true_relative_rotations
+
+    directory = Path(directory)
+    model, card = load_hydranet(directory)
+    if isinstance(model, HydraEnsemble):
+        raise ValueError(f"{directory}: an ensemble cannot carry a feature density (its members' features differ)")
+    if not (fitting and validation and shift):
+        raise ValueError("a feature density needs fitting, validation and shift sequences, each at least one")
+    model.density = None  # figures "before" are the model's own covariances
+
+    def features(sequences: list[CachedSequence]) -> torch.Tensor:
+        return torch.cat([sequence_features(model, card, s, cache_dir=c) for s, c in sequences])
+
+    def predictions(sequences: list[CachedSequence]) -> tuple[Array, Array, Array]:
+        quaternions, covariances, truth = [], [], []
+        for sequence, cache in sequences:
+            predicted = predict_sequence(model, card, sequence, cache_dir=cache)
+            poses = read_kitti_poses(Path(sequence) / "poses.txt")
+            quaternions.append(predicted.quaternions)
+            covariances.append(predicted.covariance)
+            truth.append(true_relative_rotations(poses, predicted.earlier, predicted.frames))
+        return np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth)
+
+    fitting_features = features(fitting)
+    validation_features = features(validation)
+    density = fit_density(fitting_features, validation_features, shrinkage, quantile, components)
+    shift_features = features(shift)
+    shift_q, shift_covariances, shift_truth = predictions(shift)
+    estimates = np.stack([quat_to_matrix(q) for q in shift_q])
+    errors = torch.from_numpy(rotation_errors(estimates, shift_truth))
+    nees = normalised_errors(errors, torch.from_numpy(shift_covariances))
+    density = density.with_gamma(fit_gamma(nees, density.scores(shift_features), density.threshold))
+
+    def figures(quaternions: Array, covariances: Array, truth: Array, inflation: torch.Tensor | None) -> dict[str, float]:
+        if inflation is None:
+            return evaluate_rotations(quaternions, covariances, truth)
+        widened = covariances * inflation.numpy()[:, None, None]
+        return {**evaluate_rotations(quaternions, widened, truth), "widened": float((inflation > 1.0).double().mean())}
+
+    validation_q, validation_covariances, validation_truth = predictions(validation)
+    calibration = DensityCalibration(
+        density,
+        len(fitting_features),
+        figures(validation_q, validation_covariances, validation_truth, None),
+        figures(validation_q, validation_covariances, validation_truth, density.inflation(validation_features)),
+        figures(shift_q, shift_covariances, shift_truth, None),
+        figures(shift_q, shift_covariances, shift_truth, density.inflation(shift_features)),
+    )
+    entry = density.save(directory)
+    card.calibration = {
+        **(card.calibration or {}),
+        "feature_density": {
+            **entry,
+            "fitting_pairs": calibration.fitting_pairs,
+            "quantile": quantile,
+            "shrinkage": shrinkage,
+            "components": components or density.features,
+            "validation_anees": calibration.validation_after["anees"],
+            "shift_anees_before": calibration.shift_before["anees"],
+            "shift_anees": calibration.shift_after["anees"],
+        },
+    }
+    write_card(directory, card)
+    return calibration

@@ -77,11 +77,16 @@ class HydraNet(nn.Module):
         """flow (B, C, H, W): the flow in pixels (and the texture channel) -> the heads' unit quaternions
         (B, heads, 4) of C_k,k-1 (w >= 0) and the lower-triangular Cholesky factor L (B, 3, 3) of the aleatoric
         precision Sigma_a^-1 = L L^T."""
+        heads, root, _ = self.forward_features(flow)
+        return heads, root
+
+    def forward_features(self, flow: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`forward`'s heads and Cholesky factor, and the body's features (B, feature) the heads read."""
         features = self.feature(self.body(flow))
         heads = torch.stack([head(features) for head in self.heads], dim=1)
         heads = nn.functional.normalize(heads, dim=-1)
         heads = torch.where(heads[..., :1] < 0.0, -heads, heads)
-        return heads, precision_root(self.covariance(features))
+        return heads, precision_root(self.covariance(features)), features
 
 
 class HydraEnsemble(nn.Module):
@@ -239,10 +244,17 @@ def predict_rotations(
     shows as epistemic spread — and Sigma_a is the mean of the two aleatoric outputs (the mirrored one
     conjugated by the mirror, diag(1, -1, -1) on the rotation vector). ``reversed_flow``: the same pairs' inputs
     from the later image to the earlier (B, C, H, W), which the network reads as C_k-1,k; those heads, inverted,
-    are pooled the same way, their Sigma_a carried into C_k,k-1's left tangent space (R Sigma R^T, R = C_k,k-1)."""
+    are pooled the same way, their Sigma_a carried into C_k,k-1's left tangent space (R Sigma R^T, R = C_k,k-1).
+    A network with a ``density`` (:class:`~.density.FeatureDensity`, attached by :func:`~.infer.load_hydranet` from
+    its card) widens each pair's covariance by the density's factor g of the pair's features (as ``flow`` gives
+    them), the added part counted in Sigma_e."""
     model.eval()
+    density = getattr(model, "density", None)
     with torch.no_grad():
-        heads, root = model(flow)
+        if density is not None:
+            heads, root, features = model.forward_features(flow)
+        else:
+            heads, root = model(flow)
         heads, root = heads.double(), root.double()
         aleatoric = [torch.linalg.inv(root @ root.transpose(-1, -2))]
         if mirrored:
@@ -264,7 +276,11 @@ def predict_rotations(
     if inverse is not None:
         rotation = quat.rotation_matrix(mean)
         aleatoric.append(rotation @ inverse @ rotation.transpose(-1, -2))
-    return RotationOutput(mean, quat.epistemic_covariance(heads, mean), torch.stack(aleatoric).mean(dim=0))
+    epistemic, aleatoric_mean = quat.epistemic_covariance(heads, mean), torch.stack(aleatoric).mean(dim=0)
+    if density is not None:  # pairs unlike the data the model was made for: their covariance widened, as epistemic
+        extra = density.inflation(features.double()) - 1.0
+        epistemic = epistemic + extra[:, None, None] * (epistemic + aleatoric_mean)
+    return RotationOutput(mean, epistemic, aleatoric_mean)
 
 
 def inference_mode(card: Any) -> str:

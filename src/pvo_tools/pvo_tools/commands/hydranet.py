@@ -1,5 +1,6 @@
 """`pvo hydranet ensemble`: independently trained HydraNets made one model directory (the generated train /
-predict / eval / calibrate of :mod:`.models` take it like any other)."""
+predict / eval / calibrate of :mod:`.models` take it like any other); `pvo hydranet density`: the feature density
+that widens the covariance of pairs unlike the model's data (:mod:`pvo_pseudosensors.hydranet.density`)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,79 @@ def register_actions(actions: Any, entry: Any) -> None:
     ensemble.set_defaults(handler=run_ensemble)
     ensemble.add_argument("models", type=Path, nargs="+", help="model directories (at least two, the same input size)")
     ensemble.add_argument("--out", "-o", type=Path, required=True, help="new model directory (copies of the weights)")
+    register_density(actions)
+
+
+def register_density(actions: Any) -> None:
+    density = actions.add_parser(
+        "density",
+        help="fit the feature density that widens the covariance of pairs unlike the model's data: fitted on a "
+        "corpus's training pairs, thresholded on its validation pairs, its power chosen so that a shifted corpus "
+        "reads consistent; written into the model's card",
+    )
+    density.set_defaults(handler=run_density)
+    density.add_argument("--model", type=Path, required=True, help="model directory (its card is rewritten)")
+    density.add_argument("--corpus", type=Path, required=True, help="in-distribution corpus: its train and validation splits")
+    density.add_argument("--preset", default="urban", help="the corpus's preset to take (default urban)")
+    density.add_argument(
+        "--shift-corpus",
+        type=Path,
+        required=True,
+        help="a corpus of a shift the model was not trained on (e.g. faster drives): its validation split",
+    )
+    density.add_argument(
+        "--quantile",
+        type=float,
+        default=0.95,
+        help="the quantile of the validation pairs' distances below which no covariance is widened (default 0.95)",
+    )
+    density.add_argument(
+        "--components",
+        type=int,
+        help="measure the distance along only this many leading principal directions of the features (default all)",
+    )
+    density.add_argument(
+        "--shrinkage",
+        type=float,
+        default=0.1,
+        help="share of the features' covariance shrunk toward its mean variance (default 0.1)",
+    )
+
+
+def run_density(args: argparse.Namespace) -> int:
+    from pvo_core.readers import read_corpus_manifest
+    from pvo_pseudosensors.hydranet.infer import calibrate_density
+
+    def sequences(corpus: Path, split: str, preset: str | None) -> list[tuple[Path, Path]]:
+        manifest = read_corpus_manifest(corpus)
+        chosen = [(s.root, manifest.path.parent / ".cache") for s in manifest.split(split) if preset in (None, s.preset)]
+        if not chosen:
+            raise ValueError(f"{corpus}: no {preset or ''} sequence in the {split} split".replace("  ", " "))
+        return chosen
+
+    calibration = calibrate_density(
+        args.model,
+        sequences(args.corpus, "train", args.preset),
+        sequences(args.corpus, "validation", args.preset),
+        sequences(args.shift_corpus, "validation", None),
+        quantile=args.quantile,
+        components=args.components,
+        shrinkage=args.shrinkage,
+    )
+    density = calibration.density
+    print(
+        f"{args.model}: feature density over {density.features} units fitted on {calibration.fitting_pairs} pairs; "
+        f"widening above r = {density.threshold:.3f} with power {density.gamma:.4f}"
+    )
+    for label, before, after in (
+        ("validation", calibration.validation_before, calibration.validation_after),
+        ("shift", calibration.shift_before, calibration.shift_after),
+    ):
+        print(
+            f"  {label:<10} {int(before['pairs'])} pairs, mean error {before['angle_mean_deg']:.4f} deg: ANEES "
+            f"{before['anees']:.3f} -> {after['anees']:.3f}, {100 * after['widened']:.1f} % of the pairs widened"
+        )
+    return 0
 
 
 def run_ensemble(args: argparse.Namespace) -> int:

@@ -560,11 +560,14 @@ def real_images_section(
 
 def finetune(model_dir: Path, card: Any, data: tuple[Any, Any], loop: Any, out: Path, card_extra: dict) -> Path:
     """``model_dir``'s network fine-tuned on ``data`` (training, validation FlowPairs) into ``out``; an ensemble
-    member by member (``out``-member-<i>), then made one again in ``out`` (:func:`write_ensemble`)."""
+    member by member (``out``-member-<i>), then made one again in ``out`` (:func:`write_ensemble`). The tuned card
+    keeps the inference mode of ``card`` (a mirrored or reversed model is tuned and judged in that mode); a feature
+    density is not carried (it is of the features before tuning)."""
     from pvo_pseudosensors.hydranet.config import HydraNetConfig
     from pvo_pseudosensors.hydranet.infer import write_ensemble
-    from pvo_pseudosensors.hydranet.model import HydraTask
+    from pvo_pseudosensors.hydranet.model import HydraTask, inference_mode
     from pvo_pseudosensors.learning import fit
+    from pvo_pseudosensors.learning.checkpoint import read_card, write_card
     from pvo_pseudosensors.learning.training import FineTune
 
     members = [model_dir, *(model_dir / m for m in (card.calibration or {}).get("members") or [])]
@@ -575,6 +578,9 @@ def finetune(model_dir: Path, card: Any, data: tuple[Any, Any], loop: Any, out: 
     if len(members) > 1:
         shutil.rmtree(out, ignore_errors=True)  # the ensemble an earlier run wrote there
         write_ensemble(tuned, out, card_extra.get("commands", {}).get("finetune", ""))
+    tuned_card = read_card(out)
+    tuned_card.calibration = {**(tuned_card.calibration or {}), "mode": inference_mode(card)}
+    write_card(out, tuned_card)
     return out
 
 
