@@ -78,6 +78,10 @@ class CorpusConfig:
     # ``speed_scale``): KITTI's training drives exceed 15 m/s in under 2 % of their frames, the validation drive 04
     # in 37 % (1, 1: as driven, nothing drawn)
     kitti_speed_scale: tuple[float, float] = (1.0, 1.0)
+    # each urban sequence's cameras pitched down by a draw from this range (degrees): the corpus draws urban cameras
+    # level and planetary ones pitched 0-25 deg, and a body that only saw level cameras misreads a pitched camera's
+    # flow (0, 0: level, nothing drawn, the draws of a corpus without it)
+    urban_pitch: tuple[float, float] = (0.0, 0.0)
     # one lens for the whole corpus (the rig DPC-Net learns to correct): plumb-bob k1 [k2 k3] on every sequence,
     # instead of the drawn distortion
     lens_distortion: tuple[float, ...] = ()
@@ -121,6 +125,10 @@ class CorpusConfig:
         if len(self.kitti_speed_scale) != 2 or not 0.25 <= self.kitti_speed_scale[0] <= self.kitti_speed_scale[1] <= 4.0:
             raise ValueError(
                 f"--kitti-speed-scale must be two factors LO HI with 0.25 <= LO <= HI <= 4, got {list(self.kitti_speed_scale)}"
+            )
+        if len(self.urban_pitch) != 2 or not 0.0 <= self.urban_pitch[0] <= self.urban_pitch[1] <= 45.0:
+            raise ValueError(
+                f"--urban-pitch must be two angles LO HI with 0 <= LO <= HI <= 45 degrees, got {list(self.urban_pitch)}"
             )
         if self.kitti_poses:
             if set(self.kitti_train) & set(self.kitti_test) or set(self.kitti_validation) & set(self.kitti_test):
@@ -191,7 +199,10 @@ def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
         conditions.append("overcast")
     path = PATH_KINDS[int(rng.integers(len(PATH_KINDS)))]
     speed = float(rng.uniform(4.0, 12.0) if preset == "urban" else rng.uniform(0.8, 4.0))
-    pitch = 0.0 if preset == "urban" else float(rng.uniform(0.0, 25.0))
+    if preset == "urban":
+        pitch = float(rng.uniform(*corpus.urban_pitch)) if corpus.urban_pitch[1] > 0.0 else 0.0
+    else:
+        pitch = float(rng.uniform(0.0, 25.0))
     height = 1.65 if preset == "urban" else float(rng.uniform(0.9, 1.8))
     blur = float(rng.uniform(2.0, 8.0)) if rng.random() < corpus.motion_blur else 0.0
     exposure = float(rng.uniform(0.1, 0.4)) if rng.random() < corpus.exposure_changes else 0.0

@@ -102,6 +102,25 @@ def test_kitti_windows_can_be_replayed_faster(tmp_path: Path) -> None:
         kitti_corpus(drives, 8, 20, kitti_speed_scale=(1.0, 4.0))
 
 
+def test_urban_cameras_can_be_pitched_and_the_default_draws_stay() -> None:
+    """With --urban-pitch every urban sequence's camera is pitched down by a draw from the range, the planetary ones
+    as before; without it the plans are those of a corpus made before the option (urban level, the same draws)."""
+    pitched = CorpusConfig(sequences=60, frames=10, seed=3, urban_pitch=(5.0, 25.0))
+    level = CorpusConfig(sequences=60, frames=10, seed=3)
+    plans = [plan_sequence(pitched, i) for i in range(60)]
+    before = [plan_sequence(level, i) for i in range(60)]
+    urban = np.array([p.config.pitch_deg for p in plans if p.config.preset == "urban"])
+    assert len(urban) > 15 and urban.min() >= 5.0 and urban.max() <= 25.0 and np.ptp(urban) > 10.0
+    assert {p.config.pitch_deg for p in before if p.config.preset == "urban"} == {0.0}
+    assert [p.split for p in plans] == [p.split for p in before] and [p.config.preset for p in plans] == [
+        p.config.preset for p in before
+    ]
+    assert plan_sequence(CorpusConfig(sequences=60, frames=10, seed=3, urban_pitch=(0.0, 0.0)), 7) == before[7]
+    for bad in ((10.0, 5.0), (0.0, 50.0), (-1.0, 5.0)):
+        with pytest.raises(ValueError, match="--urban-pitch must be two angles LO HI with 0 <= LO <= HI <= 45 degrees"):
+            CorpusConfig(sequences=2, frames=10, urban_pitch=bad)
+
+
 def test_a_corpus_made_before_a_new_option_is_kept(tmp_path: Path) -> None:
     """A manifest recorded before a field was added to SimConfig still matches plans that leave it at its default
     (nothing re-rendered); a plan that sets it does not match."""

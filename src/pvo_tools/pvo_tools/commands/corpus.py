@@ -103,6 +103,15 @@ def register(sub: Any) -> None:
         help="replay each window's drive faster by a factor drawn uniformly from [LO, HI] (e.g. 1 1.6: KITTI's urban "
         "drives rarely exceed 15 m/s; default 1 1: as driven)",
     )
+    corpus.add_argument(
+        "--urban-pitch",
+        type=float,
+        nargs=2,
+        default=(0.0, 0.0),
+        metavar=("LO", "HI"),
+        help="pitch each urban sequence's cameras down by an angle drawn uniformly from [LO, HI] degrees (planetary "
+        "ones are drawn in [0, 25]; default 0 0: level)",
+    )
 
 
 # CorpusConfig's per-sequence degradation shares, each a `pvo sim corpus` option of the same name
@@ -148,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
         sky=args.sky,
         kitti_level_frames=args.kitti_level_frames,
         kitti_speed_scale=tuple(args.kitti_speed_scale),  # type: ignore[arg-type]
+        urban_pitch=tuple(args.urban_pitch),  # type: ignore[arg-type]
         lens_distortion=tuple(args.lens_distortion),
         calib_focal_scale=args.calib_focal_scale,
         calib_baseline_scale=args.calib_baseline_scale,
