@@ -358,3 +358,7 @@ def test_a_card_names_the_command_that_mirrored_its_corpus(corpus: Path, tmp_pat
     data["corpus"]["sky"] = "sun"
     (sky / "manifest.yaml").write_text(yaml.safe_dump(data))
     assert " --sky sun" in _corpus_command(read_corpus_manifest(sky))
+    assert "--urban-pitch" not in _corpus_command(read_corpus_manifest(corpus))
+    data["corpus"]["urban_pitch"] = [0.0, 25.0]
+    (sky / "manifest.yaml").write_text(yaml.safe_dump(data))
+    assert " --urban-pitch 0 25" in _corpus_command(read_corpus_manifest(sky))

@@ -182,6 +182,8 @@ def _corpus_command(manifest: Any) -> str:
     for name in DEGRADATION_SHARES:
         if name in data and float(data[name]) != getattr(defaults, name):
             colour += f" --{name.replace('_', '-')} {float(data[name]):g}"
+    if data.get("urban_pitch") and [float(v) for v in data["urban_pitch"]] != [0.0, 0.0]:
+        colour += " --urban-pitch " + " ".join(f"{float(v):g}" for v in data["urban_pitch"])
     shares = data.get("split")
     if shares and [round(float(v), 6) for v in shares] != [0.7, 0.15, 0.15]:  # `pvo sim corpus`'s default shares
         colour += " --split " + ",".join(f"{float(v):g}" for v in shares)
