@@ -266,7 +266,9 @@ def test_density_writes_its_card_entry_and_prints_its_figures(corpus: Path, tmp_
     model = save_model(tmp_path / "model", HydraNet(small), HydraTask(small).card())
     args = ["hydranet", "density", "--model", str(model), "--corpus", str(corpus), "--shift-corpus", str(corpus)]
     assert main(args) == 0  # 11 urban training pairs over 8 features
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
+    assert "features and predictions of 1 shift sequences ..." in captured.err  # each stage as it starts
     assert "feature density over 8 units fitted on 11 pairs" in printed
     assert "validation 11 pairs" in printed and "shift      11 pairs" in printed and "ANEES" in printed
     card = yaml.safe_load((model / "model.yaml").read_text())

@@ -3,6 +3,7 @@ rotation with Sigma = Sigma_e + Sigma_a per pair, and the prediction file."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -239,13 +240,14 @@ def calibrate_density(
     quantile: float = QUANTILE,
     components: int | None = None,
     shrinkage: float = SHRINKAGE,
+    say: Callable[[str], None] = lambda _: None,
 ) -> DensityCalibration:
     """Fit a :class:`~.density.FeatureDensity` for the model in ``directory`` (:mod:`.density`): the Gaussian of its
     features over the ``fitting`` sequences' pairs (``shrinkage``; along its ``components`` leading directions,
     None: all), the median and ``quantile`` over the in-distribution ``validation`` ones, gamma so that the ANEES
     over the ``shift`` sequences' pairs (a shift of the input the model was not trained on) is 1; written into the
     card (``calibration.feature_density`` and the density file beside the weights; the card's other calibration
-    kept). Every sequence needs its poses.txt but the fitting ones."""
+    kept). Every sequence needs its poses.txt but the fitting ones; ``say`` hears each stage as it starts."""
     from ..learning.checkpoint import write_card
     from .evaluation import evaluate_rotations, rotation_errors, true_relative_rotations
 
@@ -257,24 +259,42 @@ def calibrate_density(
         raise ValueError("a feature density needs fitting, validation and shift sequences, each at least one")
     model.density = None  # figures "before" are the model's own covariances
 
-    def features(sequences: list[CachedSequence]) -> torch.Tensor:
-        return torch.cat([sequence_features(model, card, s, cache_dir=c) for s, c in sequences])
+    config = HydraNetConfig.from_card(card)
+    mode = inference_mode(card)
 
-    def predictions(sequences: list[CachedSequence]) -> tuple[Array, Array, Array]:
-        quaternions, covariances, truth = [], [], []
+    def features(inputs: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            return torch.cat([model.forward_features(inputs[i : i + 64])[2] for i in range(0, len(inputs), 64)]).double()
+
+    def fitting_features(sequences: list[CachedSequence]) -> torch.Tensor:
+        return torch.cat([features(sequence_inputs(config, s, cache_dir=c)[0]) for s, c in sequences])
+
+    def measured(sequences: list[CachedSequence]) -> tuple[torch.Tensor, Array, Array, Array]:
+        """Features, quaternions, covariances (the model's own) and true rotations of every pair, each
+        sequence's flows read once."""
+        parts: list[list] = [[], [], [], []]
         for sequence, cache in sequences:
-            predicted = predict_sequence(model, card, sequence, cache_dir=cache)
+            forward, backward = sequence_inputs(config, sequence, mode == "reversed", cache)
+            quaternions, epistemic, aleatoric = predict_flows(
+                model, forward, mirrored=mode == "mirrored", reversed_flows=backward
+            )
             poses = read_kitti_poses(Path(sequence) / "poses.txt")
-            quaternions.append(predicted.quaternions)
-            covariances.append(predicted.covariance)
-            truth.append(true_relative_rotations(poses, predicted.earlier, predicted.frames))
-        return np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth)
+            frames = np.arange(1, len(forward) + 1)
+            for part, value in zip(
+                parts,
+                (features(forward), quaternions, epistemic + aleatoric, true_relative_rotations(poses, frames - 1, frames)),
+                strict=True,
+            ):
+                part.append(value)
+        return torch.cat(parts[0]), np.vstack(parts[1]), np.concatenate(parts[2]), np.concatenate(parts[3])
 
-    fitting_features = features(fitting)
-    validation_features = features(validation)
-    density = fit_density(fitting_features, validation_features, shrinkage, quantile, components)
-    shift_features = features(shift)
-    shift_q, shift_covariances, shift_truth = predictions(shift)
+    say(f"features of {len(fitting)} fitting sequences")
+    fitted_on = fitting_features(fitting)
+    say(f"features and predictions of {len(validation)} validation sequences")
+    validation_features, validation_q, validation_covariances, validation_truth = measured(validation)
+    density = fit_density(fitted_on, validation_features, shrinkage, quantile, components)
+    say(f"features and predictions of {len(shift)} shift sequences")
+    shift_features, shift_q, shift_covariances, shift_truth = measured(shift)
     estimates = np.stack([quat_to_matrix(q) for q in shift_q])
     errors = torch.from_numpy(rotation_errors(estimates, shift_truth))
     nees = normalised_errors(errors, torch.from_numpy(shift_covariances))
@@ -286,10 +306,9 @@ def calibrate_density(
         widened = covariances * inflation.numpy()[:, None, None]
         return {**evaluate_rotations(quaternions, widened, truth), "widened": float((inflation > 1.0).double().mean())}
 
-    validation_q, validation_covariances, validation_truth = predictions(validation)
     calibration = DensityCalibration(
         density,
-        len(fitting_features),
+        len(fitted_on),
         figures(validation_q, validation_covariances, validation_truth, None),
         figures(validation_q, validation_covariances, validation_truth, density.inflation(validation_features)),
         figures(shift_q, shift_covariances, shift_truth, None),

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,7 @@ def run_density(args: argparse.Namespace) -> int:
         quantile=args.quantile,
         components=args.components,
         shrinkage=args.shrinkage,
+        say=lambda stage: print(f"pvo hydranet density: {stage} ...", file=sys.stderr, flush=True),
     )
     density = calibration.density
     print(
