@@ -192,14 +192,19 @@ def sequence_inputs(
     return forward, backward
 
 
+def body_features(model: HydraNet, inputs: torch.Tensor, batch: int = 64) -> torch.Tensor:
+    """The body's features (N, feature) of network inputs (N, C, H, W), in batches, eval mode (float64)."""
+    model.eval()
+    with torch.no_grad():
+        return torch.cat([model.forward_features(inputs[i : i + batch])[2] for i in range(0, len(inputs), batch)]).double()
+
+
 def sequence_features(
     model: HydraNet, card: ModelCard, sequence: Path, batch: int = 64, cache_dir: Path | None = None
 ) -> torch.Tensor:
     """The body's features (N, feature) of every consecutive pair of ``sequence``'s left images, read forward."""
     forward, _ = sequence_inputs(HydraNetConfig.from_card(card), sequence, cache_dir=cache_dir)
-    model.eval()
-    with torch.no_grad():
-        return torch.cat([model.forward_features(forward[i : i + batch])[2] for i in range(0, len(forward), batch)]).double()
+    return body_features(model, forward, batch)
 
 
 def predict_sequence(
@@ -262,31 +267,22 @@ def calibrate_density(
     config = HydraNetConfig.from_card(card)
     mode = inference_mode(card)
 
-    def features(inputs: torch.Tensor) -> torch.Tensor:
-        with torch.no_grad():
-            return torch.cat([model.forward_features(inputs[i : i + 64])[2] for i in range(0, len(inputs), 64)]).double()
-
     def fitting_features(sequences: list[CachedSequence]) -> torch.Tensor:
-        return torch.cat([features(sequence_inputs(config, s, cache_dir=c)[0]) for s, c in sequences])
+        return torch.cat([sequence_features(model, card, s, cache_dir=c) for s, c in sequences])
 
     def measured(sequences: list[CachedSequence]) -> tuple[torch.Tensor, Array, Array, Array]:
         """Features, quaternions, covariances (the model's own) and true rotations of every pair, each
         sequence's flows read once."""
-        parts: list[list] = [[], [], [], []]
+        features, quaternions, covariances, truth = [], [], [], []
         for sequence, cache in sequences:
             forward, backward = sequence_inputs(config, sequence, mode == "reversed", cache)
-            quaternions, epistemic, aleatoric = predict_flows(
-                model, forward, mirrored=mode == "mirrored", reversed_flows=backward
-            )
-            poses = read_kitti_poses(Path(sequence) / "poses.txt")
+            q, epistemic, aleatoric = predict_flows(model, forward, mirrored=mode == "mirrored", reversed_flows=backward)
             frames = np.arange(1, len(forward) + 1)
-            for part, value in zip(
-                parts,
-                (features(forward), quaternions, epistemic + aleatoric, true_relative_rotations(poses, frames - 1, frames)),
-                strict=True,
-            ):
-                part.append(value)
-        return torch.cat(parts[0]), np.vstack(parts[1]), np.concatenate(parts[2]), np.concatenate(parts[3])
+            features.append(body_features(model, forward))
+            quaternions.append(q)
+            covariances.append(epistemic + aleatoric)
+            truth.append(true_relative_rotations(read_kitti_poses(Path(sequence) / "poses.txt"), frames - 1, frames))
+        return torch.cat(features), np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth)
 
     say(f"features of {len(fitting)} fitting sequences")
     fitted_on = fitting_features(fitting)
