@@ -153,6 +153,7 @@ def _hydranet() -> ModelEntry:
             cache_dir=cache_dir,
             progress=progress,
             texture=config.texture,
+            pitch=config.pitch,
         )
 
     def predict(model_dir, sequence, cache_dir=None, **_mc):
@@ -249,6 +250,7 @@ def _hydranet() -> ModelEntry:
             "bootstrap": "each head trains on its own fixed half of the samples (bootstrapped heads)",
             "mirror": "mirror training pairs left-right at random (flow flipped, the rotation's y and z negated)",
             "texture": "a third input channel: the texture (log gradient magnitude) of the image the flow starts from",
+            "pitch": "one more input channel: the camera's pitch below the horizon (from each sequence's sim.yaml)",
         },
     )
 

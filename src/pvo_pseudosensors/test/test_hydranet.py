@@ -236,6 +236,52 @@ def test_the_texture_channel_is_the_log_gradient_of_the_image_the_flow_starts_fr
     torch.testing.assert_close(mirrored[0, 2], forward["flow"][2].flip(-1))
 
 
+def test_the_pitch_channel_is_the_camera_pitch_its_sim_yaml_records(rotations, tmp_path: Path) -> None:
+    import shutil
+
+    from pvo_core.errors import DataFormatError
+
+    source = rotations["train"][0]
+    with pytest.raises(DataFormatError, match="needs the camera's pitch"):
+        FlowPairs([source], (48, 144), cache_dir=tmp_path, pitch=True)
+    copy = tmp_path / "pitched"
+    shutil.copytree(source.root, copy)
+    (copy / "sim.yaml").write_text("config:\n  pitch_deg: 12.5\n")
+    pitched = FlowPairs([Source(copy, "pitched")], (48, 144), cache_dir=tmp_path, pitch=True)
+    plain = FlowPairs([source], (48, 144), cache_dir=tmp_path)
+    sample = pitched[4]
+    assert sample["flow"].shape == (3, 48, 144)
+    torch.testing.assert_close(sample["flow"][:2], plain[4]["flow"])
+    assert torch.all(sample["flow"][2] == 1.25)  # 12.5 deg / 10
+    (copy / "sim.yaml").write_text("config: {}\n")
+    with pytest.raises(DataFormatError, match="pitch_deg"):
+        FlowPairs([Source(copy, "pitched")], (48, 144), cache_dir=tmp_path, pitch=True)
+    assert HydraNetConfig(pitch=True, texture=True).channels == 4
+
+
+def test_a_pitched_model_predicts_through_the_sensor_and_the_sequence_call_alike(rotations, tmp_path: Path) -> None:
+    import shutil
+
+    import cv2
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+    from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+
+    config = HydraNetConfig(**{**TINY.__dict__, "pitch": True})
+    torch.manual_seed(0)
+    save_model(tmp_path / "model", HydraNet(config), HydraTask(config).card())
+    model, card = load_hydranet(tmp_path / "model")
+    sequence = tmp_path / "pitched"
+    shutil.copytree(rotations["test"][0].root, sequence)
+    (sequence / "sim.yaml").write_text("config:\n  pitch_deg: 20.0\n")
+    predictions = predict_sequence(model, card, sequence)
+    paths = sorted((sequence / "image_0").iterdir())[:3]
+    for pitch, agrees in ((20.0, True), (0.0, False)):
+        sensor = HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "model"), camera_pitch_deg=pitch))
+        images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
+        estimates = [sensor.estimate(image, (k + 1) * 100_000_000) for k, image in enumerate(images)]
+        assert np.allclose(estimates[2].quaternion, predictions.quaternions[1], atol=1e-5) == agrees
+
+
 def test_a_textured_model_predicts_through_the_sensor_and_the_sequence_call_alike(rotations, tmp_path: Path) -> None:
     from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
     from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence

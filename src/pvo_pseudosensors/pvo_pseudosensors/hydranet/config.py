@@ -29,7 +29,9 @@ class HydraNetConfig:
     at random (the flow flipped, its horizontal component negated; the rotation's y and z components negated:
     a mirrored drive turns the other way), so that turns either way are learned alike; texture: a third input
     channel, the texture (log gradient magnitude) of the image the flow starts from, to show the network where
-    the flow was measured and where interpolated over flat regions."""
+    the flow was measured and where interpolated over flat regions; pitch: one more input channel, constant, the
+    camera's pitch below the horizon (deg / 10; a mount calibration: the corpus's sim.yaml records it), so that a
+    pitched camera's translational flow is not read as rotation."""
 
     height: int = 64
     width: int = 208
@@ -43,6 +45,7 @@ class HydraNetConfig:
     bootstrap: bool = False
     mirror: bool = False
     texture: bool = False
+    pitch: bool = False
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths:
@@ -56,8 +59,8 @@ class HydraNetConfig:
 
     @property
     def channels(self) -> int:
-        """The network's input channels: the flow's two, and the texture's."""
-        return 3 if self.texture else 2
+        """The network's input channels: the flow's two, the texture's and the pitch's."""
+        return 2 + int(self.texture) + int(self.pitch)
 
     @property
     def size(self) -> tuple[int, int]:
@@ -74,4 +77,5 @@ class HydraNetConfig:
         values.setdefault("bootstrap", False)  # models from before the options
         values.setdefault("mirror", False)
         values.setdefault("texture", False)
+        values.setdefault("pitch", False)
         return cls(**values)

@@ -30,11 +30,13 @@ def resolve_model(model: str) -> Path:
 class HydraNetSensorConfig:
     """model: the model directory ("" = the shipped synthetic model; "hydranet_kitti" = the one fine-tuned on
     KITTI); max_gap: seconds between two images beyond which they are not paired (a dropped stretch of
-    images: the next one starts afresh); threads: torch threads."""
+    images: the next one starts afresh); threads: torch threads; camera_pitch_deg: the camera's pitch below the
+    horizon (deg, a mount calibration), read only by a model trained with the pitch input."""
 
     model: str = ""
     max_gap: float = 0.5
     threads: int = 1
+    camera_pitch_deg: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.max_gap > 0.0:
@@ -84,6 +86,7 @@ class HydraNetSensor:
         self.model, self.card = load_hydranet(resolve_model(config.model))
         self.height, self.width = (int(v) for v in self.card.input["size"])
         self.texture = HydraNetConfig.from_card(self.card).texture
+        self.pitch_deg = self.config.camera_pitch_deg if HydraNetConfig.from_card(self.card).pitch else None
         self.mode = inference_mode(self.card)
         self.previous: NDArray[np.uint8] | None = None
         self.previous_stamp = 0
@@ -108,10 +111,10 @@ class HydraNetSensor:
             return None
         if shape != previous_shape:
             raise ValueError(f"image size changed from {previous_shape} to {shape}: this image starts a new pair")
-        flow = torch.from_numpy(network_input(previous, dense_flow(previous, resized), self.texture))[None]
+        flow = torch.from_numpy(network_input(previous, dense_flow(previous, resized), self.texture, self.pitch_deg))[None]
         backward = None
         if self.mode == "reversed":
-            backward = torch.from_numpy(network_input(resized, dense_flow(resized, previous), self.texture))[None]
+            backward = torch.from_numpy(network_input(resized, dense_flow(resized, previous), self.texture, self.pitch_deg))[None]
         output = predict_rotations(self.model, flow, self.mode == "mirrored", backward)
         return RotationEstimate(
             previous_stamp,

@@ -52,13 +52,31 @@ def texture_map(image: NDArray[np.uint8]) -> NDArray[np.float32]:
     return np.log1p(np.sqrt(gx * gx + gy * gy))
 
 
-def network_input(source: NDArray[np.uint8], flow: NDArray[np.floating], texture: bool) -> NDArray[np.float32]:
-    """The network's input (2 or 3, H, W) float32: the flow (2, H, W) from grey ``source`` (H, W), and with
-    ``texture`` the source's :func:`texture_map` as a third channel."""
-    flow = np.asarray(flow, dtype=np.float32)
-    if not texture:
-        return flow
-    return np.concatenate([flow, texture_map(np.asarray(source))[None]], axis=0)
+def network_input(
+    source: NDArray[np.uint8], flow: NDArray[np.floating], texture: bool, pitch_deg: float | None = None
+) -> NDArray[np.float32]:
+    """The network's input (2-4, H, W) float32: the flow (2, H, W) from grey ``source`` (H, W); with ``texture``
+    the source's :func:`texture_map` as a channel; with ``pitch_deg`` (the camera's pitch below the horizon, deg)
+    a constant channel of pitch_deg / 10."""
+    channels = [np.asarray(flow, dtype=np.float32)]
+    if texture:
+        channels.append(texture_map(np.asarray(source))[None])
+    if pitch_deg is not None:
+        channels.append(np.full((1, *channels[0].shape[1:]), pitch_deg / 10.0, np.float32))
+    return channels[0] if len(channels) == 1 else np.concatenate(channels, axis=0)
+
+
+def camera_pitch(source: Source) -> float:
+    """The camera's pitch below the horizon (deg) that ``source``'s sim.yaml records (``config.pitch_deg``)."""
+    import yaml
+
+    path = source.root / "sim.yaml"
+    if not path.is_file():
+        raise DataFormatError(path, f"the pitch input needs the camera's pitch, but {source.name} has no sim.yaml")
+    try:
+        return float(yaml.safe_load(path.read_text())["config"]["pitch_deg"])
+    except (KeyError, TypeError, ValueError, yaml.YAMLError) as error:
+        raise DataFormatError(path, f"no readable config.pitch_deg ({error})") from None
 
 
 def relative_rotations(poses: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -98,6 +116,7 @@ class _Pairs:
     backward: NDArray[np.float16] | None
     rotations: NDArray[np.float64] | None
     images: NDArray[np.uint8]  # (N, 1, H, W) at the flow's size
+    pitch_deg: float | None = None  # the camera's pitch with the pitch input
 
 
 @dataclass
@@ -107,7 +126,8 @@ class FlowPairs(torch.utils.data.Dataset):
     (w, x, y, z) of C_k,k-1 (C_k-1,k for a reversed pair); ``sequence``, ``frame`` (the later frame k),
     ``reversed`` (0 or 1). targets: read each sequence's ``poses.txt`` for the rotations (False: flows only,
     for prediction on sequences without truth; samples then carry no ``rotation``); texture: ``flow`` carries
-    the texture of the image it starts from as a third channel (:func:`network_input`)."""
+    the texture of the image it starts from as a third channel (:func:`network_input`); pitch: and the camera's
+    pitch (its sim.yaml) as a constant channel."""
 
     sources: Sequence[Source]
     size: tuple[int, int]
@@ -116,6 +136,7 @@ class FlowPairs(torch.utils.data.Dataset):
     progress: Callable[[], None] | None = None
     targets: bool = True
     texture: bool = False
+    pitch: bool = False
     pairs: list[_Pairs] = field(init=False, default_factory=list)
     index: NDArray[np.int64] = field(init=False)
 
@@ -130,7 +151,8 @@ class FlowPairs(torch.utils.data.Dataset):
             key = _images_key(paths, self.size)
             forward = sequence_flows(images, self.cache_dir, key, False, self.progress)
             backward = sequence_flows(images, self.cache_dir, key, True, self.progress) if self.reverse else None
-            self.pairs.append(_Pairs(source, forward, backward, rotations, images))
+            pitch = camera_pitch(source) if self.pitch else None
+            self.pairs.append(_Pairs(source, forward, backward, rotations, images, pitch))
             frames = np.arange(1, len(paths))
             rows.append(np.column_stack([np.full(len(frames), number), frames, np.zeros(len(frames), np.int64)]))
             if self.reverse:
@@ -159,7 +181,7 @@ class FlowPairs(torch.utils.data.Dataset):
         assert flows is not None
         start = pairs.images[k if backwards else k - 1, 0]  # the image the flow starts from
         sample = {
-            "flow": torch.from_numpy(network_input(start, flows[k - 1], self.texture)),
+            "flow": torch.from_numpy(network_input(start, flows[k - 1], self.texture, pairs.pitch_deg)),
             "sequence": torch.tensor(number),
             "frame": torch.tensor(k),
             "reversed": torch.tensor(backwards),

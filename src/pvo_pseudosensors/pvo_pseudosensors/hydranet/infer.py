@@ -178,13 +178,16 @@ def sequence_inputs(
     """The network inputs (N, C, H, W) of every consecutive pair of ``sequence``'s left images, forward, and
     (``reverse``) from the later image to the earlier (else None)."""
     sequence = Path(sequence)
-    data = FlowPairs([Source(sequence, sequence.name)], config.size, reverse=reverse, cache_dir=cache_dir, targets=False)
+    data = FlowPairs(
+        [Source(sequence, sequence.name)], config.size, reverse=reverse, cache_dir=cache_dir, targets=False, pitch=config.pitch
+    )
     pairs = data.pairs[0]
 
     def inputs(flows: NDArray[np.floating], starts: NDArray[np.uint8]) -> torch.Tensor:
         flows = np.asarray(flows, dtype=np.float32)
-        if config.texture:  # the texture of the image each flow starts from
-            flows = np.stack([network_input(image[0], flow, True) for image, flow in zip(starts, flows, strict=True)])
+        if config.texture or config.pitch:  # the texture of the image each flow starts from, the camera's pitch
+            pitch = pairs.pitch_deg
+            flows = np.stack([network_input(image[0], f, config.texture, pitch) for image, f in zip(starts, flows, strict=True)])
         return torch.from_numpy(flows)
 
     forward = inputs(pairs.forward, pairs.images[:-1])
