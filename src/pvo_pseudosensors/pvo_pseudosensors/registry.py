@@ -156,11 +156,11 @@ def _hydranet() -> ModelEntry:
             pitch=config.pitch,
         )
 
-    def predict(model_dir, sequence, cache_dir=None, **_mc):
+    def predict(model_dir, sequence, cache_dir=None, pitch_deg=None, **_mc):
         from .hydranet.infer import load_hydranet, predict_sequence
 
         model, card = load_hydranet(model_dir)
-        return predict_sequence(model, card, sequence, cache_dir=cache_dir)
+        return predict_sequence(model, card, sequence, cache_dir=cache_dir, pitch_deg=pitch_deg)
 
     def evaluate(prediction_file: Path, truth_file: Path) -> dict[str, float]:
         from pvo_core.readers import read_rotation_predictions_csv

@@ -274,6 +274,8 @@ def test_a_pitched_model_predicts_through_the_sensor_and_the_sequence_call_alike
     shutil.copytree(rotations["test"][0].root, sequence)
     (sequence / "sim.yaml").write_text("config:\n  pitch_deg: 20.0\n")
     predictions = predict_sequence(model, card, sequence)
+    told = predict_sequence(model, card, rotations["test"][0].root, pitch_deg=20.0)  # no sim.yaml there
+    np.testing.assert_allclose(told.quaternions, predictions.quaternions, atol=1e-6)
     paths = sorted((sequence / "image_0").iterdir())[:3]
     for pitch, agrees in ((20.0, True), (0.0, False)):
         sensor = HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "model"), camera_pitch_deg=pitch))

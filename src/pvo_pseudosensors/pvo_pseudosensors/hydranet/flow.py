@@ -72,7 +72,9 @@ def camera_pitch(source: Source) -> float:
 
     path = source.root / "sim.yaml"
     if not path.is_file():
-        raise DataFormatError(path, f"the pitch input needs the camera's pitch, but {source.name} has no sim.yaml")
+        raise DataFormatError(
+            path, f"the pitch input needs the camera's pitch, but {source.name} has no sim.yaml (give it: --pitch-deg)"
+        )
     try:
         return float(yaml.safe_load(path.read_text())["config"]["pitch_deg"])
     except (KeyError, TypeError, ValueError, yaml.YAMLError) as error:
@@ -127,7 +129,7 @@ class FlowPairs(torch.utils.data.Dataset):
     ``reversed`` (0 or 1). targets: read each sequence's ``poses.txt`` for the rotations (False: flows only,
     for prediction on sequences without truth; samples then carry no ``rotation``); texture: ``flow`` carries
     the texture of the image it starts from as a third channel (:func:`network_input`); pitch: and the camera's
-    pitch (its sim.yaml) as a constant channel."""
+    pitch as a constant channel: ``pitch_deg`` for every sequence, else each sequence's sim.yaml."""
 
     sources: Sequence[Source]
     size: tuple[int, int]
@@ -137,6 +139,7 @@ class FlowPairs(torch.utils.data.Dataset):
     targets: bool = True
     texture: bool = False
     pitch: bool = False
+    pitch_deg: float | None = None
     pairs: list[_Pairs] = field(init=False, default_factory=list)
     index: NDArray[np.int64] = field(init=False)
 
@@ -151,7 +154,7 @@ class FlowPairs(torch.utils.data.Dataset):
             key = _images_key(paths, self.size)
             forward = sequence_flows(images, self.cache_dir, key, False, self.progress)
             backward = sequence_flows(images, self.cache_dir, key, True, self.progress) if self.reverse else None
-            pitch = camera_pitch(source) if self.pitch else None
+            pitch = (camera_pitch(source) if self.pitch_deg is None else self.pitch_deg) if self.pitch else None
             self.pairs.append(_Pairs(source, forward, backward, rotations, images, pitch))
             frames = np.arange(1, len(paths))
             rows.append(np.column_stack([np.full(len(frames), number), frames, np.zeros(len(frames), np.int64)]))

@@ -173,13 +173,20 @@ def predict_flows(
 
 
 def sequence_inputs(
-    config: HydraNetConfig, sequence: Path, reverse: bool = False, cache_dir: Path | None = None
+    config: HydraNetConfig, sequence: Path, reverse: bool = False, cache_dir: Path | None = None, pitch_deg: float | None = None
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """The network inputs (N, C, H, W) of every consecutive pair of ``sequence``'s left images, forward, and
-    (``reverse``) from the later image to the earlier (else None)."""
+    (``reverse``) from the later image to the earlier (else None). A model with the pitch input reads
+    ``pitch_deg`` (deg below the horizon), else the pitch the sequence's sim.yaml records."""
     sequence = Path(sequence)
     data = FlowPairs(
-        [Source(sequence, sequence.name)], config.size, reverse=reverse, cache_dir=cache_dir, targets=False, pitch=config.pitch
+        [Source(sequence, sequence.name)],
+        config.size,
+        reverse=reverse,
+        cache_dir=cache_dir,
+        targets=False,
+        pitch=config.pitch,
+        pitch_deg=pitch_deg,
     )
     pairs = data.pairs[0]
 
@@ -211,12 +218,17 @@ def sequence_features(
 
 
 def predict_sequence(
-    model: RotationNetwork, card: ModelCard, sequence: Path, batch: int = 64, cache_dir: Path | None = None
+    model: RotationNetwork,
+    card: ModelCard,
+    sequence: Path,
+    batch: int = 64,
+    cache_dir: Path | None = None,
+    pitch_deg: float | None = None,
 ) -> RotationPredictions:
     """Every consecutive pair of ``sequence``'s left images (KITTI layout; poses.txt not needed), run as the
-    card's ``calibration.mode`` says (plain, mirrored or reversed)."""
+    card's ``calibration.mode`` says (plain, mirrored or reversed); ``pitch_deg``: see :func:`sequence_inputs`."""
     mode = inference_mode(card)
-    forward, backward = sequence_inputs(HydraNetConfig.from_card(card), sequence, mode == "reversed", cache_dir)
+    forward, backward = sequence_inputs(HydraNetConfig.from_card(card), sequence, mode == "reversed", cache_dir, pitch_deg)
     quaternions, epistemic, aleatoric = predict_flows(model, forward, batch, mode == "mirrored", backward)
     frames = np.arange(1, len(forward) + 1)
     return RotationPredictions(frames - 1, frames, quaternions, epistemic, aleatoric)

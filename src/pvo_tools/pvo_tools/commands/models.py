@@ -107,6 +107,13 @@ def _predict_parser(actions: Any, entry: ModelEntry) -> None:
     predict.add_argument("--model", type=Path, required=True, help=f"model directory (weights.safetensors + model.yaml){names}")
     predict.add_argument("--out", "-o", type=Path, required=True, help="prediction file (CSV)")
     predict.add_argument("--cache", type=Path, help="decoded-image cache directory (default: none, decode afresh)")
+    if entry.name == "hydranet":
+        predict.add_argument(
+            "--pitch-deg",
+            type=float,
+            help="the camera's pitch below the horizon (deg), read by a model trained with --pitch (default: the pitch "
+            "the sequence's sim.yaml records)",
+        )
     if not entry.mc_sampling:
         return
     predict.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
@@ -331,7 +338,8 @@ def run_predict(args: argparse.Namespace, entry: ModelEntry) -> int:
 
         args.model = resolve_model(str(args.model), entry.shipped)
     if not entry.mc_sampling:
-        predictions = entry.predict(args.model, args.sequence, cache_dir=args.cache)
+        extra = {"pitch_deg": args.pitch_deg} if getattr(args, "pitch_deg", None) is not None else {}
+        predictions = entry.predict(args.model, args.sequence, cache_dir=args.cache, **extra)
         path = predictions.write_csv(args.out)
         print(f"{path}: {len(predictions.frames)} predictions")
         return 0
