@@ -68,12 +68,18 @@ class Evaluated:
     figures: dict[str, float]
 
 
-def evaluate_sequence(model: Any, card: Any, root: Path, label: str, cache: Path | None) -> tuple[Evaluated, Any]:
+#: KITTI's cameras look level (within a degree): what a model with the pitch input is told on KITTI images.
+KITTI_PITCH_DEG = 0.0
+
+
+def evaluate_sequence(
+    model: Any, card: Any, root: Path, label: str, cache: Path | None, pitch_deg: float | None = None
+) -> tuple[Evaluated, Any]:
     from pvo_core.trajectory import read_kitti_poses
     from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
     from pvo_pseudosensors.hydranet.infer import predict_sequence
 
-    predictions = predict_sequence(model, card, root, cache_dir=cache)
+    predictions = predict_sequence(model, card, root, cache_dir=cache, pitch_deg=pitch_deg)
     truth = true_relative_rotations(read_kitti_poses(root / "poses.txt"), predictions.earlier, predictions.frames)
     figures = evaluate_rotations(predictions.quaternions, predictions.covariance, truth)
     figures["epistemic_trace"] = float(np.trace(predictions.epistemic, axis1=1, axis2=2).mean())
@@ -521,15 +527,16 @@ def real_images_section(
         (f"synthetic model, KITTI 07 (frames 0-{count07 - 1})", all07),
         ("synthetic model, KITTI 06 clip", clip06),
     ):
-        evaluated, _ = evaluate_sequence(model, card, root, label, None)
+        evaluated, _ = evaluate_sequence(model, card, root, label, None, KITTI_PITCH_DEG)
         rows.append(evaluated)
     clip = kitti / "sequences" / "06"
     vo06 = float(vo_rotation_errors(clip, clip / "poses_frames000-050.txt", rate_hz=10.0)[0].mean())
     if args.finetune_epochs:
         say(f"fine-tuning on KITTI 07 frames 0-127 for {args.finetune_epochs} epochs (validation 128-{count07 - 1}) ...")
         config = HydraNetConfig.from_card(card)
-        train = FlowPairs([Source(train07, "07-train")], config.size, reverse=config.reverse, texture=config.texture)
-        validation = FlowPairs([Source(validation07, "07-validation")], config.size, texture=config.texture)
+        told = {"texture": config.texture, "pitch": config.pitch, "pitch_deg": KITTI_PITCH_DEG}
+        train = FlowPairs([Source(train07, "07-train")], config.size, reverse=config.reverse, **told)
+        validation = FlowPairs([Source(validation07, "07-validation")], config.size, **told)
         loop = TrainConfig(epochs=args.finetune_epochs, batch_size=16, learning_rate=1e-4, patience=0, threads=args.threads)
         tuned_dir = out / "kitti-finetuned"
         extra = {
@@ -538,7 +545,7 @@ def real_images_section(
         }
         finetune(Path(args.model), card, (train, validation), loop, tuned_dir, extra)
         tuned, tuned_card = load_hydranet(tuned_dir)
-        evaluated, _ = evaluate_sequence(tuned, tuned_card, clip06, "fine-tuned on 07, KITTI 06 clip", None)
+        evaluated, _ = evaluate_sequence(tuned, tuned_card, clip06, "fine-tuned on 07, KITTI 06 clip", None, KITTI_PITCH_DEG)
         rows.append(evaluated)
         figures["kitti06.finetuned.angle_mean_deg"] = evaluated.figures["angle_mean_deg"]
         figures["kitti06.finetuned.anees"] = evaluated.figures["anees"]
