@@ -114,6 +114,7 @@ def test_fusion_applies_path_period_at_run_time_and_validates_it(ros_context) ->
         ("pvo_pseudosensors", "simulated_sun", "every_n:=0", "invalid simulated sun configuration: every_n must be >= 1, got 0"),
         ("pvo_pseudosensors", "sun_bcnn", "mode:=sideways", "unknown mode 'sideways': choose one of full, head"),
         ("pvo_pseudosensors", "hydranet", "max_gap:=0.0", "max_gap must be > 0 s, got 0.0"),
+        ("pvo_pseudosensors", "hydranet", "camera_pitch_deg:=95.0", "camera_pitch_deg must be in [-90, 90] deg, got 95.0"),
         ("pvo_pseudosensors", "dpc_net", "threads:=0", "threads must be >= 1, got 0"),
     ],
 )

@@ -43,6 +43,8 @@ class HydraNetSensorConfig:
             raise ValueError(f"max_gap must be > 0 s, got {self.max_gap}")
         if self.threads < 1:
             raise ValueError(f"threads must be >= 1, got {self.threads}")
+        if not -90.0 <= self.camera_pitch_deg <= 90.0:  # also NaN
+            raise ValueError(f"camera_pitch_deg must be in [-90, 90] deg, got {self.camera_pitch_deg}")
 
 
 @dataclass
