@@ -459,6 +459,10 @@ def test_an_ensemble_directory_runs_as_one_model_everywhere_and_bad_ones_are_one
     other = save_model(tmp_path / "c", HydraNet(wider), HydraTask(wider).card())
     with pytest.raises(ValueError, match=r"read different inputs \(.*a: 48x144 flow, .*c: 48x160 flow\)"):
         write_ensemble([first, other], tmp_path / "mixed")
+    pitched = dataclasses.replace(TINY, pitch=True)
+    told = save_model(tmp_path / "d", HydraNet(pitched), HydraTask(pitched).card())
+    with pytest.raises(ValueError, match=r"read different inputs \(.*a: 48x144 flow, .*d: 48x144 flow with pitch\)"):
+        write_ensemble([first, told], tmp_path / "mixed")
     assert not (tmp_path / "one").exists() and not (tmp_path / "mixed").exists()
     import shutil
 

@@ -66,13 +66,14 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
     return ensemble, card
 
 
-def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool]:
-    """What a network reads: the flow's size (height, width) and whether a texture channel comes with it."""
-    return tuple(config.size), config.texture
+def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool, bool]:
+    """What a network reads: the flow's size (height, width) and whether a texture and a pitch channel come with it."""
+    return tuple(config.size), config.texture, config.pitch
 
 
 def _describe_input(config: HydraNetConfig) -> str:
-    return f"{config.size[0]}x{config.size[1]} flow" + (" with texture" if config.texture else "")
+    extra = [name for name, present in (("texture", config.texture), ("pitch", config.pitch)) if present]
+    return f"{config.size[0]}x{config.size[1]} flow" + (f" with {' and '.join(extra)}" if extra else "")
 
 
 def _load_one(directory: Path) -> tuple[HydraNet, ModelCard]:

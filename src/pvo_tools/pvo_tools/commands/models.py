@@ -107,7 +107,7 @@ def _predict_parser(actions: Any, entry: ModelEntry) -> None:
     predict.add_argument("--model", type=Path, required=True, help=f"model directory (weights.safetensors + model.yaml){names}")
     predict.add_argument("--out", "-o", type=Path, required=True, help="prediction file (CSV)")
     predict.add_argument("--cache", type=Path, help="decoded-image cache directory (default: none, decode afresh)")
-    if entry.name == "hydranet":
+    if any(field.name == "pitch" for field in dataclasses.fields(entry.config)):  # a model that can read the pitch
         predict.add_argument(
             "--pitch-deg",
             type=float,
