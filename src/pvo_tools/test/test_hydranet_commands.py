@@ -280,3 +280,20 @@ def test_density_writes_its_card_entry_and_prints_its_figures(corpus: Path, tmp_
     assert "a density over 16 features needs more pairs than that, got 11" in capsys.readouterr().err
     assert main([*args, "--preset", "desert"]) == 2
     assert "no desert sequence in the train split" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("extra", [{}, {"pitch": True, "texture": True}])
+def test_bench_times_a_model_with_extra_input_channels(extra: dict, pvo_data: Path, tmp_path: Path, capsys) -> None:
+    """The network stage is fed what the sensor feeds it: a model with the pitch (or texture) input is benched, not
+    refused for a channel count its flow alone does not have."""
+    import torch
+    from pvo_pseudosensors.hydranet.config import HydraNetConfig
+    from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask
+    from pvo_pseudosensors.learning.checkpoint import save_model
+
+    config = HydraNetConfig(height=48, width=144, widths=(8, 16), feature=16, heads=4, head_hidden=8, **extra)
+    torch.manual_seed(0)
+    save_model(tmp_path / "model", HydraNet(config), HydraTask(config).card())
+    assert main(["bench", "hydranet", "--model", str(tmp_path / "model"), "--data", str(pvo_data), "--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "50 pairs of the KITTI 06 clip" in out and "network (4 heads, Sigma)" in out and "sensor total" in out

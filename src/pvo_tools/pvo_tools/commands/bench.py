@@ -222,7 +222,7 @@ def bench_hydranet(args: argparse.Namespace) -> int:
     import torch
     from pvo_core.imageio import read_image
     from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
-    from pvo_pseudosensors.hydranet.flow import dense_flow
+    from pvo_pseudosensors.hydranet.flow import dense_flow, network_input
     from pvo_pseudosensors.hydranet.model import predict_rotations
 
     from ..paths import data_directory
@@ -234,10 +234,12 @@ def bench_hydranet(args: argparse.Namespace) -> int:
     images = [read_image(p) for p in paths]
     size = (sensor.width, sensor.height)
     small = [cv2.resize(i, size, interpolation=cv2.INTER_AREA) for i in images]
-    flow = torch.from_numpy(dense_flow(small[0], small[1]))[None]
+    # the network reads what the sensor gives it: the flow, and the texture and pitch channels its card asks for
+    flow = torch.from_numpy(network_input(small[0], dense_flow(small[0], small[1]), sensor.texture, sensor.pitch_deg))[None]
     mirrored, reversed_flow = sensor.mode == "mirrored", None
     if sensor.mode == "reversed":
-        reversed_flow = torch.from_numpy(dense_flow(small[1], small[0]))[None]
+        backward = dense_flow(small[1], small[0])
+        reversed_flow = torch.from_numpy(network_input(small[1], backward, sensor.texture, sensor.pitch_deg))[None]
     heads = sensor.model.head_count * (1 if sensor.mode == "plain" else 2)  # the pair and its mirror image or reverse
     stages = {
         "resize": lambda k: cv2.resize(images[k], size, interpolation=cv2.INTER_AREA),
