@@ -8,7 +8,8 @@ from typing import Any
 from ..learning.spec import DataSpec
 
 #: Models installed with the package, by name (``model: NAME``).
-SHIPPED = ("hydranet", "hydranet_kitti")  # trained on the synthetic corpus / fine-tuned on KITTI 07
+#: trained on the synthetic corpus (level cameras) / fine-tuned on KITTI 07 / told the camera's pitch (opt-in)
+SHIPPED = ("hydranet", "hydranet_kitti", "hydranet_pitch")
 
 ARCHITECTURE = "hydranet"
 COVARIANCES = ("cholesky", "diagonal")
