@@ -29,9 +29,10 @@ def resolve_model(model: str) -> Path:
 @dataclass(frozen=True)
 class HydraNetSensorConfig:
     """model: the model directory ("" = the shipped synthetic model; "hydranet_kitti" = the one fine-tuned on
-    KITTI; "hydranet_pitch" = the one told the camera's pitch, for cameras that look down); max_gap: seconds between two images beyond which they are not paired (a dropped stretch of
-    images: the next one starts afresh); threads: torch threads; camera_pitch_deg: the camera's pitch below the
-    horizon (deg, a mount calibration), read only by a model trained with the pitch input."""
+    KITTI; "hydranet_pitch" = the one told the camera's pitch, for cameras that look down); max_gap: seconds
+    between two images beyond which they are not paired (a dropped stretch of images: the next one starts
+    afresh); threads: torch threads; camera_pitch_deg: the camera's pitch below the horizon (deg, a mount
+    calibration), read only by a model trained with the pitch input."""
 
     model: str = ""
     max_gap: float = 0.5
