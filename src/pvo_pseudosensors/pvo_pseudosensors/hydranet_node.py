@@ -48,7 +48,13 @@ class HydraNetNode(PvoNode[HydraNetSensorConfig, None]):
             self.get_logger().info(
                 f"HydraNet {self.sensor.height}x{self.sensor.width} flow, {card.hyperparameters['heads']} heads, "
                 f"{card.hyperparameters['covariance']} aleatoric covariance"
+                + ("" if self.sensor.pitch_deg is None else f", told the camera's pitch {self.sensor.pitch_deg:g} deg")
             )
+            if self.sensor.pitch_deg is None and self.config.camera_pitch_deg != 0.0:
+                self.get_logger().warning(
+                    f"camera_pitch_deg {self.config.camera_pitch_deg:g} ignored: this model has no pitch input "
+                    "(model: hydranet_pitch has)"
+                )
 
     def _on_image(self, msg: Image) -> None:
         stamp = stamp_to_nanoseconds(msg.header.stamp)
