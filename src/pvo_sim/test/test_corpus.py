@@ -98,6 +98,12 @@ def test_kitti_windows_can_be_replayed_faster(tmp_path: Path) -> None:
     assert [p.split for p in plans] == [p.split for p in before]
     with pytest.raises(ValueError, match="--kitti-speed-scale must be two factors LO HI"):
         kitti_corpus(drives, 8, 20, kitti_speed_scale=(2.0, 1.0))
+    slow = [plan_sequence(kitti_corpus(drives, 30, 20, kitti_speed_scale=(0.02, 1.0)), i) for i in range(30)]
+    scales = np.array([p.config.speed_scale for p in slow])  # a crawl to a standstill, which KITTI rarely reaches
+    assert scales.min() < 0.2 and scales.max() <= 1.0
+    assert all(p.config.start_frame + int(np.ceil(19 * p.config.speed_scale - 1e-9)) + 1 <= 60 for p in slow)
+    with pytest.raises(ValueError, match="with 0.02 <= LO <= HI <= 4, got \\[0.01, 1.0\\]"):
+        kitti_corpus(drives, 8, 20, kitti_speed_scale=(0.01, 1.0))
     with pytest.raises(ValueError, match="holds fewer than the 77 poses a window of 20 frames spans"):
         kitti_corpus(drives, 8, 20, kitti_speed_scale=(1.0, 4.0))
 

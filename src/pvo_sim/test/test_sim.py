@@ -356,6 +356,23 @@ def test_a_drive_replayed_faster_covers_more_road_at_the_same_frame_rate(pvo_dat
         SimConfig(speed_scale=-1.0)
 
 
+def test_a_drive_replayed_at_a_crawl_nearly_stands_still(pvo_data: Path) -> None:
+    """``speed_scale`` 0.02 (the corpus's floor): 50 cameras between the drive's first two poses of the window,
+    each step a fiftieth of the drive's, the turn between them slerped in fifty equal parts."""
+    from pvo_core.lie import so3_log
+    from pvo_sim.paths import kitti_path
+
+    drive = pvo_data / "kitti" / "poses" / "07.txt"
+    crawl = kitti_path(drive, 50, 100, 1.65, speed_scale=0.02)
+    driven = kitti_path(drive, 2, 100, 1.65)
+    assert len(crawl) == 50
+    np.testing.assert_allclose(crawl[0], driven[0], atol=1e-9)
+    steps = np.linalg.norm(np.diff(crawl[:, :3, 3], axis=0), axis=1)
+    np.testing.assert_allclose(steps, 0.02 * np.linalg.norm(driven[1, :3, 3] - driven[0, :3, 3]), rtol=1e-6)
+    turn = so3_log(driven[0, :3, :3].T @ driven[1, :3, :3])
+    np.testing.assert_allclose(so3_log(crawl[0, :3, :3].T @ crawl[1, :3, :3]), 0.02 * turn, atol=1e-12)
+
+
 def test_a_failed_render_keeps_the_previous_output(tmp_path: Path, monkeypatch) -> None:
     import pvo_sim.render as sim
 

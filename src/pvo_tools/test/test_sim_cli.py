@@ -122,7 +122,7 @@ def test_sim_corpus_degradation_shares_reach_every_sequence_and_the_card_command
         (["--presets", "lunar"], "--presets lunar: choose from urban, planetary"),
         (["--split", "0.5,0.5"], "--split '0.5,0.5' must be three numbers"),
         (["--jobs", "0"], "--jobs must be >= 1"),
-        (["--kitti-speed-scale", "2", "1"], "--kitti-speed-scale must be two factors LO HI with 0.25 <= LO <= HI <= 4"),
+        (["--kitti-speed-scale", "2", "1"], "--kitti-speed-scale must be two factors LO HI with 0.02 <= LO <= HI <= 4"),
         (["--radial-distortion", "1.5"], "--radial-distortion must be a fraction in [0, 1], got 1.5"),
     ],
 )

@@ -100,8 +100,9 @@ def register(sub: Any) -> None:
         nargs=2,
         default=(1.0, 1.0),
         metavar=("LO", "HI"),
-        help="replay each window's drive faster by a factor drawn uniformly from [LO, HI] (e.g. 1 1.6: KITTI's urban "
-        "drives rarely exceed 15 m/s; default 1 1: as driven)",
+        help="replay each window's drive faster or slower by a factor drawn uniformly from [LO, HI], 0.02 <= LO <= "
+        "HI <= 4 (e.g. 1 1.6: KITTI's urban drives rarely exceed 15 m/s; 0.02 1: down to a standstill, which they "
+        "rarely reach; default 1 1: as driven)",
     )
     corpus.add_argument(
         "--urban-pitch",
