@@ -126,9 +126,10 @@ class CorpusConfig:
             raise ValueError(f"--sky must be one of {', '.join(SKIES)}, got {self.sky!r}")
         if self.kitti_level_frames < 0:
             raise ValueError(f"--kitti-level-frames must be >= 0 (0: each window on itself), got {self.kitti_level_frames}")
-        if len(self.kitti_speed_scale) != 2 or not MIN_SPEED_SCALE <= self.kitti_speed_scale[0] <= self.kitti_speed_scale[1] <= 4.0:
+        speeds = self.kitti_speed_scale
+        if len(speeds) != 2 or not MIN_SPEED_SCALE <= speeds[0] <= speeds[1] <= 4.0:
             raise ValueError(
-                f"--kitti-speed-scale must be two factors LO HI with {MIN_SPEED_SCALE} <= LO <= HI <= 4, got {list(self.kitti_speed_scale)}"
+                f"--kitti-speed-scale must be two factors LO HI with {MIN_SPEED_SCALE} <= LO <= HI <= 4, got {list(speeds)}"
             )
         if len(self.urban_pitch) != 2 or not 0.0 <= self.urban_pitch[0] <= self.urban_pitch[1] <= 45.0:
             raise ValueError(
