@@ -26,6 +26,7 @@ def main() -> None:
     parser.add_argument("--split", default="validation", choices=("train", "validation", "test"))
     parser.add_argument("--preset", default="urban")
     parser.add_argument("--models", nargs="+", type=Path, required=True)
+    parser.add_argument("--per-sequence", action="store_true", help="also each sequence's mean error, ANEES and speed")
     args = parser.parse_args()
     torch.set_num_threads(2)
     sequences = [s for s in read_corpus_manifest(args.corpus).split(args.split) if s.preset == args.preset]
@@ -43,6 +44,12 @@ def main() -> None:
             quaternions.append(predictions.quaternions)
             covariances.append(predictions.covariance)
             truth.append(true_relative_rotations(poses, predictions.earlier, predictions.frames))
+            if args.per_sequence:
+                one = evaluate_rotations(quaternions[-1], covariances[-1], truth[-1])
+                step = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1).mean()
+                print(
+                    f"  {item.root.name}: mean {one['angle_mean_deg']:.4f} deg, ANEES {one['anees']:.2f}, {step:.3f} m per frame"
+                )
         true = np.concatenate(truth)
         f = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), true)
         turning = np.degrees(np.arccos(np.clip((np.trace(true, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))) > 2.0

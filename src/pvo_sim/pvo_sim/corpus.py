@@ -24,7 +24,7 @@ from pvo_core.ephemeris import GeodeticOrigin, sun_elevation_azimuth
 
 from .degrade import CameraModel, Degradations
 from .paths import PATH_KINDS
-from .render import KITTI_FOCAL_PER_PIXEL_WIDTH, RENDERER_REVISION, SimConfig, recorded_config, simulate
+from .render import KITTI_FOCAL_PER_PIXEL_WIDTH, SimConfig, planned_revision, recorded_config, simulate
 from .sky import SKIES
 from .world import PRESETS
 
@@ -86,6 +86,10 @@ class CorpusConfig:
     # level and planetary ones pitched 0-25 deg, and a body that only saw level cameras misreads a pitched camera's
     # flow (0, 0: level, nothing drawn, the draws of a corpus without it)
     urban_pitch: tuple[float, float] = (0.0, 0.0)
+    # each sequence's moving vehicles driving at their own speed, drawn uniformly from this range (m/s; each
+    # vehicle within +-30 % of it), so that they pass a stopped or crawling camera too (Degradations.vehicle_speed;
+    # 0, 0: each vehicle replays the camera's path, nothing drawn, the draws of a corpus without it)
+    vehicle_speed: tuple[float, float] = (0.0, 0.0)
     # one lens for the whole corpus (the rig DPC-Net learns to correct): plumb-bob k1 [k2 k3] on every sequence,
     # instead of the drawn distortion
     lens_distortion: tuple[float, ...] = ()
@@ -130,6 +134,10 @@ class CorpusConfig:
         if len(speeds) != 2 or not MIN_SPEED_SCALE <= speeds[0] <= speeds[1] <= 4.0:
             raise ValueError(
                 f"--kitti-speed-scale must be two factors LO HI with {MIN_SPEED_SCALE} <= LO <= HI <= 4, got {list(speeds)}"
+            )
+        if len(self.vehicle_speed) != 2 or not 0.0 <= self.vehicle_speed[0] <= self.vehicle_speed[1] <= 40.0:
+            raise ValueError(
+                f"--vehicle-speed must be two speeds LO HI with 0 <= LO <= HI <= 40 m/s, got {list(self.vehicle_speed)}"
             )
         if len(self.urban_pitch) != 2 or not 0.0 <= self.urban_pitch[0] <= self.urban_pitch[1] <= 45.0:
             raise ValueError(
@@ -297,6 +305,10 @@ def plan_sequence(corpus: CorpusConfig, index: int) -> SequencePlan:
             speed_scale=speed_scale,
         )
         conditions.append(f"KITTI {drive} from frame {start}" + (f" at {speed_scale:.2f}x" if speed_scale != 1.0 else ""))
+    if corpus.vehicle_speed[1] > 0.0 and config.degradations.moving_vehicles:  # drawn after all the others
+        vehicle_speed = float(rng.uniform(*corpus.vehicle_speed))
+        config = replace(config, degradations=replace(config.degradations, vehicle_speed=vehicle_speed))
+        conditions.append(f"vehicles at {vehicle_speed:.1f} m/s")
     if corpus.sky != "gradient":
         config = replace(config, sky=corpus.sky)
     return SequencePlan(index, f"{index:04d}", split, config, tuple(conditions))
@@ -354,7 +366,7 @@ def _entry(plan: SequencePlan, folder: Path, seconds: float) -> dict[str, Any]:
         "conditions": list(plan.conditions),
         "frames": plan.config.frames,
         "render_seconds": round(seconds, 2),
-        "renderer_revision": RENDERER_REVISION,
+        "renderer_revision": planned_revision(plan.config),
         "sha256": content_hash(folder),
         "config": _plain(recorded_config(plan.config)),  # as the sequence's sim.yaml records it
     }
@@ -471,8 +483,8 @@ def render_corpus(
     for plan in plans:
         entry = previous.get(plan.name)
         folder = out / plan.name
-        same = entry and _same_config(entry.get("config"), _plain(asdict(plan.config)))
-        if same and entry.get("renderer_revision") == RENDERER_REVISION and (folder / "sim.yaml").is_file():
+        same = entry and _same_config(entry.get("config"), _plain(recorded_config(plan.config)))
+        if same and entry.get("renderer_revision") == planned_revision(plan.config) and (folder / "sim.yaml").is_file():
             entries[plan.name] = entry
             kept.append(plan.name)
         else:

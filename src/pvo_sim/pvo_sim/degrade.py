@@ -25,6 +25,9 @@ class Degradations:
     baseline_scale: float = 1.0
     texture_poor: float = 0.0  # urban: fraction of buildings with plain, untextured walls
     moving_vehicles: int = 3
+    # m/s, each vehicle's own (a draw within +-30 %): past a stopped or crawling camera too; 0: each vehicle replays
+    # the camera's own path in the oncoming lane, shifted in time, at the camera's speed of another moment
+    vehicle_speed: float = 0.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.distortion, int | float):  # a YAML list from a manifest, or the command's numbers
@@ -39,6 +42,7 @@ class Degradations:
             (self.focal_scale > 0.0 and self.baseline_scale > 0.0, "--focal-scale and --baseline-scale must be positive"),
             (0.0 <= self.texture_poor <= 1.0, "--texture-poor must be in [0, 1]"),
             (0 <= self.moving_vehicles <= 20, "--moving must be in [0, 20]"),
+            (0.0 <= self.vehicle_speed <= 40.0, f"--vehicle-speed must be in [0, 40] m/s, got {self.vehicle_speed}"),
         ]
         for ok, message in checks:
             if not ok:

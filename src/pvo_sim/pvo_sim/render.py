@@ -26,13 +26,51 @@ from pvo_core.lie import rotation_to_quaternion, so3_exp, so3_log
 from .degrade import CameraModel, Degradations, ImageDegrader
 from .paths import heading_rotation, kitti_path, procedural_path
 from .sky import SKIES, composite_sky, pixel_rays, sky_values
-from .world import PRESETS, SUPERSAMPLE, WorldSpec, build_world
+from .world import PRESETS, SUPERSAMPLE, WorldSpec, build_world, steadied
 
 Array = NDArray[np.float64]
 GRAVITY_ENU = np.array([0.0, 0.0, -9.80665])
 #: Bumped whenever the same configuration renders different images (worlds, lighting, camera): a corpus keeps a
 #: sequence only if it was rendered by the same revision.
-RENDERER_REVISION = 7  # 7: KITTI drives levelled onto the flat ground (kitti_path)
+#: 7: KITTI drives levelled onto the flat ground (kitti_path); 8: directions along a camera's path that stops or
+#: crawls steadied (world.steady_directions: the moving vehicles, the road beyond the path's ends).
+RENDERER_REVISION = 8
+#: what revision 8 draws exactly as revision 7 did keeps 7 (renderer_revision), and with it its content hash
+UNCHANGED_SINCE_REVISION = 7
+
+
+def renderer_revision(poses: Array, moving_vehicles: int) -> int:
+    """The revision a sequence of camera poses T_world,cam (N, 4, 4) is recorded with: RENDERER_REVISION where
+    that revision draws its world differently from the one before (world.steadied), else the revision since
+    which it is drawn the same — so a corpus rendered before keeps every sequence the change does not touch."""
+    return RENDERER_REVISION if steadied(poses[:, :2, 3], moving_vehicles) else UNCHANGED_SINCE_REVISION
+
+
+def planned_revision(config: SimConfig) -> int:
+    """The revision ``simulate(config)`` records (renderer_revision of its camera path)."""
+    return renderer_revision(camera_trajectory(config), config.degradations.moving_vehicles)
+
+
+def rendered_by_this_renderer(folder: Path) -> bool:
+    """Whether ``folder`` holds a complete `pvo sim` sequence that this renderer would draw the same: its sim.yaml
+    records the revision renderer_revision gives its own camera path (world_T_cam0 times poses.txt)."""
+    import yaml
+
+    meta_file = folder / "sim.yaml"
+    if not meta_file.is_file() or not (folder / "poses.txt").is_file():
+        return False
+    meta = yaml.safe_load(meta_file.read_text()) or {}
+    try:
+        relative = np.loadtxt(folder / "poses.txt", ndmin=2).reshape(-1, 3, 4)
+        first = np.asarray(meta["world_T_cam0"], dtype=float)
+        moving = int(meta["config"]["degradations"]["moving_vehicles"])
+    except (KeyError, TypeError, ValueError):
+        return False
+    poses = np.tile(np.eye(4), (len(relative), 1, 1))
+    poses[:, :3, :] = relative
+    return meta.get("renderer_revision") == renderer_revision(first @ poses, moving)
+
+
 KITTI_FOCAL_PER_PIXEL_WIDTH = 718.856 / 1241.0  # KITTI's focal length scales with the image width
 
 
@@ -294,6 +332,8 @@ def simulate(
         image_size=(config.width * config.scale, config.height * config.scale),
         texture_poor=config.degradations.texture_poor,
         moving_vehicles=config.degradations.moving_vehicles,
+        vehicle_speed=config.degradations.vehicle_speed,
+        frame_interval=1.0 / config.rate,
         sky=config.sky,
     )
     world = build_world(spec, poses, config.camera_height)
@@ -400,11 +440,13 @@ def _render(
 
 
 def recorded_config(config: SimConfig) -> dict:
-    """The configuration as ``sim.yaml`` records it: the default sky is not named, so a sequence rendered before
-    the sky was an option keeps its content hash."""
+    """The configuration as ``sim.yaml`` records it: the default sky and vehicles that replay the camera's path
+    (vehicle_speed 0) are not named, so a sequence rendered before either was an option keeps its content hash."""
     recorded = asdict(config)
     if recorded["sky"] == "gradient":
         del recorded["sky"]
+    if recorded["degradations"]["vehicle_speed"] == 0.0:
+        del recorded["degradations"]["vehicle_speed"]
     return recorded
 
 
@@ -453,7 +495,7 @@ def _write_sidecars(
     )
     meta = {
         "generator": "pvo sim",
-        "renderer_revision": RENDERER_REVISION,
+        "renderer_revision": renderer_revision(poses, config.degradations.moving_vehicles),
         "config": recorded_config(config),
         "epoch_unix_s": float(times[0]),
         "world_T_cam0": poses[0].tolist(),

@@ -34,6 +34,8 @@ class WorldSpec:
     image_size: tuple[int, int] = (640, 480)  # the offscreen framebuffer must hold the images
     texture_poor: float = 0.0  # fraction of buildings with plain walls
     moving_vehicles: int = MOVING_VEHICLES
+    vehicle_speed: float = 0.0  # m/s (Degradations.vehicle_speed); 0: the vehicles replay the camera's path timing
+    frame_interval: float = 0.1  # s between frames, for the vehicles' own speed
     gravel: float = 9.0  # planetary: stones and rocks (as meshes) per 2 m of path
     # "gradient": one sky for every sun; "sun": the skybox in the key colour, for :mod:`.sky` to replace with
     # the sky the sun makes (the renderer composites it)
@@ -115,6 +117,87 @@ def distance_to_path(points: Array, path_xy: Array) -> Array:
     return out
 
 
+# the shortest horizontal span (m) a direction along the camera's path is taken over: at a standstill KITTI's poses
+# jitter by up to ~1 cm a frame, and the direction of one such step points anywhere (before revision 8 a vehicle
+# replaying the path circled the stopped camera 3.5 m away, facing every way, and the road beyond a path that ends
+# stopped ran off anywhere); a camera creeping at 0.2 m/s or more keeps its own directions
+STEADY_SPAN = 0.02
+
+
+def _span_index(path_xy: Array, index: int, step: int) -> int:
+    """The first path index from ``index`` in direction ``step`` (+1 or -1) at least STEADY_SPAN away, or the
+    path's end that way."""
+    last = index
+    for other in range(index + step, len(path_xy) if step > 0 else -1, step):
+        last = other
+        if np.linalg.norm(path_xy[other] - path_xy[index]) >= STEADY_SPAN:
+            break
+    return last
+
+
+def steady_directions(path_xy: Array) -> Array:
+    """Unit directions (N, 2) along the path at each sample: ``np.gradient``'s (the central difference, one-sided at
+    the ends) where that spans STEADY_SPAN or more — to the last bit, so a world without a stop is drawn as
+    before — and elsewhere the difference widened symmetrically until it spans that (or the whole path); (0, 1)
+    where even the whole path does not move."""
+    n = len(path_xy)
+    gradient = np.gradient(path_xy, axis=0)
+    out = gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)
+    for i in np.flatnonzero(_central_spans(path_xy) < STEADY_SPAN):
+        k = 1
+        while True:
+            d = path_xy[min(i + k, n - 1)] - path_xy[max(i - k, 0)]
+            if np.linalg.norm(d) >= STEADY_SPAN or (i + k >= n - 1 and i - k <= 0):
+                break
+            k += 1
+        norm = float(np.linalg.norm(d))
+        out[i] = d / norm if norm > 1e-9 else (0.0, 1.0)
+    return out
+
+
+def _central_spans(path_xy: Array) -> Array:
+    """|p[i+1] - p[i-1]| at each sample (N,), the one step at either end."""
+    padded = np.vstack([path_xy[:1], path_xy, path_xy[-1:]])
+    return np.linalg.norm(padded[2:] - padded[:-2], axis=1)
+
+
+def end_direction(path_xy: Array, end: int) -> Array:
+    """The unit direction in which the path leaves its last sample (``end`` -1) or its first (``end`` 0, pointing
+    backwards): its last (first) step, or where that spans less than STEADY_SPAN the displacement from the
+    nearest sample at least that far back (the camera's heading before it stopped); (0, 1) if the path never moves."""
+    index = len(path_xy) - 1 if end == -1 else 0
+    step = -1 if end == -1 else 1
+    neighbour = index + step
+    if np.linalg.norm(path_xy[index] - path_xy[neighbour]) < STEADY_SPAN:
+        neighbour = _span_index(path_xy, index, step)
+    d = path_xy[index] - path_xy[neighbour]
+    norm = float(np.linalg.norm(d))
+    return d / norm if norm > 1e-9 else np.array([0.0, 1.0])
+
+
+def steadied(path_xy: Array, moving_vehicles: int) -> bool:
+    """Whether the steadied directions change this path's world from renderer revision 7's: where its first or
+    last step spans less than STEADY_SPAN (the road's extensions), or, with moving vehicles (which replay the
+    path), where any central difference does."""
+    if len(path_xy) < 2:
+        return False
+    spans = _central_spans(path_xy)
+    if min(spans[0], spans[-1]) < STEADY_SPAN:
+        return True
+    return bool(moving_vehicles and (spans < STEADY_SPAN).any())
+
+
+def points_on_path(path_xy: Array, arc_lengths: Array) -> tuple[Array, Array]:
+    """Points (K, 2) at the given distances along the path (m, in [0, its length)) and the unit tangents (K, 2)
+    there; stretches where the path stands still (a stopped camera) have no length and are passed over."""
+    seg = np.diff(path_xy, axis=0)
+    lengths = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(lengths)])
+    idx = np.clip(np.searchsorted(cum, arc_lengths, side="right") - 1, 0, len(seg) - 1)
+    frac = (arc_lengths - cum[idx]) / np.maximum(lengths[idx], 1e-9)
+    return path_xy[idx] + frac[:, None] * seg[idx], seg[idx] / np.maximum(lengths[idx], 1e-9)[:, None]
+
+
 def along_path(path_xy: Array, spacing: float) -> tuple[Array, Array]:
     """Points every ``spacing`` metres along the path and the unit tangents there."""
     seg = np.diff(path_xy, axis=0)
@@ -135,14 +218,9 @@ def _extended(path_xy: Array, length: float = 80.0) -> Array:
     if len(path_xy) < 2:
         return path_xy
 
-    def direction(a: Array, b: Array) -> Array:
-        d = b - a
-        norm = float(np.linalg.norm(d))
-        return d / norm if norm > 1e-9 else np.array([0.0, 1.0])
-
     steps = np.linspace(2.0, length, 40)[:, None]
-    head = path_xy[-1] + steps * direction(path_xy[-2], path_xy[-1])
-    tail = path_xy[0] + steps[::-1] * direction(path_xy[1], path_xy[0])
+    head = path_xy[-1] + steps * end_direction(path_xy, -1)
+    tail = path_xy[0] + steps[::-1] * end_direction(path_xy, 0)
     return np.vstack([tail, path_xy, head])
 
 

@@ -108,6 +108,25 @@ def test_kitti_windows_can_be_replayed_faster(tmp_path: Path) -> None:
         kitti_corpus(drives, 8, 20, kitti_speed_scale=(1.0, 4.0))
 
 
+def test_vehicle_speeds_are_drawn_last_and_only_where_vehicles_move() -> None:
+    """``vehicle_speed``: each sequence with moving vehicles draws its vehicles' speed from the range and says so;
+    every other draw is the plain corpus's; a bad range is one line."""
+    from pvo_sim.degrade import Degradations
+
+    plain = [plan_sequence(CorpusConfig(sequences=40, frames=5, seed=3), i) for i in range(40)]
+    fast = [plan_sequence(CorpusConfig(sequences=40, frames=5, seed=3, vehicle_speed=(5.0, 15.0)), i) for i in range(40)]
+    moving = [p.config.degradations.moving_vehicles > 0 for p in plain]
+    assert 5 <= sum(moving) <= 35
+    for before, after, has_vehicles in zip(plain, fast, moving, strict=True):
+        speed = after.config.degradations.vehicle_speed
+        assert (5.0 <= speed <= 15.0) if has_vehicles else speed == 0.0
+        assert replace(after.config, degradations=replace(after.config.degradations, vehicle_speed=0.0)) == before.config
+        assert list(after.conditions) == list(before.conditions) + ([f"vehicles at {speed:.1f} m/s"] if has_vehicles else [])
+    assert Degradations().vehicle_speed == 0.0
+    with pytest.raises(ValueError, match=r"--vehicle-speed must be two speeds LO HI with 0 <= LO <= HI <= 40 m/s"):
+        CorpusConfig(vehicle_speed=(10.0, 5.0))
+
+
 def test_urban_cameras_can_be_pitched_and_the_default_draws_stay() -> None:
     """With --urban-pitch every urban sequence's camera is pitched down by a draw from the range, the planetary ones
     as before; without it the plans are those of a corpus made before the option (urban level, the same draws)."""

@@ -273,6 +273,96 @@ def test_rig_and_light_placement_match_the_truth() -> None:
         np.testing.assert_allclose(data.light_xdir[model.light("sun").id], -sun, atol=1e-12)
 
 
+def test_vehicles_at_their_own_speed_pass_a_stopped_camera() -> None:
+    """``vehicle_speed``: beside a camera that stands still each moving vehicle still drives, 3.5 m to the path's
+    left and against its direction, every step its own speed (within +-30 % of the asked one) times the frame
+    interval, but where it comes round again; without it the vehicles replay the camera's path (here: stand still),
+    and the recorded configuration names the option only when it is set (earlier content hashes stay)."""
+    from dataclasses import replace
+
+    from pvo_sim.degrade import Degradations
+    from pvo_sim.render import recorded_config
+    from pvo_sim.world import WorldSpec, build_world
+
+    stopped = np.tile(camera_trajectory(SimConfig(**SMALL, frames=2))[:1], (30, 1, 1))
+    forward = stopped[0, :2, 2] / np.linalg.norm(stopped[0, :2, 2])  # the optical axis, horizontal: the path's way
+    stopped[:, :2, 3] += 1e-4 * np.arange(30)[:, None] * forward  # creeping 1 mm/s: the road runs its way
+    spec = WorldSpec(moving_vehicles=4, vehicle_speed=10.0, frame_interval=0.1)
+    world = build_world(spec, stopped, 1.65)
+    assert len(world.moving_paths) == 4
+    for path, heading in zip(world.moving_paths, world.moving_headings, strict=True):
+        steps = np.diff(path[:, :2], axis=0)
+        lengths = np.linalg.norm(steps, axis=1)
+        driving = lengths < 5.0  # a wrap round the 160 m path is one jump
+        assert driving.sum() >= 28 and 0.7 - 1e-9 <= lengths[driving].mean() <= 1.3 + 1e-9
+        np.testing.assert_allclose(lengths[driving], lengths[driving][0], rtol=1e-6)
+        np.testing.assert_allclose(steps[driving] @ forward, -lengths[driving], rtol=1e-6)  # oncoming
+        offsets = (path[:, :2] - stopped[0, :2, 3]) @ np.array([forward[1], -forward[0]])  # to the path's right
+        np.testing.assert_allclose(offsets, -3.5, atol=1e-6)
+        np.testing.assert_allclose(np.cos(heading), -forward[0], atol=1e-9)
+    replaying = build_world(replace(spec, vehicle_speed=0.0), stopped, 1.65)
+    for path in replaying.moving_paths:
+        assert np.abs(np.diff(path, axis=0)).max() < 5e-3  # creeping with the camera (3 mm where one comes round)
+    plain = SimConfig(**SMALL)
+    assert "vehicle_speed" not in recorded_config(plain)["degradations"]
+    fast = replace(plain, degradations=Degradations(moving_vehicles=2, vehicle_speed=8.0))
+    assert recorded_config(fast)["degradations"]["vehicle_speed"] == 8.0
+    with pytest.raises(ValueError, match=r"--vehicle-speed must be in \[0, 40\] m/s, got -1.0"):
+        Degradations(vehicle_speed=-1.0)
+
+
+def _driven_then_stopped(stop: bool, frames: int = 40) -> np.ndarray:
+    """Camera poses (N, 4, 4): 0.5 m per frame along +x, then (``stop``) the second half at a standstill whose
+    positions jitter by up to 8 mm, as KITTI's do (07 from frame 660)."""
+    rng = np.random.default_rng(4)
+    x = 0.5 * np.arange(frames, dtype=float)
+    y = np.zeros(frames)
+    if stop:
+        x[frames // 2 :] = x[frames // 2]
+        x[frames // 2 :] += rng.uniform(-0.004, 0.004, frames - frames // 2)
+        y[frames // 2 :] += rng.uniform(-0.004, 0.004, frames - frames // 2)
+    poses = np.tile(np.eye(4), (frames, 1, 1))
+    poses[:, 0, 3], poses[:, 1, 3], poses[:, 2, 3] = x, y, 1.65
+    return poses
+
+
+def test_a_stopped_cameras_jitter_steers_neither_the_vehicles_nor_the_road(tmp_path: Path) -> None:
+    """At a standstill the direction of one jittering step points anywhere. Vehicles replaying the path keep the
+    way it drove — 3.5 m to its left, facing against it — where before revision 8 they circled the stopped camera
+    3.5 m away; the road beyond its end runs on the way it drove. A path that never stops keeps np.gradient's
+    directions to the bit (its worlds are revision 7's, and recorded so)."""
+    import yaml
+    from pvo_sim.render import RENDERER_REVISION, UNCHANGED_SINCE_REVISION, rendered_by_this_renderer, renderer_revision
+    from pvo_sim.world import WorldSpec, build_world, end_direction, steady_directions
+
+    stopped, moving = _driven_then_stopped(True), _driven_then_stopped(False)
+    world = build_world(WorldSpec(moving_vehicles=4, image_size=(64, 48)), stopped, 1.65)
+    for path, heading in zip(world.moving_paths, world.moving_headings, strict=True):
+        np.testing.assert_allclose(path[:, 1], 3.5, atol=0.01)  # the path's y jitters by 4 mm at most
+        np.testing.assert_allclose(np.abs(np.angle(np.exp(1j * (heading - np.pi)))), 0.0, atol=0.02)
+    np.testing.assert_allclose(end_direction(stopped[:, :2, 3], -1), [1.0, 0.0], atol=0.02)
+    np.testing.assert_allclose(end_direction(stopped[:, :2, 3], 0), [-1.0, 0.0], atol=1e-12)
+    gradient = np.gradient(moving[:, :2, 3], axis=0)
+    expected = gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)
+    assert np.array_equal(steady_directions(moving[:, :2, 3]), expected)
+    assert renderer_revision(stopped, 4) == RENDERER_REVISION == 8
+    assert renderer_revision(stopped, 0) == RENDERER_REVISION  # the road beyond a stopped end, vehicles or none
+    assert renderer_revision(moving, 4) == UNCHANGED_SINCE_REVISION == 7
+    middle = np.concatenate([stopped[:30], moving[30:] + np.array([[0, 0, 0, -5.0]] + [[0, 0, 0, 0]] * 3)])
+    assert renderer_revision(middle, 0) == 7 and renderer_revision(middle, 2) == 8  # only vehicles replay a stop
+    # a folder is this renderer's when it records the revision its own path gives
+    for name, poses, revision, expected_current in (("a", stopped, 7, False), ("b", stopped, 8, True), ("c", moving, 7, True)):
+        folder = tmp_path / name
+        folder.mkdir()
+        first = poses[0].copy()
+        relative = np.linalg.inv(first) @ poses
+        np.savetxt(folder / "poses.txt", relative[:, :3, :].reshape(-1, 12))
+        meta = {"renderer_revision": revision, "world_T_cam0": first.tolist(), "config": {"degradations": {"moving_vehicles": 3}}}
+        (folder / "sim.yaml").write_text(yaml.safe_dump(meta))
+        assert rendered_by_this_renderer(folder) is expected_current
+    assert not rendered_by_this_renderer(tmp_path / "missing")
+
+
 def test_kitti_ground_truth_replay(pvo_data: Path, tmp_path: Path) -> None:
     poses_file = pvo_data / "kitti" / "poses" / "06.txt"
     config = render(tmp_path / "kitti", frames=4, poses_file=str(poses_file), start_frame=100)

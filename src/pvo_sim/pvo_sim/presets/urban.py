@@ -12,7 +12,16 @@ from __future__ import annotations
 import numpy as np
 
 from .. import shapes, textures
-from ..world import WorldArea, WorldParts, WorldSpec, along_path, distance_to_path, image_material
+from ..world import (
+    WorldArea,
+    WorldParts,
+    WorldSpec,
+    along_path,
+    distance_to_path,
+    image_material,
+    points_on_path,
+    steady_directions,
+)
 
 ROAD_CENTRE = -1.75  # the road's centre line, right of the path is positive
 ROAD_HALF_WIDTH = 5.75
@@ -153,16 +162,25 @@ def build(spec: WorldSpec, area: WorldArea, rng: np.random.Generator) -> WorldPa
             if clear(car, min(abs(offset), spec.clearance) - 0.1):
                 inner = shapes.vehicle(kinds[int(rng.integers(len(kinds)))], f"paint{int(rng.integers(len(shapes.CAR_COLOURS)))}")
                 bodies.append(_placed(car[0], car[1], yaw + (np.pi if rng.random() < 0.2 else 0.0), inner))
-    # moving vehicles: drive the driven path in the oncoming lane, offset in time
+    # moving vehicles in the oncoming lane: each drives the driven path backwards, offset in time (so at the
+    # camera's speed of another moment), or with ``vehicle_speed`` the extended path at its own speed
     driven = area.driven_xy
     n = len(driven)
+    path_length = float(np.linalg.norm(np.diff(area.path_xy, axis=0), axis=1).sum())
     for j in range(spec.moving_vehicles):
-        offset = int(rng.integers(n // 4, max(n // 4 + 1, n)))
-        idx = (offset - np.arange(n)) % n
-        tang = np.gradient(driven, axis=0)[idx]
-        tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-9)
+        if spec.vehicle_speed > 0.0:
+            speed = spec.vehicle_speed * float(rng.uniform(0.7, 1.3))
+            start = float(rng.uniform(0.0, path_length))
+            # towards the path's start, round again from its far end: 80 m beyond the driven path at either end
+            arc = (start - speed * spec.frame_interval * np.arange(n)) % path_length
+            along, tang = points_on_path(area.path_xy, arc)
+        else:
+            offset = int(rng.integers(n // 4, max(n // 4 + 1, n)))
+            idx = (offset - np.arange(n)) % n
+            along = driven[idx]
+            tang = steady_directions(driven)[idx]
         right = np.stack([tang[:, 1], -tang[:, 0]], axis=1)
-        xy = driven[idx] + right * (2 * ROAD_CENTRE)
+        xy = along + right * (2 * ROAD_CENTRE)
         parts.moving_paths.append(np.column_stack([xy, np.zeros(n)]))
         parts.moving_headings.append(np.arctan2(-tang[:, 1], -tang[:, 0]))
         kind = kinds[int(rng.integers(len(kinds)))]

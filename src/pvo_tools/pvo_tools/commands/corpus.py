@@ -105,6 +105,16 @@ def register(sub: Any) -> None:
         "rarely reach; default 1 1: as driven)",
     )
     corpus.add_argument(
+        "--vehicle-speed",
+        type=float,
+        nargs=2,
+        default=(0.0, 0.0),
+        metavar=("LO", "HI"),
+        help="moving vehicles drive at their own speed, drawn per sequence uniformly from [LO, HI] m/s (each vehicle "
+        "within +-30 %%), past a stopped or crawling camera too (e.g. 5 15 with --kitti-speed-scale 0.02 1; default "
+        "0 0: each vehicle replays the camera's own path in the oncoming lane, at its speed of another moment)",
+    )
+    corpus.add_argument(
         "--urban-pitch",
         type=float,
         nargs=2,
@@ -159,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
         kitti_level_frames=args.kitti_level_frames,
         kitti_speed_scale=tuple(args.kitti_speed_scale),  # type: ignore[arg-type]
         urban_pitch=tuple(args.urban_pitch),  # type: ignore[arg-type]
+        vehicle_speed=tuple(args.vehicle_speed),  # type: ignore[arg-type]
         lens_distortion=tuple(args.lens_distortion),
         calib_focal_scale=args.calib_focal_scale,
         calib_baseline_scale=args.calib_baseline_scale,

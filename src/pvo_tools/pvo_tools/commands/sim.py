@@ -89,6 +89,13 @@ def register(sub: Any) -> None:
     deg.add_argument("--baseline-scale", type=float, default=1.0, help="write calib.txt with the baseline times this")
     deg.add_argument("--texture-poor", type=float, default=0.0, help="urban: fraction of buildings with plain walls")
     deg.add_argument("--moving", type=int, default=3, help="urban: number of independently moving vehicles")
+    deg.add_argument(
+        "--vehicle-speed",
+        type=float,
+        default=0.0,
+        help="urban: the moving vehicles' own speed in m/s, each within +-30 %% (default 0: each replays the camera's "
+        "path in the oncoming lane, at the camera's speed of another moment)",
+    )
     cam = sim.add_argument_group("camera model (applied to every image; --linear-camera keeps the raw render)")
     cam.add_argument("--linear-camera", action="store_true", help="no auto-exposure, vignetting, noise, gamma or JPEG")
     cam.add_argument("--exposure-target", type=float, default=0.42, help="auto-exposure mean brightness, 0-1 (default 0.42)")
@@ -166,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
             baseline_scale=args.baseline_scale,
             texture_poor=args.texture_poor,
             moving_vehicles=args.moving,
+            vehicle_speed=args.vehicle_speed,
         ),
         camera=camera_model(args),
     )

@@ -54,13 +54,11 @@ def fusion_figures(truth: Any, estimate: Any) -> dict[str, float]:
 
 
 def rendered_by_this_revision(folder: Path) -> bool:
-    """Whether ``folder`` holds a complete `pvo sim` sequence of this renderer's revision (an experiment renders
-    an older one anew: the same configuration renders different images)."""
-    import yaml
-    from pvo_sim.render import RENDERER_REVISION
+    """Whether ``folder`` holds a complete `pvo sim` sequence this renderer would draw the same (an experiment
+    renders one of an older revision anew: the same configuration renders different images)."""
+    from pvo_sim.render import rendered_by_this_renderer
 
-    meta = folder / "sim.yaml"
-    return meta.is_file() and (yaml.safe_load(meta.read_text()) or {}).get("renderer_revision") == RENDERER_REVISION
+    return rendered_by_this_renderer(folder)
 
 
 TRAJECTORY_METRICS = ("m_ate_trans", "m_ate_rot_deg", "seg_trans_percent", "seg_rot_deg_per_m")
