@@ -462,6 +462,34 @@ class CorpusResult:
         return self.frames_rendered / max(self.seconds, 1e-9)
 
 
+@dataclass
+class CorpusPlan:
+    """What rendering a corpus into a folder would do: the sequences kept (same configuration, rendered as this
+    renderer draws them), by name, and the plans of those to render; and every planned sequence's renderer
+    revision (the one its sim.yaml records: the latest revision only where that revision changed its world)."""
+
+    out: Path
+    kept: list[str]
+    to_render: list[SequencePlan]
+    revisions: dict[str, int]
+
+
+def plan_corpus(corpus: CorpusConfig, out: Path, indices: Sequence[int] | None = None) -> CorpusPlan:
+    """Plan ``corpus`` against what ``out`` holds, rendering nothing (``pvo sim corpus --dry-run``)."""
+    plans = [plan_sequence(corpus, i) for i in (range(corpus.sequences) if indices is None else indices)]
+    previous = {e.get("name"): e for e in read_manifest(Path(out)).get("sequences", [])}
+    kept, to_render, revisions = [], [], {}
+    for plan in plans:
+        revisions[plan.name] = planned_revision(plan.config)
+        entry = previous.get(plan.name)
+        same = entry and _same_config(entry.get("config"), _plain(recorded_config(plan.config)))
+        if same and entry.get("renderer_revision") == revisions[plan.name] and (Path(out) / plan.name / "sim.yaml").is_file():
+            kept.append(plan.name)
+        else:
+            to_render.append(plan)
+    return CorpusPlan(Path(out), kept, to_render, revisions)
+
+
 def render_corpus(
     corpus: CorpusConfig,
     out: Path,
@@ -476,19 +504,10 @@ def render_corpus(
         raise ValueError(f"--jobs must be >= 1, got {jobs}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    plans = [plan_sequence(corpus, i) for i in (range(corpus.sequences) if indices is None else indices)]
     previous = {e.get("name"): e for e in read_manifest(out).get("sequences", [])}
-    entries: dict[str, dict[str, Any]] = {}
-    kept, todo = [], []
-    for plan in plans:
-        entry = previous.get(plan.name)
-        folder = out / plan.name
-        same = entry and _same_config(entry.get("config"), _plain(recorded_config(plan.config)))
-        if same and entry.get("renderer_revision") == planned_revision(plan.config) and (folder / "sim.yaml").is_file():
-            entries[plan.name] = entry
-            kept.append(plan.name)
-        else:
-            todo.append(plan)
+    planned = plan_corpus(corpus, out, indices)
+    kept, todo = planned.kept, planned.to_render
+    entries: dict[str, dict[str, Any]] = {name: previous[name] for name in kept}
     total = len(todo) * corpus.frames
     done_frames = 0
     if progress:

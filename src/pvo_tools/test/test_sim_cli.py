@@ -84,6 +84,13 @@ def test_sim_corpus_command_renders_resumes_and_reports(tmp_path: Path, capsys) 
     assert [s["name"] for s in manifest["sequences"]] == ["0000", "0001"]
     assert main(args) == 0
     assert "0 sequence(s) rendered, 2 kept" in capsys.readouterr().out
+    # --dry-run: what the command would do, rendering nothing
+    more = [*args[:4], "3", *args[5:]]  # --sequences 3
+    assert main([*more, "--dry-run"]) == 0
+    said = capsys.readouterr().out
+    assert "3 sequence(s) planned, 2 kept, 1 to render (2 stereo frames); 0 whose world renderer revision 8" in said
+    assert not (tmp_path / "c" / "0002").exists()
+    assert len(yaml.safe_load((tmp_path / "c" / "manifest.yaml").read_text())["sequences"]) == 2
     # its mirror, with progress on stderr; again: nothing left to do; a folder that is neither is one line
     assert main(["sim", "mirror", str(tmp_path / "c"), str(tmp_path / "m")]) == 0
     printed = capsys.readouterr()

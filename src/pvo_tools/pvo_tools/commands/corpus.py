@@ -46,6 +46,12 @@ def register(sub: Any) -> None:
     )
     corpus.add_argument("--quiet", "-q", action="store_true", help="no progress output")
     corpus.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="render nothing: say how many sequences OUT keeps and would render, and which the latest renderer "
+        "revision draws differently from the one before (e.g. to check a model card's corpus command)",
+    )
+    corpus.add_argument(
         "--lens-distortion",
         type=float,
         nargs="+",
@@ -175,6 +181,19 @@ def run(args: argparse.Namespace) -> int:
         calib_baseline_scale=args.calib_baseline_scale,
         **{name: getattr(args, name) for name in DEGRADATION_SHARES},
     )
+    if args.dry_run:
+        from pvo_sim.corpus import plan_corpus
+        from pvo_sim.render import RENDERER_REVISION
+
+        planned = plan_corpus(config, args.out)
+        latest = sorted(name for name, revision in planned.revisions.items() if revision == RENDERER_REVISION)
+        print(
+            f"{args.out}: {len(planned.revisions)} sequence(s) planned, {len(planned.kept)} kept, "
+            f"{len(planned.to_render)} to render ({len(planned.to_render) * config.frames} stereo frames); "
+            f"{len(latest)} whose world renderer revision {RENDERER_REVISION} changed"
+            + (f": {' '.join(latest)}" if latest else "")
+        )
+        return 0
     progress = CountProgress("pvo sim corpus (frames)", args.quiet)
     result = render_corpus(config, args.out, jobs=args.jobs, progress=progress)
     progress.close()
