@@ -44,7 +44,8 @@ class WorldSpec:
 
 @dataclass(frozen=True)
 class WorldArea:
-    """Where a preset builds: the extended path (M, 2), the driven path (N, 2) and the ground's bounds (m)."""
+    """Where a preset builds: the extended path (M, 2), the driven path (N, 2), the ground's bounds (m) and the
+    cameras' horizontal headings (N, 2)."""
 
     path_xy: Array
     driven_xy: Array
@@ -52,6 +53,7 @@ class WorldArea:
     hi: Array
     centre: Array
     half: Array
+    driven_heading: Array
 
 
 @dataclass
@@ -117,41 +119,29 @@ def distance_to_path(points: Array, path_xy: Array) -> Array:
     return out
 
 
-# the shortest horizontal span (m) a direction along the camera's path is taken over: at a standstill KITTI's poses
-# jitter by up to ~1 cm a frame, and the direction of one such step points anywhere (before revision 8 a vehicle
-# replaying the path circled the stopped camera 3.5 m away, facing every way, and the road beyond a path that ends
-# stopped ran off anywhere); a camera creeping at 0.2 m/s or more keeps its own directions
+# below this horizontal span (m) a direction along the camera's path is the camera's heading, not the path's: at a
+# standstill KITTI's poses jitter by up to ~1 cm a frame, and the direction of one such step points anywhere (before
+# revision 8 a vehicle replaying the path circled the stopped camera 3.5 m away, facing every way, and the road
+# beyond a path that ends stopped ran off anywhere); a camera moving 0.2 m/s or more keeps its path's directions
 STEADY_SPAN = 0.02
 
 
-def _span_index(path_xy: Array, index: int, step: int) -> int:
-    """The first path index from ``index`` in direction ``step`` (+1 or -1) at least STEADY_SPAN away, or the
-    path's end that way."""
-    last = index
-    for other in range(index + step, len(path_xy) if step > 0 else -1, step):
-        last = other
-        if np.linalg.norm(path_xy[other] - path_xy[index]) >= STEADY_SPAN:
-            break
-    return last
+def horizontal_headings(camera_poses: Array) -> Array:
+    """Unit horizontal directions (N, 2) of the cameras' optical axes (T_world,cam (N, 4, 4), world z up) — the way
+    a car faces, and drives when it drives forward; (0, 1) for a camera looking straight down."""
+    axes = camera_poses[:, :2, 2]
+    norms = np.linalg.norm(axes, axis=1, keepdims=True)
+    return np.where(norms > 1e-9, axes / np.maximum(norms, 1e-9), np.array([0.0, 1.0]))
 
 
-def steady_directions(path_xy: Array) -> Array:
+def steady_directions(path_xy: Array, headings: Array) -> Array:
     """Unit directions (N, 2) along the path at each sample: ``np.gradient``'s (the central difference, one-sided at
     the ends) where that spans STEADY_SPAN or more — to the last bit, so a world without a stop is drawn as
-    before — and elsewhere the difference widened symmetrically until it spans that (or the whole path); (0, 1)
-    where even the whole path does not move."""
-    n = len(path_xy)
+    before — and elsewhere the camera's heading there (``headings`` (N, 2), :func:`horizontal_headings`)."""
     gradient = np.gradient(path_xy, axis=0)
     out = gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)
-    for i in np.flatnonzero(_central_spans(path_xy) < STEADY_SPAN):
-        k = 1
-        while True:
-            d = path_xy[min(i + k, n - 1)] - path_xy[max(i - k, 0)]
-            if np.linalg.norm(d) >= STEADY_SPAN or (i + k >= n - 1 and i - k <= 0):
-                break
-            k += 1
-        norm = float(np.linalg.norm(d))
-        out[i] = d / norm if norm > 1e-9 else (0.0, 1.0)
+    still = _central_spans(path_xy) < STEADY_SPAN
+    out[still] = headings[still]
     return out
 
 
@@ -161,18 +151,16 @@ def _central_spans(path_xy: Array) -> Array:
     return np.linalg.norm(padded[2:] - padded[:-2], axis=1)
 
 
-def end_direction(path_xy: Array, end: int) -> Array:
+def end_direction(path_xy: Array, heading: Array, end: int) -> Array:
     """The unit direction in which the path leaves its last sample (``end`` -1) or its first (``end`` 0, pointing
-    backwards): its last (first) step, or where that spans less than STEADY_SPAN the displacement from the
-    nearest sample at least that far back (the camera's heading before it stopped); (0, 1) if the path never moves."""
-    index = len(path_xy) - 1 if end == -1 else 0
-    step = -1 if end == -1 else 1
-    neighbour = index + step
-    if np.linalg.norm(path_xy[index] - path_xy[neighbour]) < STEADY_SPAN:
-        neighbour = _span_index(path_xy, index, step)
+    backwards): its last (first) step, or where that spans less than STEADY_SPAN the camera's ``heading`` there
+    (negated at the first sample)."""
+    index, neighbour = (len(path_xy) - 1, len(path_xy) - 2) if end == -1 else (0, 1)
     d = path_xy[index] - path_xy[neighbour]
     norm = float(np.linalg.norm(d))
-    return d / norm if norm > 1e-9 else np.array([0.0, 1.0])
+    if norm < STEADY_SPAN:
+        return np.asarray(heading, dtype=float) * (1.0 if end == -1 else -1.0)
+    return d / norm
 
 
 def steadied(path_xy: Array, moving_vehicles: int) -> bool:
@@ -213,14 +201,14 @@ def along_path(path_xy: Array, spacing: float) -> tuple[Array, Array]:
     return points, tangents
 
 
-def _extended(path_xy: Array, length: float = 80.0) -> Array:
-    """The path with straight extensions at both ends, so that the world continues beyond what the camera drives."""
+def _extended(path_xy: Array, headings: Array, length: float = 80.0) -> Array:
+    """The path with straight extensions at both ends, so that the world continues beyond what the camera drives
+    (``headings``: the cameras' horizontal headings, for an end where the path stands still)."""
     if len(path_xy) < 2:
         return path_xy
-
     steps = np.linspace(2.0, length, 40)[:, None]
-    head = path_xy[-1] + steps * end_direction(path_xy, -1)
-    tail = path_xy[0] + steps[::-1] * end_direction(path_xy, 0)
+    head = path_xy[-1] + steps * end_direction(path_xy, headings[-1], -1)
+    tail = path_xy[0] + steps[::-1] * end_direction(path_xy, headings[0], 0)
     return np.vstack([tail, path_xy, head])
 
 
@@ -230,12 +218,13 @@ def build_world(spec: WorldSpec, camera_poses: Array, camera_height: float) -> W
     if builder is None:
         raise ValueError(f"unknown preset {spec.preset!r}: choose one of {', '.join(PRESETS)}")
     rng = np.random.default_rng(spec.seed)
-    path_xy = _extended(camera_poses[:, :2, 3])
+    headings = horizontal_headings(camera_poses)
+    path_xy = _extended(camera_poses[:, :2, 3], headings)
     lo, hi = path_xy.min(axis=0) - 80.0, path_xy.max(axis=0) + 80.0
     centre = 0.5 * (lo + hi)
     half = 0.5 * (hi - lo)
     extent = float(np.linalg.norm(half)) + 10.0
-    area = WorldArea(path_xy, camera_poses[:, :2, 3], lo, hi, centre, half)
+    area = WorldArea(path_xy, camera_poses[:, :2, 3], lo, hi, centre, half, headings)
     parts = builder(spec, area, rng)
     assets, bodies = parts.assets, parts.bodies
     # Sunlight with cast shadows plus skylight: a diffuse fill from the zenith and an ambient term, so that

@@ -312,8 +312,8 @@ def test_vehicles_at_their_own_speed_pass_a_stopped_camera() -> None:
 
 
 def _driven_then_stopped(stop: bool, frames: int = 40) -> np.ndarray:
-    """Camera poses (N, 4, 4): 0.5 m per frame along +x, then (``stop``) the second half at a standstill whose
-    positions jitter by up to 8 mm, as KITTI's do (07 from frame 660)."""
+    """Camera poses (N, 4, 4) looking along +x: 0.5 m per frame that way, then (``stop``) the second half at a
+    standstill whose positions jitter by up to 8 mm, as KITTI's do (07 from frame 660)."""
     rng = np.random.default_rng(4)
     x = 0.5 * np.arange(frames, dtype=float)
     y = np.zeros(frames)
@@ -322,29 +322,38 @@ def _driven_then_stopped(stop: bool, frames: int = 40) -> np.ndarray:
         x[frames // 2 :] += rng.uniform(-0.004, 0.004, frames - frames // 2)
         y[frames // 2 :] += rng.uniform(-0.004, 0.004, frames - frames // 2)
     poses = np.tile(np.eye(4), (frames, 1, 1))
+    poses[:, :3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # optical x, y, z in ENU
     poses[:, 0, 3], poses[:, 1, 3], poses[:, 2, 3] = x, y, 1.65
     return poses
 
 
 def test_a_stopped_cameras_jitter_steers_neither_the_vehicles_nor_the_road(tmp_path: Path) -> None:
-    """At a standstill the direction of one jittering step points anywhere. Vehicles replaying the path keep the
-    way it drove — 3.5 m to its left, facing against it — where before revision 8 they circled the stopped camera
-    3.5 m away; the road beyond its end runs on the way it drove. A path that never stops keeps np.gradient's
-    directions to the bit (its worlds are revision 7's, and recorded so)."""
+    """At a standstill the direction of one jittering step points anywhere; there the camera's heading is the
+    path's. Vehicles replaying the path keep the way it drove — 3.5 m to its left, facing against it — where before
+    revision 8 they circled the stopped camera 3.5 m away; the road beyond its end runs on the way the camera faces.
+    A path that never stops keeps np.gradient's directions to the bit (its worlds are revision 7's, recorded so)."""
     import yaml
     from pvo_sim.render import RENDERER_REVISION, UNCHANGED_SINCE_REVISION, rendered_by_this_renderer, renderer_revision
-    from pvo_sim.world import WorldSpec, build_world, end_direction, steady_directions
+    from pvo_sim.world import WorldSpec, build_world, end_direction, horizontal_headings, steady_directions
 
     stopped, moving = _driven_then_stopped(True), _driven_then_stopped(False)
     world = build_world(WorldSpec(moving_vehicles=4, image_size=(64, 48)), stopped, 1.65)
     for path, heading in zip(world.moving_paths, world.moving_headings, strict=True):
         np.testing.assert_allclose(path[:, 1], 3.5, atol=0.01)  # the path's y jitters by 4 mm at most
         np.testing.assert_allclose(np.abs(np.angle(np.exp(1j * (heading - np.pi)))), 0.0, atol=0.02)
-    np.testing.assert_allclose(end_direction(stopped[:, :2, 3], -1), [1.0, 0.0], atol=0.02)
-    np.testing.assert_allclose(end_direction(stopped[:, :2, 3], 0), [-1.0, 0.0], atol=1e-12)
+    headings = horizontal_headings(stopped)
+    np.testing.assert_allclose(headings, np.tile([1.0, 0.0], (len(stopped), 1)), atol=1e-12)
+    down = np.eye(4)[None].copy()
+    down[0, :3, :3] = np.diag([1.0, -1.0, -1.0])  # the optical axis straight down: no heading, north by convention
+    np.testing.assert_allclose(horizontal_headings(down), [[0.0, 1.0]])
+    np.testing.assert_allclose(end_direction(stopped[:, :2, 3], headings[-1], -1), [1.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(end_direction(stopped[:, :2, 3], headings[0], 0), [-1.0, 0.0], atol=1e-12)
+    turned = np.array([0.0, 1.0])  # a stopped end follows the camera; a moving one its own last step
+    np.testing.assert_allclose(end_direction(stopped[:, :2, 3], turned, -1), turned, atol=1e-12)
+    np.testing.assert_allclose(end_direction(stopped[:, :2, 3], turned, 0), [-1.0, 0.0], atol=1e-12)
     gradient = np.gradient(moving[:, :2, 3], axis=0)
     expected = gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)
-    assert np.array_equal(steady_directions(moving[:, :2, 3]), expected)
+    assert np.array_equal(steady_directions(moving[:, :2, 3], horizontal_headings(moving)), expected)
     assert renderer_revision(stopped, 4) == RENDERER_REVISION == 8
     assert renderer_revision(stopped, 0) == RENDERER_REVISION  # the road beyond a stopped end, vehicles or none
     assert renderer_revision(moving, 4) == UNCHANGED_SINCE_REVISION == 7

@@ -178,7 +178,7 @@ def build(spec: WorldSpec, area: WorldArea, rng: np.random.Generator) -> WorldPa
             offset = int(rng.integers(n // 4, max(n // 4 + 1, n)))
             idx = (offset - np.arange(n)) % n
             along = driven[idx]
-            tang = steady_directions(driven)[idx]
+            tang = steady_directions(driven, area.driven_heading)[idx]
         right = np.stack([tang[:, 1], -tang[:, 0]], axis=1)
         xy = along + right * (2 * ROAD_CENTRE)
         parts.moving_paths.append(np.column_stack([xy, np.zeros(n)]))
