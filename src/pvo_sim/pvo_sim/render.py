@@ -32,8 +32,9 @@ Array = NDArray[np.float64]
 GRAVITY_ENU = np.array([0.0, 0.0, -9.80665])
 #: Bumped whenever the same configuration renders different images (worlds, lighting, camera): a corpus keeps a
 #: sequence only if it was rendered by the same revision.
-#: 7: KITTI drives levelled onto the flat ground (kitti_path); 8: directions along a camera's path that stops or
-#: crawls steadied (world.steady_directions: the moving vehicles, the road beyond the path's ends).
+#: 7: KITTI drives levelled onto the flat ground (kitti_path); 8: where a camera's path moves under 2 cm in two
+#: frames (a stop, KITTI's jitter), its direction is the camera's heading (world.steady_directions: the moving
+#: vehicles that replay the path, the road beyond its ends).
 RENDERER_REVISION = 8
 #: what revision 8 draws exactly as revision 7 did keeps 7 (renderer_revision), and with it its content hash
 UNCHANGED_SINCE_REVISION = 7
