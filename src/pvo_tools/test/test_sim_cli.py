@@ -131,6 +131,7 @@ def test_sim_corpus_degradation_shares_reach_every_sequence_and_the_card_command
         (["--jobs", "0"], "--jobs must be >= 1"),
         (["--kitti-speed-scale", "2", "1"], "--kitti-speed-scale must be two factors LO HI with 0.02 <= LO <= HI <= 4"),
         (["--radial-distortion", "1.5"], "--radial-distortion must be a fraction in [0, 1], got 1.5"),
+        (["--vehicle-speed", "10", "5"], "--vehicle-speed must be two speeds LO HI with 0 <= LO <= HI <= 40 m/s"),
     ],
 )
 def test_sim_corpus_bad_options_are_one_line(tmp_path: Path, capsys, extra: list[str], message: str) -> None:
@@ -186,6 +187,9 @@ def test_a_drive_replayed_faster_from_the_command_line(tmp_path, capsys, pvo_dat
     )
     assert main(["sim", str(tmp_path / "bad"), "--frames", "3", "--speed-scale", "0", *common]) == 2
     assert "--speed-scale must be positive" in capsys.readouterr().err
+    assert main(["sim", str(tmp_path / "bad"), "--frames", "3", "--vehicle-speed", "-2", *common]) == 2
+    assert "--vehicle-speed must be in [0, 40] m/s, got -2.0" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
 
 
 def test_a_mirrored_turning_drive_is_seen_by_the_vo_as_the_mirrored_motion(tmp_path: Path, capsys) -> None:
