@@ -100,35 +100,34 @@ def register(sub: Any) -> None:
         help="level each window over N frames of its drive around it, so that short windows pitch against the flat "
         "ground as long drives do (e.g. 1000, the long drives' length; default 0: each window on itself)",
     )
-    kitti.add_argument(
+    _range_option(
+        kitti,
         "--kitti-speed-scale",
-        type=float,
-        nargs=2,
-        default=(1.0, 1.0),
-        metavar=("LO", "HI"),
-        help="replay each window's drive faster or slower by a factor drawn uniformly from [LO, HI], 0.02 <= LO <= "
+        (1.0, 1.0),
+        "replay each window's drive faster or slower by a factor drawn uniformly from [LO, HI], 0.02 <= LO <= "
         "HI <= 4 (e.g. 1 1.6: KITTI's urban drives rarely exceed 15 m/s; 0.02 1: down to a standstill, which they "
         "rarely reach; default 1 1: as driven)",
     )
-    corpus.add_argument(
+    _range_option(
+        corpus,
         "--vehicle-speed",
-        type=float,
-        nargs=2,
-        default=(0.0, 0.0),
-        metavar=("LO", "HI"),
-        help="moving vehicles drive at their own speed, drawn per sequence uniformly from [LO, HI] m/s (each vehicle "
+        (0.0, 0.0),
+        "moving vehicles drive at their own speed, drawn per sequence uniformly from [LO, HI] m/s (each vehicle "
         "within +-30 %%), past a stopped or crawling camera too (e.g. 5 15 with --kitti-speed-scale 0.02 1; default "
         "0 0: each vehicle replays the camera's own path in the oncoming lane, at its speed of another moment)",
     )
-    corpus.add_argument(
+    _range_option(
+        corpus,
         "--urban-pitch",
-        type=float,
-        nargs=2,
-        default=(0.0, 0.0),
-        metavar=("LO", "HI"),
-        help="pitch each urban sequence's cameras down by an angle drawn uniformly from [LO, HI] degrees (planetary "
+        (0.0, 0.0),
+        "pitch each urban sequence's cameras down by an angle drawn uniformly from [LO, HI] degrees (planetary "
         "ones are drawn in [0, 25]; default 0 0: level)",
     )
+
+
+def _range_option(group: Any, flag: str, default: tuple[float, float], help: str) -> None:
+    """An option of two numbers LO HI, a range each sequence draws from."""
+    group.add_argument(flag, type=float, nargs=2, default=default, metavar=("LO", "HI"), help=help)
 
 
 # CorpusConfig's per-sequence degradation shares, each a `pvo sim corpus` option of the same name
