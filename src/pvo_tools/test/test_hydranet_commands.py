@@ -297,3 +297,32 @@ def test_bench_times_a_model_with_extra_input_channels(extra: dict, pvo_data: Pa
     assert main(["bench", "hydranet", "--model", str(tmp_path / "model"), "--data", str(pvo_data), "--repeat", "1"]) == 0
     out = capsys.readouterr().out
     assert "50 pairs of the KITTI 06 clip" in out and "network (4 heads, Sigma)" in out and "sensor total" in out
+
+
+def test_fusion_drives_go_through_other_worlds_on_request(pvo_data: Path, tmp_path: Path) -> None:
+    """``--fusion-world K``: the same drive, sun and degradations through another world (its own seed, other
+    images); a folder of the experiment's own worlds is kept, not re-rendered; one holding another world's drive is
+    one line, not overwritten."""
+    import cv2
+    from pvo_tools.experiments.hydranet import FUSION_SEQUENCES, render_fusion_sequences
+
+    def seed(folder: Path) -> int:
+        return yaml.safe_load((folder / "sim.yaml").read_text())["config"]["seed"]
+
+    try:
+        [own] = render_fusion_sequences(pvo_data, 1, 3, tmp_path / "own", lambda _: None)
+    except Exception as error:  # noqa: BLE001 - no offscreen renderer here
+        pytest.skip(f"pvo sim could not render here: {error}")
+    [other] = render_fusion_sequences(pvo_data, 1, 3, tmp_path / "other", lambda _: None, world=1)
+    assert own.name == other.name == FUSION_SEQUENCES[0][0]
+    assert (seed(own), seed(other)) == (700, 1700)
+    np.testing.assert_allclose(np.loadtxt(own / "poses.txt"), np.loadtxt(other / "poses.txt"), atol=1e-9)
+    assert not np.array_equal(cv2.imread(str(own / "image_0" / "000002.png")), cv2.imread(str(other / "image_0" / "000002.png")))
+    written = (own / "sim.yaml").stat().st_mtime_ns
+    render_fusion_sequences(pvo_data, 1, 3, tmp_path / "own", lambda _: None)
+    assert (own / "sim.yaml").stat().st_mtime_ns == written
+    with pytest.raises(ValueError, match=r"own/05-clean: fusion world 0's drive, not world 1's: give --fusion-dir"):
+        render_fusion_sequences(pvo_data, 1, 3, tmp_path / "own", lambda _: None, world=1)
+    assert seed(own) == 700
+    with pytest.raises(ValueError, match="--fusion-world must be >= 0, got -1"):
+        render_fusion_sequences(pvo_data, 1, 3, tmp_path / "x", lambda _: None, world=-1)

@@ -55,6 +55,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fusion-sequences", type=int, default=5, help="long fusion sequences (0-5; 0 skips section 4)")
     parser.add_argument("--fusion-frames", type=int, default=1000, help="frames per fusion sequence (default 1000)")
     parser.add_argument("--fusion-dir", type=Path, help="where the fusion sequences are rendered (default OUT/fusion-sequences)")
+    parser.add_argument(
+        "--fusion-world",
+        type=int,
+        default=0,
+        help="which worlds the fusion drives go through: 0 the experiment's own, K > 0 other worlds along the same "
+        "drives, degradations and suns (the spread of section 4's figures; give each its own --fusion-dir)",
+    )
     parser.add_argument("--finetune-epochs", type=int, default=15, help="fine-tuning epochs on KITTI 07 (0 skips it)")
     parser.add_argument("--data", type=Path, help="the shared data directory (default ../shared/data)")
     parser.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
@@ -198,30 +205,47 @@ def validation_fusion(models: list[tuple[Any, Any]], manifest: Any, presets: set
     return out
 
 
-def render_fusion_sequences(data: Path, count: int, frames: int, out: Path, say: Any) -> list[Path]:
-    """The first ``count`` of :data:`FUSION_SEQUENCES` rendered (urban, 1x, seeded) into ``out``; complete ones
-    of this renderer revision are kept (pvo sim moves a sequence into place only when whole)."""
+# world seeds of the fusion drives: drive i of world K is seeded FUSION_SEED + i + FUSION_WORLD_STRIDE * K
+FUSION_SEED = 700
+FUSION_WORLD_STRIDE = 1000
+
+
+def render_fusion_sequences(data: Path, count: int, frames: int, out: Path, say: Any, world: int = 0) -> list[Path]:
+    """The first ``count`` of :data:`FUSION_SEQUENCES` rendered (urban, 1x, seeded; ``world`` K > 0: other worlds
+    along the same drives) into ``out``; complete ones of this renderer revision and configuration are kept (pvo
+    sim moves a sequence into place only when whole); a folder holding another world's drive is one line."""
+    import yaml
     from pvo_sim.degrade import Degradations
     from pvo_sim.render import SimConfig, simulate
+
+    if world < 0:
+        raise ValueError(f"--fusion-world must be >= 0, got {world}")
 
     folders = []
     for index, (name, drive, start, degradations) in enumerate(FUSION_SEQUENCES[:count]):
         folder = out / name
         folders.append(folder)
-        if rendered_by_this_revision(folder):
-            continue
-        say(f"rendering fusion sequence {name} (KITTI {drive} from frame {start}, {frames} frames) ...")
         config = SimConfig(
             preset="urban",
             frames=frames,
             poses_file=str((data / "kitti" / "poses" / f"{drive}.txt").resolve()),
             start_frame=start,
             heading_deg=float(37 * index % 360),
-            seed=700 + index,
+            seed=FUSION_SEED + index + FUSION_WORLD_STRIDE * world,
             supersample=1,
             start_time="2011-09-30T10:30:00Z",
             degradations=Degradations(**degradations),  # type: ignore[arg-type]
         )
+        if rendered_by_this_revision(folder):
+            seed = ((yaml.safe_load((folder / "sim.yaml").read_text()) or {}).get("config") or {}).get("seed")
+            if seed == config.seed:
+                continue
+            if isinstance(seed, int) and (seed - FUSION_SEED - index) % FUSION_WORLD_STRIDE == 0:  # another world
+                raise ValueError(
+                    f"{folder}: fusion world {(seed - FUSION_SEED - index) // FUSION_WORLD_STRIDE}'s drive, not world "
+                    f"{world}'s: give --fusion-dir a folder of its own"
+                )
+        say(f"rendering fusion sequence {name} (KITTI {drive} from frame {start}, {frames} frames, world {world}) ...")
         simulate(config, folder, overwrite=True)  # an older revision's, or none
     return folders
 
@@ -441,7 +465,7 @@ def fusion_section(
     from pvo_fusion.config import from_flat
 
     folders = render_fusion_sequences(
-        data, args.fusion_sequences, args.fusion_frames, args.fusion_dir or out / "fusion-sequences", say
+        data, args.fusion_sequences, args.fusion_frames, args.fusion_dir or out / "fusion-sequences", say, args.fusion_world
     )
     # the VO's covariance scales are learned on the corpus's validation split, the model's presets (frame to
     # frame: HydraNet's span)
