@@ -45,6 +45,18 @@ class Drive:
     mirror_of: str = ""
 
 
+#: a drive's world K > 0 (``pvo dpc-net drives --world K``) is seeded this many times K above its own world
+WORLD_SEED_STRIDE = 1000
+
+
+def in_world(drives: Sequence[Drive], world: int) -> tuple[Drive, ...]:
+    """The same drives (motion, heading, frames, mirrors) through world ``world``: 0 their own, K > 0 another world
+    along each (its seed + WORLD_SEED_STRIDE * K)."""
+    if world < 0:
+        raise ValueError(f"--world must be >= 0, got {world}")
+    return tuple(replace(d, seed=d.seed + WORLD_SEED_STRIDE * world) for d in drives)
+
+
 #: the experiment's test drives (KITTI 05, 06, 07: no training or validation sequence drove them; windows of one
 #: drive overlap by at most 140 frames)
 _TEST_STARTS = (("05a", "05", 0), ("06", "06", 0), ("07", "07", 0), ("05b", "05", 900), ("05c", "05", 1760))
@@ -114,6 +126,7 @@ def render_drives(
     ``frames``: for a drive whose own is None; ``rigs``: the rigs wanted (:data:`RIGS`; ``calib`` needs the clean
     renders, so it renders them too). A drive with ``mirror_of`` is that drive's folder mirrored (made again when
     its source was rendered since). Returns the folders per rig asked for."""
+    import yaml
     from pvo_sim.mirror import mirror_sequence
 
     from .experiments.common import rendered_by_this_revision
@@ -137,6 +150,12 @@ def render_drives(
             folder = out / rig / drive.name
             folders[rig].append(folder)
             if rendered_by_this_revision(folder):
+                seed = ((yaml.safe_load((folder / "sim.yaml").read_text()) or {}).get("config") or {}).get("seed")
+                if isinstance(seed, int) and seed != drive.seed:
+                    raise ValueError(
+                        f"{folder}: rendered through another world (seed {seed}, not {drive.seed}): give OUT a folder "
+                        "of its own for each --world"
+                    )
                 continue
             command = [sys.executable, "-m", "pvo_tools.cli", "sim", str(folder), "--poses"]
             command += [str((data / "kitti" / "poses" / f"{drive.drive}.txt").resolve()), "--start", str(drive.start)]

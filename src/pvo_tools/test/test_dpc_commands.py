@@ -340,6 +340,41 @@ def test_drives_render_only_the_rigs_asked_for(tmp_path: Path, monkeypatch) -> N
         dpc.render_drives(drives, Path("data"), tmp_path, rigs=("fisheye",))
 
 
+def test_drives_through_another_world_keep_their_motion_and_never_mix_worlds(tmp_path: Path, monkeypatch) -> None:
+    """``--world K``: every drive's seed K strides up, its motion, frames and mirrors kept; a folder rendered
+    through another world is one line, not kept as this world's and not overwritten."""
+    import subprocess
+
+    from pvo_tools import dpc
+
+    commands: list[list[str]] = []
+
+    def fake_render(command: list[str], **_: object) -> subprocess.CompletedProcess:
+        commands.append(command)
+        folder = Path(command[command.index("sim") + 1])
+        _fake_sequence(folder)
+        meta = yaml.safe_load((folder / "sim.yaml").read_text())
+        meta["config"]["seed"] = int(command[command.index("--seed") + 1])
+        (folder / "sim.yaml").write_text(yaml.safe_dump(meta))
+        return subprocess.CompletedProcess(command, 0, "", "")
+
+    monkeypatch.setattr(dpc.subprocess, "run", fake_render)
+    own, other = dpc.VALIDATION_DRIVES[:1], dpc.in_world(dpc.VALIDATION_DRIVES[:1], 2)
+    assert other[0].seed == own[0].seed + 2 * dpc.WORLD_SEED_STRIDE
+    assert [(d.drive, d.start, d.frames, d.heading, d.mirror_of) for d in dpc.in_world(dpc.VALIDATION_DRIVES, 1)] == [
+        (d.drive, d.start, d.frames, d.heading, d.mirror_of) for d in dpc.VALIDATION_DRIVES
+    ]
+    dpc.render_drives(own, Path("data"), tmp_path / "w0", jobs=1, say=lambda _: None, rigs=("lens",))
+    dpc.render_drives(own, Path("data"), tmp_path / "w0", jobs=1, say=lambda _: None, rigs=("lens",))
+    assert len(commands) == 1  # kept the second time
+    seeds = f"seed {own[0].seed}, not {other[0].seed}"
+    with pytest.raises(ValueError, match=rf"w0/lens/{own[0].name}: rendered through another world \({seeds}\)"):
+        dpc.render_drives(other, Path("data"), tmp_path / "w0", jobs=1, say=lambda _: None, rigs=("lens",))
+    assert len(commands) == 1
+    with pytest.raises(ValueError, match="--world must be >= 0, got -1"):
+        dpc.in_world(own, -1)
+
+
 def test_drives_refuses_an_unknown_rig(tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit):
         main(["dpc-net", "drives", str(tmp_path / "d"), "--rigs", "lens,fisheye"])

@@ -76,6 +76,13 @@ def register_actions(actions: Any, entry: Any) -> None:
     drives.add_argument(
         "--frames", type=int, default=1000, help="frames per test drive (default 1000; validation drives: 1000, 1000, 271)"
     )
+    drives.add_argument(
+        "--world",
+        type=int,
+        default=0,
+        help="0: the drives' own worlds; K > 0: other worlds along the same drives (how far a figure over them moves "
+        "with the world alone; give each world its own OUT)",
+    )
     drives.add_argument("--data", type=Path, help="the shared data directory (default ../shared/data)")
     drives.add_argument("--jobs", "-j", type=int, default=2, help="sequences rendered in parallel (default 2)")
     drives.add_argument(
@@ -302,12 +309,12 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
 
 
 def run_drives(args: argparse.Namespace) -> int:
-    from ..dpc import RIGS, TEST_DRIVES, VALIDATION_DRIVES, render_drives
+    from ..dpc import RIGS, TEST_DRIVES, VALIDATION_DRIVES, in_world, render_drives
     from ..paths import data_directory
 
     if args.frames < 100:
         raise ValueError(f"--frames must be >= 100 (segment errors need 100 m and more), got {args.frames}")
-    drives = VALIDATION_DRIVES if args.split == "validation" else TEST_DRIVES
+    drives = in_world(VALIDATION_DRIVES if args.split == "validation" else TEST_DRIVES, args.world)
     folders = render_drives(
         drives,
         args.data or data_directory(),
