@@ -318,9 +318,9 @@ def turning_weights(poses_file: Path, frames: int, floor: float = 0.1) -> np.nda
     """Probabilities (N - frames + 1,) of each window start of a KITTI pose file (N poses): each window's total
     frame-to-frame rotation angle (rad), plus ``floor`` times the mean over windows (a straight window keeps a
     chance), normalised."""
-    from pvo_core.trajectory import read_kitti_poses
+    from .paths import drive_poses
 
-    poses = read_kitti_poses(poses_file)
+    poses = drive_poses(Path(poses_file))
     relative = np.einsum("nji,njk->nik", poses[:-1, :3, :3], poses[1:, :3, :3])  # C_k-1^T C_k
     angles = np.arccos(np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))
     cumulative = np.concatenate([[0.0], np.cumsum(angles)])

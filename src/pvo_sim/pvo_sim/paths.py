@@ -6,6 +6,7 @@ ground under the first camera; the optical frame is x right, y down, z forward.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +96,22 @@ def _rounded_rectangle(s: Array, width: float, height: float, radius: float) -> 
     return out
 
 
+def drive_poses(poses_file: Path) -> Array:
+    """A KITTI pose file's poses (N, 4, 4), read once per file version: a corpus plans hundreds of windows of the
+    same few drives (and resumes by planning them all again), and reading a 4,500-pose file checks every pose.
+    Read-only: the cached array is shared."""
+    stat = Path(poses_file).stat()
+    return _drive_poses(str(Path(poses_file).resolve()), stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=16)
+def _drive_poses(path: str, mtime_ns: int, size: int) -> Array:
+    del mtime_ns, size  # the cache key: a rewritten file is read again
+    poses = read_kitti_poses(Path(path))
+    poses.setflags(write=False)
+    return poses
+
+
 def kitti_path(
     poses_file: Path,
     frames: int | None,
@@ -121,7 +138,7 @@ def kitti_path(
     the ground plane. The frame-to-frame rotations (turns, pitch and roll as the car's) are KITTI's exactly;
     each step keeps its horizontal motion and loses its climb."""
     try:
-        poses = read_kitti_poses(poses_file)
+        poses = drive_poses(Path(poses_file))
     except Exception as exc:  # noqa: BLE001 - the reader raises DataFormatError naming the line
         raise ValueError(f"{poses_file}: not a KITTI pose file ({exc})") from None
     if start < 0 or start >= len(poses) - 1:

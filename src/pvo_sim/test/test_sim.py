@@ -487,3 +487,22 @@ def test_a_failed_render_keeps_the_previous_output(tmp_path: Path, monkeypatch) 
         simulate(SimConfig(**SMALL, frames=2, seed=9), out, overwrite=True)
     assert (out / "image_0" / "000001.png").read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["keep"]  # no partial directory left behind
+
+
+def test_a_drive_file_is_read_once_per_version(tmp_path: Path) -> None:
+    """drive_poses: the same array for the same file (a corpus plans hundreds of windows of one drive), read
+    again once the file is rewritten, and never writable (it is shared)."""
+    import os
+
+    from pvo_sim.paths import drive_poses
+
+    drive = tmp_path / "00.txt"
+    drive.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3)
+    first = drive_poses(drive)
+    assert drive_poses(drive) is first and first.shape == (3, 4, 4)
+    with pytest.raises(ValueError):
+        first[0, 0, 3] = 1.0
+    drive.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3 + "1 0 0 2 0 1 0 0 0 0 1 0\n")
+    os.utime(drive, ns=(drive.stat().st_atime_ns, drive.stat().st_mtime_ns + 1_000_000))
+    again = drive_poses(drive)
+    assert again.shape == (4, 4, 4) and again[3, 0, 3] == 2.0
