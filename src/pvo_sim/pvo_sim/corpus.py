@@ -465,11 +465,12 @@ class CorpusResult:
 @dataclass
 class CorpusPlan:
     """What rendering a corpus into a folder would do: the sequences kept (same configuration, rendered as this
-    renderer draws them), by name, and the plans of those to render; and every planned sequence's renderer
-    revision (the one its sim.yaml records: the latest revision only where that revision changed its world)."""
+    renderer draws them) with their manifest entries, and the plans of those to render; and every planned
+    sequence's renderer revision (the one its sim.yaml records: the latest revision only where that revision
+    changed its world)."""
 
     out: Path
-    kept: list[str]
+    kept: dict[str, dict[str, Any]]
     to_render: list[SequencePlan]
     revisions: dict[str, int]
 
@@ -478,13 +479,14 @@ def plan_corpus(corpus: CorpusConfig, out: Path, indices: Sequence[int] | None =
     """Plan ``corpus`` against what ``out`` holds, rendering nothing (``pvo sim corpus --dry-run``)."""
     plans = [plan_sequence(corpus, i) for i in (range(corpus.sequences) if indices is None else indices)]
     previous = {e.get("name"): e for e in read_manifest(Path(out)).get("sequences", [])}
-    kept, to_render, revisions = [], [], {}
+    kept: dict[str, dict[str, Any]] = {}
+    to_render, revisions = [], {}
     for plan in plans:
         revisions[plan.name] = planned_revision(plan.config)
         entry = previous.get(plan.name)
         same = entry and _same_config(entry.get("config"), _plain(recorded_config(plan.config)))
         if same and entry.get("renderer_revision") == revisions[plan.name] and (Path(out) / plan.name / "sim.yaml").is_file():
-            kept.append(plan.name)
+            kept[plan.name] = entry
         else:
             to_render.append(plan)
     return CorpusPlan(Path(out), kept, to_render, revisions)
@@ -504,10 +506,9 @@ def render_corpus(
         raise ValueError(f"--jobs must be >= 1, got {jobs}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    previous = {e.get("name"): e for e in read_manifest(out).get("sequences", [])}
     planned = plan_corpus(corpus, out, indices)
-    kept, todo = planned.kept, planned.to_render
-    entries: dict[str, dict[str, Any]] = {name: previous[name] for name in kept}
+    kept, todo = list(planned.kept), planned.to_render
+    entries = dict(planned.kept)
     total = len(todo) * corpus.frames
     done_frames = 0
     if progress:

@@ -126,10 +126,9 @@ def render_drives(
     ``frames``: for a drive whose own is None; ``rigs``: the rigs wanted (:data:`RIGS`; ``calib`` needs the clean
     renders, so it renders them too). A drive with ``mirror_of`` is that drive's folder mirrored (made again when
     its source was rendered since). Returns the folders per rig asked for."""
-    import yaml
     from pvo_sim.mirror import mirror_sequence
 
-    from .experiments.common import rendered_by_this_revision
+    from .experiments.common import another_world, rendered_by_this_revision
 
     unknown = sorted(set(rigs) - set(RIGS))
     if unknown or not rigs:
@@ -150,12 +149,8 @@ def render_drives(
             folder = out / rig / drive.name
             folders[rig].append(folder)
             if rendered_by_this_revision(folder):
-                seed = ((yaml.safe_load((folder / "sim.yaml").read_text()) or {}).get("config") or {}).get("seed")
-                if isinstance(seed, int) and seed != drive.seed:
-                    raise ValueError(
-                        f"{folder}: rendered through another world (seed {seed}, not {drive.seed}): give OUT a folder "
-                        "of its own for each --world"
-                    )
+                if (error := another_world(folder, drive.seed, "OUT")) is not None:
+                    raise error
                 continue
             command = [sys.executable, "-m", "pvo_tools.cli", "sim", str(folder), "--poses"]
             command += [str((data / "kitti" / "poses" / f"{drive.drive}.txt").resolve()), "--start", str(drive.start)]

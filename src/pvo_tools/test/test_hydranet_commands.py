@@ -321,7 +321,9 @@ def test_fusion_drives_go_through_other_worlds_on_request(pvo_data: Path, tmp_pa
     written = (own / "sim.yaml").stat().st_mtime_ns
     render_fusion_sequences(pvo_data, 1, 3, tmp_path / "own", lambda _: None)
     assert (own / "sim.yaml").stat().st_mtime_ns == written
-    with pytest.raises(ValueError, match=r"own/05-clean: fusion world 0's drive, not world 1's: give --fusion-dir"):
+    with pytest.raises(
+        ValueError, match=r"own/05-clean: rendered through another world \(seed 700, not 1700\): give --fusion-dir"
+    ):
         render_fusion_sequences(pvo_data, 1, 3, tmp_path / "own", lambda _: None, world=1)
     assert seed(own) == 700
     with pytest.raises(ValueError, match="--fusion-world must be >= 0, got -1"):

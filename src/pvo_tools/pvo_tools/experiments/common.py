@@ -61,6 +61,25 @@ def rendered_by_this_revision(folder: Path) -> bool:
     return rendered_by_this_renderer(folder)
 
 
+def recorded_seed(folder: Path) -> int | None:
+    """The world seed a `pvo sim` sequence's sim.yaml records (None where it records none)."""
+    import yaml
+
+    seed = ((yaml.safe_load((folder / "sim.yaml").read_text()) or {}).get("config") or {}).get("seed")
+    return seed if isinstance(seed, int) else None
+
+
+def another_world(folder: Path, seed: int, option: str) -> ValueError | None:
+    """The one-line error for a folder of this renderer that holds a drive through another world than ``seed``'s
+    (``option``: the one that names a folder of its own), or None."""
+    recorded = recorded_seed(folder)
+    if recorded is None or recorded == seed:
+        return None
+    return ValueError(
+        f"{folder}: rendered through another world (seed {recorded}, not {seed}): give {option} a folder of its own"
+    )
+
+
 TRAJECTORY_METRICS = ("m_ate_trans", "m_ate_rot_deg", "seg_trans_percent", "seg_rot_deg_per_m")
 
 

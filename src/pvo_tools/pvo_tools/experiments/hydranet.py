@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..paths import data_directory
-from .common import ExperimentRun, fusion_figures, rendered_by_this_revision, trajectory_tables
+from .common import ExperimentRun, another_world, fusion_figures, rendered_by_this_revision, trajectory_tables
 
 TITLE = "HydraNet (ch. 7, Tables 7.2-7.3): rotation accuracy, consistency, out of distribution, fusion, real images"
 Array = NDArray[np.float64]
@@ -214,7 +214,6 @@ def render_fusion_sequences(data: Path, count: int, frames: int, out: Path, say:
     """The first ``count`` of :data:`FUSION_SEQUENCES` rendered (urban, 1x, seeded; ``world`` K > 0: other worlds
     along the same drives) into ``out``; complete ones of this renderer revision and configuration are kept (pvo
     sim moves a sequence into place only when whole); a folder holding another world's drive is one line."""
-    import yaml
     from pvo_sim.degrade import Degradations
     from pvo_sim.render import SimConfig, simulate
 
@@ -237,14 +236,9 @@ def render_fusion_sequences(data: Path, count: int, frames: int, out: Path, say:
             degradations=Degradations(**degradations),  # type: ignore[arg-type]
         )
         if rendered_by_this_revision(folder):
-            seed = ((yaml.safe_load((folder / "sim.yaml").read_text()) or {}).get("config") or {}).get("seed")
-            if seed == config.seed:
-                continue
-            if isinstance(seed, int) and (seed - FUSION_SEED - index) % FUSION_WORLD_STRIDE == 0:  # another world
-                raise ValueError(
-                    f"{folder}: fusion world {(seed - FUSION_SEED - index) // FUSION_WORLD_STRIDE}'s drive, not world "
-                    f"{world}'s: give --fusion-dir a folder of its own"
-                )
+            if (error := another_world(folder, config.seed, "--fusion-dir")) is not None:
+                raise error
+            continue
         say(f"rendering fusion sequence {name} (KITTI {drive} from frame {start}, {frames} frames, world {world}) ...")
         simulate(config, folder, overwrite=True)  # an older revision's, or none
     return folders
