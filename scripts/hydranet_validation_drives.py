@@ -8,6 +8,9 @@ renderer revision 7), each clean, through the thesis's lens and with a focal len
     python scripts/hydranet_validation_drives.py --models src/pvo_pseudosensors/models/hydranet runs/hydranet7/urban2-20 \
         --gates 0.9999,0.99,0.95,0.9,0.8,0.65,0.5,0.3 --huber 0,1.345
 
+`--vo-gains` adds the fusion's motion-proportional VO noise (``inputs.vo.gain_sigma``); `--part K/N` runs every N-th
+drive from the K-th (processes side by side) and `--json` keeps the per-drive changes, which `--merge` averages.
+
 The VO's covariance scales are learned on the corpus's urban validation sequences (as `pvo experiment hydranet`
 does). Per drive: HydraNet's mean angular error and ANEES, and the change of m-ATE (translation / rotation) of
 the online fused estimate against the VO alone; then the mean over drives per model and gate.
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import json
 import time
 from pathlib import Path
 
@@ -49,6 +53,14 @@ def main() -> None:
         help="learn the VO's covariance scales on the other drives (leave one drive out, every rig) over these spans, "
         "comma-separated, instead of on the corpus's short validation sequences (frame to frame)",
     )
+    parser.add_argument(
+        "--vo-gains",
+        default="0",
+        help="inputs.vo.gain_sigma values, comma-separated: R (rotation only) or T:R (each with each gate)",
+    )
+    parser.add_argument("--part", default="1/1", help="K/N: every N-th drive from the K-th (default 1/1: all)")
+    parser.add_argument("--json", type=Path, help="write the per-drive changes here (for --merge)")
+    parser.add_argument("--merge", nargs="+", type=Path, help="only average the per-drive changes of these --json files")
     parser.add_argument("--cache", type=Path, default=Path("runs/hydranet-validation-drives/cache"), help="flow cache")
     parser.add_argument(
         "--vo-cache",
@@ -57,6 +69,13 @@ def main() -> None:
         help="the VO's run of each drive, kept between runs (keyed by the drive's calib.txt and sim.yaml and the VO's code)",
     )
     args = parser.parse_args()
+    if args.merge:
+        merged: dict[str, list[list[float]]] = {}
+        for path in args.merge:
+            for key, rows in json.loads(path.read_text()).items():
+                merged.setdefault(key, []).extend(rows)
+        print_means(merged)
+        return
     torch.set_num_threads(1)
 
     corpus_sequences = []
@@ -69,17 +88,26 @@ def main() -> None:
     print(f"VO covariance scales (x y z rx ry rz) on the corpus: {np.round(corpus_calibration.scale, 2)}", flush=True)
     spans = [int(v) for v in args.vo_spans.split(",")] if args.vo_spans else [0]  # 0: the corpus's frame-to-frame scales
 
-    settings = [(float(g), float(k), span) for g in args.gates.split(",") for k in args.huber.split(",") for span in spans]
+    gains = [tuple(float(v) for v in (g if ":" in g else f"0:{g}").split(":")) for g in args.vo_gains.split(",")]
+    settings = [
+        (float(g), float(k), span, gain)
+        for g in args.gates.split(",")
+        for k in args.huber.split(",")
+        for span in spans
+        for gain in gains
+    ]
     try:
         models = [(path, *load_hydranet(path)) for path in args.models]
     except ModelFileError as error:
         raise SystemExit(str(error)) from None
-    changes: dict[tuple[str, tuple[float, float, int]], list[list[float]]] = {
+    changes: dict[tuple[str, tuple[float, float, int, tuple[float, ...]]], list[list[float]]] = {
         (str(p), s): [] for p in args.models for s in settings
     }
     drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
     if not drives:
         raise SystemExit(f"{args.drives}: no drive (render them with `pvo dpc-net drives {args.drives} --split validation`)")
+    part, parts = (int(v) for v in args.part.split("/"))
+    drives = drives[part - 1 :: parts]
     runs = {}
     for folder in drives:
         sequence = KittiSequence(folder, poses_file=folder / "poses.txt")
@@ -108,22 +136,39 @@ def main() -> None:
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
             line += f" | {path.name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
             rotations = [("rotation", m) for m in rotation_measurements(predictions, stamps)]
-            for gate, huber, span in settings:
+            for gate, huber, span, gain in settings:
                 vo = vo_measurements(stamps, relative["transforms"], relative["covariances"], calibrations[span])
-                flat = {"prior.source": "given", "inputs.rotation.gate_probability": gate, "inputs.rotation.huber_k": huber}
+                flat = {
+                    "prior.source": "given",
+                    "inputs.rotation.gate_probability": gate,
+                    "inputs.rotation.huber_k": huber,
+                    "inputs.vo.gain_sigma": list(gain),
+                }
                 graph = FusionGraph(from_flat(flat))
                 graph.set_initial_pose(truth[0])
                 fused = fusion_figures(truth, run_offline(graph, stamps, ordered_events(vo, rotations)).online_poses)
                 change = [fused[k] / max(alone[k], 1e-12) - 1.0 for k in TRAJECTORY_METRICS]
-                changes[(str(path), (gate, huber, span))].append(change)
-                line += f"; gate {gate:g} huber {huber:g} span {span}: {100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
+                changes[(str(path), (gate, huber, span, gain))].append(change)
+                line += f"; gate {gate:g} huber {huber:g} span {span} gain {gain[0]:g}:{gain[1]:g}: "
+                line += f"{100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
         print(f"{line} ({time.perf_counter() - started:.0f} s)", flush=True)
-    print(f"\nmean change over {len(drives)} drives (m-ATE translation / rotation, segments translation / rotation):")
-    for (path, (gate, huber, span)), rows in changes.items():
+    named = {setting_name(path, setting): rows for (path, setting), rows in changes.items()}
+    if args.json:
+        args.json.write_text(json.dumps(named, indent=1))
+    print_means(named)
+
+
+def setting_name(path: str, setting: tuple[float, float, int, tuple[float, ...]]) -> str:
+    gate, huber, span, gain = setting
+    vo = f"VO scales over {span} frames on the other drives" if span else "VO scales from the corpus"
+    return f"{path} gate {gate:g} huber {huber:g} VO gain {gain[0]:g}:{gain[1]:g}, {vo}"
+
+
+def print_means(changes: dict[str, list[list[float]]]) -> None:
+    for name, rows in changes.items():
         mean = 100 * np.mean(rows, axis=0)
-        vo = f"VO scales over {span} frames on the other drives" if span else "VO scales from the corpus"
         figures = f"{mean[0]:+.1f} / {mean[1]:+.1f} %, segments {mean[2]:+.1f} / {mean[3]:+.1f} %"
-        print(f"  {path} gate {gate:g} huber {huber:g}, {vo}: {figures}")
+        print(f"  {name}: over {len(rows)} drives m-ATE {figures}; m-ATE mean {(mean[0] + mean[1]) / 2:+.2f} %")
 
 
 def vo_of(folder: Path, sequence: KittiSequence, cache: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:

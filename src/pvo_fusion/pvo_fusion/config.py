@@ -71,6 +71,12 @@ class VOInputConfig:
     last motion extrapolated over it (constant velocity) and the covariance of a velocity that may have
     changed by ``gap_sigma`` (m/s and rad/s, ROS order, per second of gap) plus the last motion's own
     covariance scaled to the gap.
+
+    ``gain_sigma`` = (translation, rotation), dimensionless: errors that grow with the motion. A calibration error
+    (focal length, baseline, lens) makes a stereo VO read distances and turns a few per cent long or short, which
+    its per-frame covariance does not carry; each motion's covariance gets ``σ_t² t tᵀ`` (t its translation, m) and
+    ``σ_r² φ φᵀ`` (φ its rotation vector, rad) added — nothing on a straight road, most in a turn, where a rotation
+    sensor's reading would otherwise be gated out against an overconfident VO. (0, 0): no such term.
     """
 
     enabled: bool = True
@@ -82,6 +88,7 @@ class VOInputConfig:
     max_angular_rate: float = 10.0
     max_interval: float = 10.0
     gap_sigma: tuple[float, ...] = (1.0, 1.0, 2.0, 0.05, 0.1, 0.05)
+    gain_sigma: tuple[float, ...] = (0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -206,6 +213,10 @@ def validate(config: FusionConfig) -> None:
         (
             len(config.inputs.vo.gap_sigma) == 6 and min(config.inputs.vo.gap_sigma) > 0.0,
             "inputs.vo.gap_sigma needs 6 positive values (m/s, rad/s)",
+        ),
+        (
+            len(config.inputs.vo.gain_sigma) == 2 and min(config.inputs.vo.gain_sigma) >= 0.0,
+            "inputs.vo.gain_sigma needs 2 values >= 0 (translation, rotation; a share of the motion, 0 0 = none)",
         ),
         (
             len(config.inputs.vo.motion_change_sigma) == 6 and min(config.inputs.vo.motion_change_sigma) > 0.0,

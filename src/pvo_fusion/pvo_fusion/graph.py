@@ -33,7 +33,7 @@ import numpy as np
 from gtsam.symbol_shorthand import B, X
 from numpy.typing import ArrayLike, NDArray
 from pvo_core.covariance import gtsam_to_ros_covariance, is_positive_definite, ros_to_gtsam_covariance
-from pvo_core.lie import se3_exp, se3_inverse, se3_log
+from pvo_core.lie import se3_exp, se3_inverse, se3_log, so3_log
 
 from .checkpoint import FusionCheckpoint
 from .config import FusionConfig
@@ -96,6 +96,7 @@ class FusionGraph:
         self._tolerance_ns = round(self.config.stamp_tolerance * 1e9)
         scale = np.sqrt(np.asarray(self.config.inputs.vo.covariance_scale, dtype=float))
         self._vo_scale = np.outer(scale, scale)
+        self._vo_gain = np.asarray(self.config.inputs.vo.gain_sigma, dtype=float)
         from scipy.stats import chi2  # 0.5 s to import: only where a graph is built, not on `pvo --help`
 
         self._gates = {
@@ -238,8 +239,9 @@ class FusionGraph:
             if self._find(m.stamp) is not None:
                 return self._count("vo", "rejected.duplicate_stamp")
             return self._count("vo", "rejected.out_of_order")
-        covariance = np.asarray(m.covariance, dtype=float) * self._vo_scale
         transform = np.asarray(m.transform, dtype=float)
+        motion_covariance = self._vo_covariance(transform, np.asarray(m.covariance, dtype=float))
+        covariance = motion_covariance
         reference_key = self._find(m.reference_stamp)
         if reference_key is None or reference_key != self._keys[newest]:
             # A gap (frames missing, a VO restarted, a reference outside the window): bridge from the newest
@@ -255,7 +257,7 @@ class FusionGraph:
         if m.stamp - m.reference_stamp > 0 and float(np.max(np.diag(m.covariance))) < self.config.inputs.vo.lost_variance:
             # the velocity a later gap is bridged with: this message's own motion over its own interval
             self._last_velocity = (np.asarray(m.transform, dtype=float), covariance, (m.stamp - m.reference_stamp) * 1e-9)
-        self._last_motion = (np.asarray(m.transform, dtype=float), np.asarray(m.covariance, dtype=float) * self._vo_scale)
+        self._last_motion = (transform, motion_covariance)
         measured, cov = between_measurement(transform, covariance)
         key = X(self._next_index)
         factors = gtsam.NonlinearFactorGraph()
@@ -277,6 +279,21 @@ class FusionGraph:
         if late.factors.size() > 0:
             self._update(late.factors, late.values, late.timestamps)
         return self._count("vo", ACCEPTED)
+
+    def _vo_covariance(self, transform: Array, covariance: Array) -> Array:
+        """The covariance the fusion gives a VO motion T_k,k-1 (ROS order): the VO's own, scaled per axis
+        (``covariance_scale``), plus the motion-proportional term of ``gain_sigma``: σ_t² t tᵀ on the translation
+        block and σ_r² φ φᵀ on the rotation block (φ = Log(C_k,k-1), the same in the left and the right tangent
+        space since C φ = φ)."""
+        scaled = covariance * self._vo_scale
+        if not self._vo_gain.any():
+            return scaled
+        translation = transform[:3, 3]
+        rotation = so3_log(transform[:3, :3])
+        gained = scaled.copy()
+        gained[:3, :3] += self._vo_gain[0] ** 2 * np.outer(translation, translation)
+        gained[3:, 3:] += self._vo_gain[1] ** 2 * np.outer(rotation, rotation)
+        return gained
 
     def _bridge(self, newest: int, stamp: int) -> tuple[Array, Array]:
         """T_stamp,newest under constant velocity over a gap of T seconds (n frame intervals), with covariance

@@ -461,6 +461,61 @@ def test_pose_corrections_and_relative_rotations_pull_towards_the_truth() -> Non
     assert graph.factor_counts["correction"] == 39 and hydra.factor_counts["rotation"] == 39
 
 
+def turning_trajectory(n: int, yaw_per_frame: float) -> np.ndarray:
+    """T_map,cam: 1 m/frame along z, turning ``yaw_per_frame`` rad about the camera y axis every frame."""
+    step = se3_exp(np.array([0.0, 0.0, 1.0, 0.0, yaw_per_frame, 0.0]))
+    poses = [np.eye(4)]
+    for _ in range(n - 1):
+        poses.append(poses[-1] @ step)
+    return np.array(poses)
+
+
+def test_the_vo_gain_term_adds_a_share_of_each_motion_to_its_covariance() -> None:
+    motion = se3_exp(np.array([0.1, 0.0, 1.0, 0.0, 0.1, 0.02]))
+    plain = FusionGraph(from_flat({"inputs.vo.covariance_scale": [2.0] * 6}))
+    gained = FusionGraph(from_flat({"inputs.vo.covariance_scale": [2.0] * 6, "inputs.vo.gain_sigma": [0.05, 0.1]}))
+    expected = 2.0 * VO_COV
+    np.testing.assert_allclose(plain._vo_covariance(motion, VO_COV), expected, rtol=1e-12)
+    t, phi = motion[:3, 3], so3_log(motion[:3, :3])
+    expected[:3, :3] += 0.05**2 * np.outer(t, t)
+    expected[3:, 3:] += 0.1**2 * np.outer(phi, phi)
+    np.testing.assert_allclose(gained._vo_covariance(motion, VO_COV), expected, rtol=1e-12, atol=1e-15)
+    # nothing is added where there is no motion
+    np.testing.assert_allclose(gained._vo_covariance(np.eye(4), VO_COV), 2.0 * VO_COV, rtol=1e-12)
+    with pytest.raises(ValueError, match="inputs.vo.gain_sigma needs 2 values >= 0"):
+        from_flat({"inputs.vo.gain_sigma": [0.1, -0.1]})
+    with pytest.raises(ValueError, match="inputs.vo.gain_sigma needs 2 values >= 0"):
+        from_flat({"inputs.vo.gain_sigma": [0.1]})
+
+
+def test_with_the_gain_term_a_rotation_sensor_mends_a_vo_that_reads_turns_long() -> None:
+    """A VO reading every turn 10 % long (a miscalibrated rig) beside exact per-pair rotations at the shipped gate:
+    without the gain term its turn-blind covariance makes every reading an outlier; with it they are fused."""
+    truth = turning_trajectory(60, 0.1)
+    vo = []
+    for m in vo_stream(truth, None):
+        xi = np.array([0.0, 0.0, 1.0, 0.0, -0.1 * 1.1, 0.0])  # T_k,k-1 of the turn, 10 % too much
+        vo.append(RelativeMeasurement(m.stamp, m.reference_stamp, se3_exp(xi), VO_COV))
+    rotation_cov = np.diag([9.0, 9.0, 9.0, 1e-6, 1e-6, 1e-6])
+    estimates = {}
+    for gain in (0.0, 0.1):
+        graph = FusionGraph(from_flat({"inputs.vo.gain_sigma": [0.0, gain]}))
+        results = []
+        poses: dict[int, np.ndarray] = {}
+        for k, m in enumerate(vo, start=1):
+            graph.add_vo(m)
+            exact = se3_inverse(truth[k]) @ truth[k - 1]
+            results.append(graph.add_rotation(RelativeMeasurement(m.stamp, m.reference_stamp, exact, rotation_cov, True)))
+            poses.update({p.stamp: p.pose for p in graph.drain_finished()})
+        poses.update({p.stamp: p.pose for p in graph.trajectory()})
+        estimates[gain] = (np.array([poses[s] for s in sorted(poses)]), results)
+    vo_only = compose(vo, np.eye(4))
+    gated, accepted = estimates[0.0][1], estimates[0.1][1]
+    assert gated.count("gated") == len(vo) and accepted.count("accepted") == len(vo)
+    assert rotation_rms(estimates[0.0][0], truth) == pytest.approx(rotation_rms(vo_only, truth), rel=1e-6)
+    assert rotation_rms(estimates[0.1][0], truth) < 0.2 * rotation_rms(vo_only, truth)
+
+
 def test_grossly_wrong_corrections_and_rotations_are_gated() -> None:
     truth = truth_trajectory(12)
     vo = vo_stream(truth, None)
