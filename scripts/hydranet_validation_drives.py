@@ -42,7 +42,7 @@ from pvo_fusion.config import from_flat
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--models", nargs="+", type=Path, required=True)
+    parser.add_argument("--models", nargs="+", type=Path, help="HydraNet model directories (required unless --merge)")
     parser.add_argument("--gates", default="0.9999", help="inputs.rotation.gate_probability values, comma-separated")
     parser.add_argument("--huber", default="0", help="inputs.rotation.huber_k values, comma-separated (each with each gate)")
     parser.add_argument("--drives", type=Path, default=Path("runs/dpc/vlong"), help="OUT of `pvo dpc-net drives`")
@@ -77,6 +77,8 @@ def main() -> None:
         print_means(merged)
         return
     torch.set_num_threads(1)
+    if not args.models:
+        parser.error("--models is required (unless --merge)")
 
     corpus_sequences = []
     for item in [s for s in read_corpus_manifest(args.corpus).split("validation") if s.preset == "urban"]:
@@ -107,6 +109,8 @@ def main() -> None:
     if not drives:
         raise SystemExit(f"{args.drives}: no drive (render them with `pvo dpc-net drives {args.drives} --split validation`)")
     part, parts = (int(v) for v in args.part.split("/"))
+    if parts > 1 and any(spans):
+        raise SystemExit("--vo-spans learns from the other drives: run it on all of them (no --part)")
     drives = drives[part - 1 :: parts]
     runs = {}
     for folder in drives:

@@ -154,6 +154,7 @@ def _hydranet() -> ModelEntry:
             progress=progress,
             texture=config.texture,
             pitch=config.pitch,
+            flow_prior=config.flow_prior,
         )
 
     def predict(model_dir, sequence, cache_dir=None, pitch_deg=None, **_mc):
@@ -251,6 +252,8 @@ def _hydranet() -> ModelEntry:
             "mirror": "mirror training pairs left-right at random (flow flipped, the rotation's y and z negated)",
             "texture": "a third input channel: the texture (log gradient magnitude) of the image the flow starts from",
             "pitch": "one more input channel: the camera's pitch below the horizon (from each sequence's sim.yaml)",
+            "flow_prior": "where Farneback starts: none (zero, the thesis) | shift (the images' global shift: turns "
+            "beyond 3 deg per frame read whole)",
         },
     )
 

@@ -95,6 +95,57 @@ def test_dense_flow_recovers_a_shift() -> None:
         dense_flow(earlier, later[:, :-1])
 
 
+def test_from_the_global_shift_farneback_follows_a_turn_its_two_level_pyramid_cannot() -> None:
+    """At 64 px high OpenCV's Farnebäck has two pyramid levels: a 12-px shift (a 5 deg yaw at 64x208) is lost from
+    zero and read whole from the images' global shift (phase correlation)."""
+    from pvo_pseudosensors.hydranet.flow import global_shift
+    from pvo_pseudosensors.hydranet.synthetic import scene_texture
+
+    scene = scene_texture((96, 260), 5)
+    for shift in (3, 12, 18):
+        earlier = np.ascontiguousarray(scene[16:80, 30:238])
+        later = np.ascontiguousarray(scene[16:80, 30 - shift : 238 - shift])  # the scene moves `shift` px right
+        np.testing.assert_allclose(global_shift(earlier, later), [shift, 0.0], atol=0.2)
+        primed = np.median(dense_flow(earlier, later, "shift")[:, 8:-8, 24:-24], axis=(1, 2))
+        np.testing.assert_allclose(primed, [shift, 0.0], atol=0.15)
+        plain = np.median(dense_flow(earlier, later)[:, 8:-8, 24:-24], axis=(1, 2))
+        if shift == 3:
+            np.testing.assert_allclose(plain, [shift, 0.0], atol=0.15)  # a small shift reads whole either way
+        else:
+            assert plain[0] < 0.8 * shift
+    with pytest.raises(ValueError, match="unknown flow prior 'warp'"):
+        dense_flow(earlier, later, "warp")
+    with pytest.raises(ValueError, match="unknown flow_prior 'warp'"):
+        HydraNetConfig(flow_prior="warp")
+
+
+def test_a_shift_primed_model_reads_its_own_flow_through_the_sensor_and_the_sequence_call(rotations, tmp_path: Path) -> None:
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+    from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence, sequence_inputs
+
+    config = HydraNetConfig(**{**TINY.__dict__, "flow_prior": "shift"})
+    torch.manual_seed(0)
+    save_model(tmp_path / "model", HydraNet(config), HydraTask(config).card())
+    model, card = load_hydranet(tmp_path / "model")
+    assert HydraNetConfig.from_card(card).flow_prior == "shift"
+    source = rotations["test"][0]
+    primed, _ = sequence_inputs(config, source.root, cache_dir=tmp_path / "cache")
+    plain, _ = sequence_inputs(TINY, source.root, cache_dir=tmp_path / "cache")  # its own cache file, not the primed one
+    assert not torch.equal(primed, plain)
+    again, _ = sequence_inputs(config, source.root, cache_dir=tmp_path / "cache")
+    assert torch.equal(primed, again)
+    predictions = predict_sequence(model, card, source.root)
+    sensor = HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "model")))
+    import cv2
+
+    paths = source.images("left", False)
+    estimates = [
+        sensor.estimate(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE), (k + 1) * 100_000_000) for k, path in enumerate(paths[:3])
+    ]
+    for k in (1, 2):
+        np.testing.assert_allclose(estimates[k].quaternion, predictions.quaternions[k - 1], atol=1e-5)
+
+
 def test_missing_poses_are_one_line_naming_the_file(tmp_path: Path) -> None:
     write_rotation_sequence(tmp_path / "seq", frames=3)
     (tmp_path / "seq" / "poses.txt").unlink()

@@ -13,6 +13,7 @@ SHIPPED = ("hydranet", "hydranet_kitti", "hydranet_pitch")
 
 ARCHITECTURE = "hydranet"
 COVARIANCES = ("cholesky", "diagonal")
+FLOW_PRIORS = ("none", "shift")  # as pvo_pseudosensors.hydranet.flow (kept here: this module imports no cv2/torch)
 
 
 @dataclass(frozen=True)
@@ -32,7 +33,9 @@ class HydraNetConfig:
     channel, the texture (log gradient magnitude) of the image the flow starts from, to show the network where
     the flow was measured and where interpolated over flat regions; pitch: one more input channel, constant, the
     camera's pitch below the horizon (deg / 10; a mount calibration: the corpus's sim.yaml records it), so that a
-    pitched camera's translational flow is not read as rotation."""
+    pitched camera's translational flow is not read as rotation; flow_prior: where Farnebäck starts — "none" (zero,
+    the thesis; its two-level pyramid at this size under-reads turns beyond ~3° per frame) or "shift" (the images'
+    global shift by phase correlation: turns read whole up to 8° per frame; ``pvo_pseudosensors.hydranet.flow``)."""
 
     height: int = 64
     width: int = 208
@@ -47,6 +50,7 @@ class HydraNetConfig:
     mirror: bool = False
     texture: bool = False
     pitch: bool = False
+    flow_prior: str = "none"
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths:
@@ -55,6 +59,8 @@ class HydraNetConfig:
             raise ValueError(f"HydraNet needs at least 2 heads for its epistemic covariance, got {self.heads}")
         if not 0.0 <= self.head_dropout < 1.0:
             raise ValueError(f"head_dropout must be in [0, 1), got {self.head_dropout}")
+        if self.flow_prior not in FLOW_PRIORS:
+            raise ValueError(f"unknown flow_prior {self.flow_prior!r}: choose one of {', '.join(FLOW_PRIORS)}")
         if self.covariance not in COVARIANCES:
             raise ValueError(f"unknown covariance {self.covariance!r}: choose one of {', '.join(COVARIANCES)}")
 
@@ -79,4 +85,5 @@ class HydraNetConfig:
         values.setdefault("mirror", False)
         values.setdefault("texture", False)
         values.setdefault("pitch", False)
+        values.setdefault("flow_prior", "none")
         return cls(**values)

@@ -89,6 +89,7 @@ class HydraNetSensor:
         self.model, self.card = load_hydranet(resolve_model(config.model))
         self.height, self.width = (int(v) for v in self.card.input["size"])
         self.texture = HydraNetConfig.from_card(self.card).texture
+        self.flow_prior = HydraNetConfig.from_card(self.card).flow_prior
         self.pitch_deg = self.config.camera_pitch_deg if HydraNetConfig.from_card(self.card).pitch else None
         self.mode = inference_mode(self.card)
         self.previous: NDArray[np.uint8] | None = None
@@ -114,10 +115,14 @@ class HydraNetSensor:
             return None
         if shape != previous_shape:
             raise ValueError(f"image size changed from {previous_shape} to {shape}: this image starts a new pair")
-        flow = torch.from_numpy(network_input(previous, dense_flow(previous, resized), self.texture, self.pitch_deg))[None]
+        flow = torch.from_numpy(
+            network_input(previous, dense_flow(previous, resized, self.flow_prior), self.texture, self.pitch_deg)
+        )[None]
         backward = None
         if self.mode == "reversed":
-            backward = torch.from_numpy(network_input(resized, dense_flow(resized, previous), self.texture, self.pitch_deg))[None]
+            backward = torch.from_numpy(
+                network_input(resized, dense_flow(resized, previous, self.flow_prior), self.texture, self.pitch_deg)
+            )[None]
         output = predict_rotations(self.model, flow, self.mode == "mirrored", backward)
         return RotationEstimate(
             previous_stamp,

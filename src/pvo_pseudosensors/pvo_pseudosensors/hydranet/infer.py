@@ -66,14 +66,16 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
     return ensemble, card
 
 
-def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool, bool]:
-    """What a network reads: the flow's size (height, width) and whether a texture and a pitch channel come with it."""
-    return tuple(config.size), config.texture, config.pitch
+def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool, bool, str]:
+    """What a network reads: the flow's size (height, width), whether a texture and a pitch channel come with it,
+    and where its Farnebäck starts."""
+    return tuple(config.size), config.texture, config.pitch, config.flow_prior
 
 
 def _describe_input(config: HydraNetConfig) -> str:
     extra = [name for name, present in (("texture", config.texture), ("pitch", config.pitch)) if present]
-    return f"{config.size[0]}x{config.size[1]} flow" + (f" with {' and '.join(extra)}" if extra else "")
+    prior = "" if config.flow_prior == "none" else f" (Farnebäck from the {config.flow_prior})"
+    return f"{config.size[0]}x{config.size[1]} flow{prior}" + (f" with {' and '.join(extra)}" if extra else "")
 
 
 def _load_one(directory: Path) -> tuple[HydraNet, ModelCard]:
@@ -188,6 +190,7 @@ def sequence_inputs(
         targets=False,
         pitch=config.pitch,
         pitch_deg=pitch_deg,
+        flow_prior=config.flow_prior,
     )
     pairs = data.pairs[0]
 

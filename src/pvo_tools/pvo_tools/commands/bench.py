@@ -235,17 +235,19 @@ def bench_hydranet(args: argparse.Namespace) -> int:
     size = (sensor.width, sensor.height)
     small = [cv2.resize(i, size, interpolation=cv2.INTER_AREA) for i in images]
     # the network reads what the sensor gives it: the flow, and the texture and pitch channels its card asks for
-    flow = torch.from_numpy(network_input(small[0], dense_flow(small[0], small[1]), sensor.texture, sensor.pitch_deg))[None]
+    flow = torch.from_numpy(
+        network_input(small[0], dense_flow(small[0], small[1], sensor.flow_prior), sensor.texture, sensor.pitch_deg)
+    )[None]
     mirrored, reversed_flow = sensor.mode == "mirrored", None
     if sensor.mode == "reversed":
-        backward = dense_flow(small[1], small[0])
+        backward = dense_flow(small[1], small[0], sensor.flow_prior)
         reversed_flow = torch.from_numpy(network_input(small[1], backward, sensor.texture, sensor.pitch_deg))[None]
     heads = sensor.model.head_count * (1 if sensor.mode == "plain" else 2)  # the pair and its mirror image or reverse
     stages = {
         "resize": lambda k: cv2.resize(images[k], size, interpolation=cv2.INTER_AREA),
         f"Farneback flow{' x2' if reversed_flow is not None else ''}": lambda k: (
-            dense_flow(small[k - 1], small[k]),
-            reversed_flow is not None and dense_flow(small[k], small[k - 1]),
+            dense_flow(small[k - 1], small[k], sensor.flow_prior),
+            reversed_flow is not None and dense_flow(small[k], small[k - 1], sensor.flow_prior),
         ),
         f"network ({heads} heads, Sigma)": lambda k: predict_rotations(sensor.model, flow, mirrored, reversed_flow),
         "sensor total": lambda k: sensor.estimate(images[k], (k + 1) * 100_000_000),
