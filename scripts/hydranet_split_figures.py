@@ -53,10 +53,14 @@ def main() -> None:
         true = np.concatenate(truth)
         f = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), true)
         turning = np.degrees(np.arccos(np.clip((np.trace(true, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0))) > 2.0
+        turns = ""
+        if turning.any():
+            t = evaluate_rotations(np.vstack(quaternions)[turning], np.concatenate(covariances)[turning], true[turning])
+            turns = f"; the turning pairs: mean {t['angle_mean_deg']:.4f} deg, ANEES {t['anees']:.3f}"
         print(
             f"{path}: {args.split} {args.preset}, {len(sequences)} sequences, {int(f['pairs'])} pairs "
             f"({100 * turning.mean():.0f} % turning > 2 deg): mean {f['angle_mean_deg']:.4f} deg, "
-            f"median {f['angle_median_deg']:.4f}, NLL {f['nll']:.2f}, ANEES {f['anees']:.3f}"
+            f"median {f['angle_median_deg']:.4f}, NLL {f['nll']:.2f}, ANEES {f['anees']:.3f}{turns}"
         )
 
 

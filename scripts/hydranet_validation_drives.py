@@ -19,6 +19,7 @@ the online fused estimate against the VO alone; then the mean over drives per mo
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import time
@@ -58,6 +59,11 @@ def main() -> None:
         default="0",
         help="inputs.vo.gain_sigma values, comma-separated: R (rotation only) or T:R (each with each gate)",
     )
+    parser.add_argument(
+        "--covariance-scales",
+        default="1",
+        help="HydraNet's covariances times each of these before the fusion, comma-separated (each with each gate)",
+    )
     parser.add_argument("--part", default="1/1", help="K/N: every N-th drive from the K-th (default 1/1: all)")
     parser.add_argument("--json", type=Path, help="write the per-drive changes here (for --merge)")
     parser.add_argument("--merge", nargs="+", type=Path, help="only average the per-drive changes of these --json files")
@@ -92,17 +98,18 @@ def main() -> None:
 
     gains = [tuple(float(v) for v in (g if ":" in g else f"0:{g}").split(":")) for g in args.vo_gains.split(",")]
     settings = [
-        (float(g), float(k), span, gain)
+        (float(g), float(k), span, gain, scale)
         for g in args.gates.split(",")
         for k in args.huber.split(",")
         for span in spans
         for gain in gains
+        for scale in (float(v) for v in args.covariance_scales.split(","))
     ]
     try:
         models = [(path, *load_hydranet(path)) for path in args.models]
     except ModelFileError as error:
         raise SystemExit(str(error)) from None
-    changes: dict[tuple[str, tuple[float, float, int, tuple[float, ...]]], list[list[float]]] = {
+    changes: dict[tuple[str, tuple[float, float, int, tuple[float, ...], float]], list[list[float]]] = {
         (str(p), s): [] for p in args.models for s in settings
     }
     drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
@@ -139,8 +146,11 @@ def main() -> None:
             true = true_relative_rotations(truth, predictions.earlier, predictions.frames)
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
             line += f" | {path.name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
-            rotations = [("rotation", m) for m in rotation_measurements(predictions, stamps)]
-            for gate, huber, span, gain in settings:
+            for gate, huber, span, gain, scale in settings:
+                scaled = dataclasses.replace(
+                    predictions, epistemic=predictions.epistemic * scale, aleatoric=predictions.aleatoric * scale
+                )
+                rotations = [("rotation", m) for m in rotation_measurements(scaled, stamps)]
                 vo = vo_measurements(stamps, relative["transforms"], relative["covariances"], calibrations[span])
                 flat = {
                     "prior.source": "given",
@@ -152,8 +162,8 @@ def main() -> None:
                 graph.set_initial_pose(truth[0])
                 fused = fusion_figures(truth, run_offline(graph, stamps, ordered_events(vo, rotations)).online_poses)
                 change = [fused[k] / max(alone[k], 1e-12) - 1.0 for k in TRAJECTORY_METRICS]
-                changes[(str(path), (gate, huber, span, gain))].append(change)
-                line += f"; gate {gate:g} huber {huber:g} span {span} gain {gain[0]:g}:{gain[1]:g}: "
+                changes[(str(path), (gate, huber, span, gain, scale))].append(change)
+                line += f"; gate {gate:g} huber {huber:g} span {span} gain {gain[0]:g}:{gain[1]:g} x{scale:g}: "
                 line += f"{100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
         print(f"{line} ({time.perf_counter() - started:.0f} s)", flush=True)
     named = {setting_name(path, setting): rows for (path, setting), rows in changes.items()}
@@ -162,10 +172,11 @@ def main() -> None:
     print_means(named)
 
 
-def setting_name(path: str, setting: tuple[float, float, int, tuple[float, ...]]) -> str:
-    gate, huber, span, gain = setting
+def setting_name(path: str, setting: tuple[float, float, int, tuple[float, ...], float]) -> str:
+    gate, huber, span, gain, scale = setting
     vo = f"VO scales over {span} frames on the other drives" if span else "VO scales from the corpus"
-    return f"{path} gate {gate:g} huber {huber:g} VO gain {gain[0]:g}:{gain[1]:g}, {vo}"
+    covariance = "" if scale == 1.0 else f" HydraNet covariance x{scale:g}"
+    return f"{path} gate {gate:g} huber {huber:g} VO gain {gain[0]:g}:{gain[1]:g}{covariance}, {vo}"
 
 
 def print_means(changes: dict[str, list[list[float]]]) -> None:
