@@ -35,7 +35,7 @@ class HydraNetConfig:
     camera's pitch below the horizon (deg / 10; a mount calibration: the corpus's sim.yaml records it), so that a
     pitched camera's translational flow is not read as rotation; flow_prior: where Farnebäck starts — "none" (zero,
     the thesis; its two-level pyramid at this size under-reads turns beyond ~3° per frame) or "shift" (the images'
-    global shift by phase correlation: turns read whole up to 8° per frame; ``pvo_pseudosensors.hydranet.flow``)."""
+    global shift by phase correlation: turns read 98-99 % up to 6° per frame; ``pvo_pseudosensors.hydranet.flow``)."""
 
     height: int = 64
     width: int = 208

@@ -14,7 +14,7 @@ Farnebäck's pyramid stops where a level would be under 32 px (OpenCV's minimum)
 two levels whatever ``levels`` says, and it cannot follow a displacement beyond a few pixels: a pure yaw of the
 camera reads 99 % of its flow at 2°, 94 % at 3°, 63 % at 4° and 25 % at 5° per frame (KITTI's sharp turns reach
 3-4.8° per frame). ``prior="shift"`` starts Farnebäck from the image's global shift (phase correlation with a Hann
-window, 0.3 ms): the same yaws then read 98-99 % up to 8°. A per-model setting (``flow_prior`` on the card): a
+window, +0.26 ms): the same yaws then read 98-99 % up to 6° (97.5 % at 8°). A per-model setting (``flow_prior`` on the card): a
 network reads the flow it was trained on.
 """
 
