@@ -46,7 +46,9 @@ class HydraNetNode(PvoNode[HydraNetSensorConfig, None]):
         if self.sensor is not None:
             card = self.sensor.card
             self.get_logger().info(
-                f"HydraNet {self.sensor.height}x{self.sensor.width} flow, {card.hyperparameters['heads']} heads, "
+                f"HydraNet {self.sensor.height}x{self.sensor.width} flow"
+                + ("" if self.sensor.flow_prior == "none" else f" (Farneback from the global {self.sensor.flow_prior})")
+                + f", {card.hyperparameters['heads']} heads, "
                 f"{card.hyperparameters['covariance']} aleatoric covariance"
                 + ("" if self.sensor.pitch_deg is None else f", told the camera's pitch {self.sensor.pitch_deg:g} deg")
             )
