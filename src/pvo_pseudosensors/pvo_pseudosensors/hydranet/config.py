@@ -13,7 +13,7 @@ SHIPPED = ("hydranet", "hydranet_kitti", "hydranet_pitch")
 
 ARCHITECTURE = "hydranet"
 COVARIANCES = ("cholesky", "diagonal")
-FLOW_PRIORS = ("none", "shift")  # as pvo_pseudosensors.hydranet.flow (kept here: this module imports no cv2/torch)
+FLOW_PRIORS = ("none", "shift")  # where Farnebäck starts: zero (the thesis) / the images' global shift (hydranet.flow)
 
 
 @dataclass(frozen=True)

@@ -88,9 +88,9 @@ class HydraNetSensor:
         torch.set_num_threads(config.threads)
         self.model, self.card = load_hydranet(resolve_model(config.model))
         self.height, self.width = (int(v) for v in self.card.input["size"])
-        self.texture = HydraNetConfig.from_card(self.card).texture
-        self.flow_prior = HydraNetConfig.from_card(self.card).flow_prior
-        self.pitch_deg = self.config.camera_pitch_deg if HydraNetConfig.from_card(self.card).pitch else None
+        network = HydraNetConfig.from_card(self.card)
+        self.texture, self.flow_prior = network.texture, network.flow_prior
+        self.pitch_deg = self.config.camera_pitch_deg if network.pitch else None
         self.mode = inference_mode(self.card)
         self.previous: NDArray[np.uint8] | None = None
         self.previous_stamp = 0

@@ -33,10 +33,10 @@ from pvo_core.lie import rotation_to_quaternion
 from pvo_core.trajectory import read_kitti_poses
 
 from ..learning.data import Source, cached_array, cached_images
+from .config import FLOW_PRIORS
 
 FARNEBACK = (0.5, 3, 15, 3, 5, 1.2, 0)  # pyr_scale, levels, winsize, iterations, poly_n, poly_sigma, flags
 FLOW_REVISION = 1  # bump when the flow computation changes: the caches are rebuilt
-FLOW_PRIORS = ("none", "shift")  # Farnebäck from zero (the thesis) / from the images' global shift
 
 
 def dense_flow(earlier: NDArray[np.uint8], later: NDArray[np.uint8], prior: str = "none") -> NDArray[np.float32]:

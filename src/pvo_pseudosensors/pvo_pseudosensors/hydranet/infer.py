@@ -74,7 +74,7 @@ def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool, bool,
 
 def _describe_input(config: HydraNetConfig) -> str:
     extra = [name for name, present in (("texture", config.texture), ("pitch", config.pitch)) if present]
-    prior = "" if config.flow_prior == "none" else f" (Farnebäck from the {config.flow_prior})"
+    prior = "" if config.flow_prior == "none" else " (Farnebäck started from the images' global shift)"
     return f"{config.size[0]}x{config.size[1]} flow{prior}" + (f" with {' and '.join(extra)}" if extra else "")
 
 
