@@ -78,6 +78,8 @@ def main() -> None:
     if args.merge:
         merged: dict[str, list[list[float]]] = {}
         for path in args.merge:
+            if not path.is_file():
+                parser.error(f"--merge {path}: no such file (written by a run with --json)")
             for key, rows in json.loads(path.read_text()).items():
                 merged.setdefault(key, []).extend(rows)
         print_means(merged)
@@ -115,7 +117,11 @@ def main() -> None:
     drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
     if not drives:
         raise SystemExit(f"{args.drives}: no drive (render them with `pvo dpc-net drives {args.drives} --split validation`)")
-    part, parts = (int(v) for v in args.part.split("/"))
+    try:
+        part, parts = (int(v) for v in args.part.split("/"))
+        assert 1 <= part <= parts
+    except (ValueError, AssertionError):
+        parser.error(f"--part {args.part!r}: give K/N with 1 <= K <= N")
     if parts > 1 and any(spans):
         raise SystemExit("--vo-spans learns from the other drives: run it on all of them (no --part)")
     drives = drives[part - 1 :: parts]
