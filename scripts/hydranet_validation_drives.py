@@ -8,7 +8,8 @@ renderer revision 7), each clean, through the thesis's lens and with a focal len
     python scripts/hydranet_validation_drives.py --models src/pvo_pseudosensors/models/hydranet runs/hydranet7/urban2-20 \
         --gates 0.9999,0.99,0.95,0.9,0.8,0.65,0.5,0.3 --huber 0,1.345
 
-`--vo-gains` adds the fusion's motion-proportional VO noise (``inputs.vo.gain_sigma``); `--part K/N` runs every N-th
+`--vo-gains` adds the fusion's motion-proportional VO noise (``inputs.vo.gain_sigma``), `--rotation-biases` its
+rotation offset state (``inputs.rotation.bias_sigma``, ``bias_walk_sigma``); `--part K/N` runs every N-th
 drive from the K-th (processes side by side) and `--json` keeps the per-drive changes, which `--merge` averages.
 
 The VO's covariance scales are learned on the corpus's urban validation sequences (as `pvo experiment hydranet`
@@ -40,6 +41,8 @@ from pvo_tools.experiments.hydranet import FIRST_STAMP_NS, rotation_measurements
 from pvo_fusion import CalibrationSequence, FusionGraph, calibrate_vo, ordered_events, run_offline, vo_measurements
 from pvo_fusion.config import from_flat
 
+Setting = tuple[float, float, int, tuple[float, ...], float, tuple[float, ...]]  # gate huber span gain scale offset
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -63,6 +66,12 @@ def main() -> None:
         "--covariance-scales",
         default="1",
         help="HydraNet's covariances times each of these before the fusion, comma-separated (each with each gate)",
+    )
+    parser.add_argument(
+        "--rotation-biases",
+        default="0",
+        help="the fusion's rotation offset state (inputs.rotation.bias_sigma and bias_walk_sigma, the same on each "
+        "axis), comma-separated S:W in degrees and degrees/sqrt(s); 0: no state (each with each gate)",
     )
     parser.add_argument("--part", default="1/1", help="K/N: every N-th drive from the K-th (default 1/1: all)")
     parser.add_argument("--json", type=Path, help="write the per-drive changes here (for --merge)")
@@ -99,21 +108,25 @@ def main() -> None:
     spans = [int(v) for v in args.vo_spans.split(",")] if args.vo_spans else [0]  # 0: the corpus's frame-to-frame scales
 
     gains = [tuple(float(v) for v in (g if ":" in g else f"0:{g}").split(":")) for g in args.vo_gains.split(",")]
+    try:
+        biases = [tuple(float(v) for v in (b if ":" in b else "0:0").split(":")) for b in args.rotation_biases.split(",")]
+        assert all(len(b) == 2 and min(b) >= 0.0 and (min(b) > 0.0 or max(b) == 0.0) for b in biases)
+    except (ValueError, AssertionError):
+        parser.error(f"--rotation-biases {args.rotation_biases!r}: give S:W (degrees, both > 0) or 0, comma-separated")
     settings = [
-        (float(g), float(k), span, gain, scale)
+        (float(g), float(k), span, gain, scale, bias)
         for g in args.gates.split(",")
         for k in args.huber.split(",")
         for span in spans
         for gain in gains
         for scale in (float(v) for v in args.covariance_scales.split(","))
+        for bias in biases
     ]
     try:
         models = [(path, *load_hydranet(path)) for path in args.models]
     except ModelFileError as error:
         raise SystemExit(str(error)) from None
-    changes: dict[tuple[str, tuple[float, float, int, tuple[float, ...], float]], list[list[float]]] = {
-        (str(p), s): [] for p in args.models for s in settings
-    }
+    changes: dict[tuple[str, Setting], list[list[float]]] = {(str(p), s): [] for p in args.models for s in settings}
     drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
     if not drives:
         raise SystemExit(f"{args.drives}: no drive (render them with `pvo dpc-net drives {args.drives} --split validation`)")
@@ -152,7 +165,8 @@ def main() -> None:
             true = true_relative_rotations(truth, predictions.earlier, predictions.frames)
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
             line += f" | {path.name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
-            for gate, huber, span, gain, scale in settings:
+            for setting in settings:
+                gate, huber, span, gain, scale, bias = setting
                 scaled = dataclasses.replace(
                     predictions, epistemic=predictions.epistemic * scale, aleatoric=predictions.aleatoric * scale
                 )
@@ -163,13 +177,16 @@ def main() -> None:
                     "inputs.rotation.gate_probability": gate,
                     "inputs.rotation.huber_k": huber,
                     "inputs.vo.gain_sigma": list(gain),
+                    "inputs.rotation.bias_sigma": [np.radians(bias[0])] * 3,
+                    "inputs.rotation.bias_walk_sigma": [np.radians(bias[1])] * 3,
                 }
                 graph = FusionGraph(from_flat(flat))
                 graph.set_initial_pose(truth[0])
                 fused = fusion_figures(truth, run_offline(graph, stamps, ordered_events(vo, rotations)).online_poses)
                 change = [fused[k] / max(alone[k], 1e-12) - 1.0 for k in TRAJECTORY_METRICS]
-                changes[(str(path), (gate, huber, span, gain, scale))].append(change)
-                line += f"; gate {gate:g} huber {huber:g} span {span} gain {gain[0]:g}:{gain[1]:g} x{scale:g}: "
+                changes[(str(path), setting)].append(change)
+                line += f"; gate {gate:g} huber {huber:g} span {span} gain {gain[0]:g}:{gain[1]:g} x{scale:g}"
+                line += f" offset {bias[0]:g}:{bias[1]:g}: " if max(bias) > 0 else ": "
                 line += f"{100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
         print(f"{line} ({time.perf_counter() - started:.0f} s)", flush=True)
     named = {setting_name(path, setting): rows for (path, setting), rows in changes.items()}
@@ -178,11 +195,12 @@ def main() -> None:
     print_means(named)
 
 
-def setting_name(path: str, setting: tuple[float, float, int, tuple[float, ...], float]) -> str:
-    gate, huber, span, gain, scale = setting
+def setting_name(path: str, setting: Setting) -> str:
+    gate, huber, span, gain, scale, bias = setting
     vo = f"VO scales over {span} frames on the other drives" if span else "VO scales from the corpus"
     covariance = "" if scale == 1.0 else f" HydraNet covariance x{scale:g}"
-    return f"{path} gate {gate:g} huber {huber:g} VO gain {gain[0]:g}:{gain[1]:g}{covariance}, {vo}"
+    offset = f" offset state {bias[0]:g} deg, walk {bias[1]:g} deg/sqrt(s)" if max(bias) > 0 else ""
+    return f"{path} gate {gate:g} huber {huber:g} VO gain {gain[0]:g}:{gain[1]:g}{covariance}{offset}, {vo}"
 
 
 def print_means(changes: dict[str, list[list[float]]]) -> None:

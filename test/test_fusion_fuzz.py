@@ -79,14 +79,17 @@ def sun_variants() -> list[Variant]:
 
 
 OFFSET_STATE = {"inputs.sun.bias_sigma": [0.1, 0.1], "inputs.sun.bias_walk_sigma": [0.002, 0.002]}  # the learned sun's
+ROTATION_OFFSET_STATE = {"inputs.rotation.bias_sigma": [1e-3] * 3, "inputs.rotation.bias_walk_sigma": [3e-5] * 3}
 
 
-@pytest.mark.parametrize("offset_state", [False, True], ids=["independent-sun", "sun-offset-state"])
-def test_every_bad_input_is_counted_and_the_estimate_equals_the_clean_run(ros_context, offset_state: bool) -> None:
-    settings = OFFSET_STATE if offset_state else {}
+@pytest.mark.parametrize(
+    "settings", [{}, OFFSET_STATE, ROTATION_OFFSET_STATE], ids=["independent", "sun-offset-state", "rotation-offset-state"]
+)
+def test_every_bad_input_is_counted_and_the_estimate_equals_the_clean_run(ros_context, settings: dict) -> None:
     overrides = [Parameter("publish_path", value=False)] + [Parameter(name, value=v) for name, v in settings.items()]
     fusion = FusionNode(context=ros_context, parameter_overrides=overrides)
-    assert fusion.graph.config.inputs.sun.has_bias == offset_state
+    assert fusion.graph.config.inputs.sun.has_bias == (settings is OFFSET_STATE)
+    assert fusion.graph.config.inputs.rotation.has_bias == (settings is ROTATION_OFFSET_STATE)
     io = Node("io", context=ros_context)
     odometry: list[Odometry] = []
     io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)

@@ -11,9 +11,10 @@ Jacobian below is with respect to that tangent vector.
 - Sun (thesis §5.5, eq. 5.7): ``e = f(C_map,k^T s_map) - f(s_meas)``, ``f(s) = [zenith; azimuth]``,
   azimuth difference wrapped to (-pi, pi]; 2x2 measurement covariance, Huber loss. With a sun bias state
   ``b`` (a ``Vector2`` in radians, zenith and azimuth): ``e = f(C_map,k^T s_map) + b - f(s_meas)``, ``de/db = I``;
-  the bias walks by ``BetweenFactorVector(b_i, b_j, 0, Q (t_j - t_i))``.
+  the bias walks by ``BetweenFactorVector(b_i, b_j, 0, Q (t_j - t_i))`` (:func:`offset_walk`).
 - Relative rotation (thesis eq. 7.22, HydraNet): ``e = Log(C_from,to_meas^T C_map,from^T C_map,to)``
-  with the message's 3x3 rotation covariance.
+  with the message's 3x3 rotation covariance; with a rotation offset state ``b`` (``Vector3``, rad) shared by the
+  readings of an interval, ``e = Log(...) + b``, ``de/db = I``, walking as the sun's.
 """
 
 from __future__ import annotations
@@ -106,10 +107,11 @@ def sun_factor(
     return gtsam.CustomFactor(noise, [key] if bias_key is None else [key, bias_key], error)
 
 
-def sun_bias_walk(bias_from: int, bias_to: int, walk_sigma: Array, seconds: float) -> gtsam.BetweenFactorVector:
-    """The sun offset's random walk between two readings ``seconds`` apart: ``b_to - b_from ~ N(0, walk_sigma² t)``."""
+def offset_walk(bias_from: int, bias_to: int, walk_sigma: Array, seconds: float) -> gtsam.BetweenFactorVector:
+    """An offset state's random walk (a sun's or a rotation sensor's) between two of its states ``seconds`` apart:
+    ``b_to - b_from ~ N(0, walk_sigma² t)``, as many dimensions as ``walk_sigma`` has."""
     sigma = np.asarray(walk_sigma, dtype=float) * np.sqrt(max(seconds, 1e-3))
-    return gtsam.BetweenFactorVector(bias_from, bias_to, np.zeros(2), gtsam.noiseModel.Diagonal.Sigmas(sigma))
+    return gtsam.BetweenFactorVector(bias_from, bias_to, np.zeros(len(sigma)), gtsam.noiseModel.Diagonal.Sigmas(sigma))
 
 
 def so3_inv_right_jacobian(phi: Array) -> Array:
@@ -133,10 +135,17 @@ def rotation_error(rotation_from: Array, rotation_to: Array, measured_from_to: A
 
 
 def rotation_factor(
-    key_from: int, key_to: int, transform_to_from: Array, covariance_ros: Array, huber_k: float = 0.0
+    key_from: int,
+    key_to: int,
+    transform_to_from: Array,
+    covariance_ros: Array,
+    huber_k: float = 0.0,
+    bias_key: int | None = None,
 ) -> gtsam.CustomFactor:
     """Rotation-only factor from a ``RelativePose`` (T_to,from; ROS-order left covariance, rotation block used;
-    Huber on the whitened 3-D residual when ``huber_k`` > 0).
+    Huber on the whitened 3-D residual when ``huber_k`` > 0); with ``bias_key``, also on the readings' offset state
+    b (``Vector3``, rad): ``e = Log(C_from,to_meas^T C_map,from^T C_map,to) + b``, ``de/db = I`` — the reading is
+    taken as ``C_from,to Exp(b)``, so b is what the sensor adds on the right.
 
     A left perturbation of C_to,from is a right perturbation (negated) of C_from,to = C_to,from^T,
     so the 3x3 rotation block applies unchanged.
@@ -155,6 +164,11 @@ def rotation_factor(
         if jacobians is not None:
             jacobians[0] = j_from
             jacobians[1] = j_to
+            if bias_key is not None:
+                jacobians[2] = np.eye(3)
+        if bias_key is not None:
+            e = e + values.atVector(keys[2])
         return e
 
-    return gtsam.CustomFactor(noise, [key_from, key_to], error)
+    keys = [key_from, key_to] if bias_key is None else [key_from, key_to, bias_key]
+    return gtsam.CustomFactor(noise, keys, error)

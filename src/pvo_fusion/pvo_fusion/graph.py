@@ -8,9 +8,10 @@ remaining states (thesis §5.4.2). The factors (see :mod:`.factors`):
     prior      x_0 ~ N(T_map,cam_0, Σ_prior)                          PriorFactorPose3
     VO         x_{k-1}^-1 x_k ~ T_{k-1,k} (RelativePose, Σ_vo)          BetweenFactorPose3
     sun        f(C_map,k^T s_map(t_k)) ~ f(s_k) (SunDirection, R_s)     sun_factor (Huber)
-               (+ b_k with a sun bias state: b_0 ~ N(0, Σ_b), b_k - b_k-1 ~ N(0, Q Δt)   sun_bias_walk)
+               (+ b_k with a sun bias state: b_0 ~ N(0, Σ_b), b_k - b_k-1 ~ N(0, Q Δt)   offset_walk)
     correction x_{k-Δp}^-1 x_k ~ T_{k-Δp,k} (DPC-Net, Σ_c)             BetweenFactorPose3
     rotation   C_{j}^T C_k ~ C_{j,k} (HydraNet, Σ_hn)                   rotation_factor
+               (+ o_i with a rotation offset state, one per bias_interval: C_{j,k} Exp(o_i)   offset_walk)
 
 Measurements attach to the state with the same stamp (within ``stamp_tolerance``); those ahead of
 the newest VO frame wait in a buffer, those older than the window are dropped; every outcome is
@@ -30,7 +31,7 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, X
+from gtsam.symbol_shorthand import B, O, X
 from numpy.typing import ArrayLike, NDArray
 from pvo_core.covariance import gtsam_to_ros_covariance, is_positive_definite, ros_to_gtsam_covariance
 from pvo_core.lie import se3_exp, se3_inverse, se3_log, so3_log
@@ -39,9 +40,9 @@ from .checkpoint import FusionCheckpoint
 from .config import FusionConfig
 from .factors import (
     between_measurement,
+    offset_walk,
     rotation_error,
     rotation_factor,
-    sun_bias_walk,
     sun_error,
     sun_factor,
     wrap_angle,
@@ -139,6 +140,8 @@ class FusionGraph:
         self._last_velocity: tuple[Array, Array, float] | None = None  # T_k,k-1, its covariance, its interval (s)
         self._sun_bias: deque[tuple[int, int]] = deque()  # live sun offset states (key, stamp), oldest first
         self._next_bias = 0
+        self._rotation_bias: deque[tuple[int, int]] = deque()  # live rotation offset states (key, first stamp)
+        self._next_rotation_bias = 0
 
     def set_initial_pose(self, pose: ArrayLike, covariance: ArrayLike | None = None) -> None:
         """Prior of the first state (T_map,cam, 4x4; optional ROS-order left covariance). Before the first VO."""
@@ -395,26 +398,76 @@ class FusionGraph:
         if reference_key is None:
             return "dropped.reference_not_in_window"
         if kind == "rotation":
-            factor = rotation_factor(reference_key, key, m.transform, m.covariance, self.config.inputs.rotation.huber_k)
-            e, j_from, j_to = rotation_error(
-                self._estimates[reference_key].rotation().matrix(),
-                self._estimates[key].rotation().matrix(),
-                np.asarray(m.transform, dtype=float)[:3, :3].T,
-            )
-            if not self._gate("rotation", e, [reference_key, key], np.hstack([j_from, j_to]), np.asarray(m.covariance)[3:, 3:]):
-                return "gated"
-        else:
-            measured, cov = between_measurement(m.transform, m.covariance)
-            factor = gtsam.BetweenFactorPose3(reference_key, key, measured, gtsam.noiseModel.Gaussian.Covariance(cov))
-            predicted = self._estimates[reference_key].between(self._estimates[key])
-            e = gtsam.Pose3.Logmap(measured.between(predicted))
-            # First-order Jacobians of the between error at the current estimate.
-            j_to = np.eye(6)
-            j_from = -predicted.inverse().AdjointMap()
-            if not self._gate("correction", e, [reference_key, key], np.hstack([j_from, j_to]), cov):
-                return "gated"
+            return self._make_rotation(reference_key, key, m, batch)
+        measured, cov = between_measurement(m.transform, m.covariance)
+        factor = gtsam.BetweenFactorPose3(reference_key, key, measured, gtsam.noiseModel.Gaussian.Covariance(cov))
+        predicted = self._estimates[reference_key].between(self._estimates[key])
+        e = gtsam.Pose3.Logmap(measured.between(predicted))
+        # First-order Jacobians of the between error at the current estimate.
+        j_to = np.eye(6)
+        j_from = -predicted.inverse().AdjointMap()
+        if not self._gate("correction", e, [reference_key, key], np.hstack([j_from, j_to]), cov):
+            return "gated"
         batch.factors.add(factor)
         self.factor_counts[kind] += 1
+        return ACCEPTED
+
+    def _make_rotation(self, reference_key: int, key: int, m: RelativeMeasurement, batch: _Batch) -> str:
+        """The relative-rotation factor; with an offset state, on the interval's state o_i (a new one, chained to the
+        previous by its walk, once the newest is ``bias_interval`` old). Gated on the innovation with o_i predicted."""
+        rotation = self.config.inputs.rotation
+        covariance = np.asarray(m.covariance, dtype=float)[3:, 3:]
+        e, j_from, j_to = rotation_error(
+            self._estimates[reference_key].rotation().matrix(),
+            self._estimates[key].rotation().matrix(),
+            np.asarray(m.transform, dtype=float)[:3, :3].T,
+        )
+        jacobian = np.hstack([j_from, j_to])
+        if not rotation.has_bias:
+            if not self._gate("rotation", e, [reference_key, key], jacobian, covariance):
+                return "gated"
+            batch.factors.add(rotation_factor(reference_key, key, m.transform, m.covariance, rotation.huber_k))
+            self.factor_counts["rotation"] += 1
+            return ACCEPTED
+        stamp = self._find_stamp(m.stamp)
+        assert stamp is not None
+        latest = self._rotation_bias[-1] if self._rotation_bias else None
+        shares = latest is not None and abs(stamp - latest[1]) < round(rotation.bias_interval * 1e9)
+        walk_variance = np.zeros(3)
+        if latest is not None and not shares:
+            walk_variance = np.asarray(rotation.bias_walk_sigma, dtype=float) ** 2 * max(abs(stamp - latest[1]) * 1e-9, 1e-3)
+        if latest is not None and self._estimates.has_vector(latest[0]):
+            offset = self._estimates.vector(latest[0])
+            joint_jacobian = np.hstack([jacobian, np.eye(3)])
+            keys = [reference_key, key, latest[0]]
+            ok = self._gate("rotation", e + offset, keys, joint_jacobian, covariance + np.diag(walk_variance))
+        else:
+            # no offset solved yet (none, or one made in this batch): the prior's N(0, Σ_o) in the innovation
+            offset = np.zeros(3)
+            prior = np.asarray(rotation.bias_sigma, dtype=float) ** 2
+            ok = self._gate("rotation", e, [reference_key, key], jacobian, covariance + np.diag(prior + walk_variance))
+        if not ok:
+            return "gated"
+        index = gtsam.Symbol(key).index()
+        if shares:
+            assert latest is not None
+            bias_key = latest[0]
+        else:
+            bias_key = O(self._next_rotation_bias)
+            self._next_rotation_bias += 1
+            batch.values.insert(bias_key, offset)
+            if latest is None:
+                noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(rotation.bias_sigma, dtype=float))
+                batch.factors.add(gtsam.PriorFactorVector(bias_key, np.zeros(3), noise))
+                self.factor_counts["rotation_bias_prior"] += 1
+            else:
+                seconds = abs(stamp - latest[1]) * 1e-9
+                batch.factors.add(offset_walk(latest[0], bias_key, np.asarray(rotation.bias_walk_sigma), seconds))
+            self._rotation_bias.append((bias_key, stamp))
+        # the state lives as long as its newest reading's pose: the smoother keeps it while a reading may still come
+        batch.timestamps.insert((bias_key, self._timestamp(stamp, index)))
+        batch.factors.add(rotation_factor(reference_key, key, m.transform, m.covariance, rotation.huber_k, bias_key))
+        self.factor_counts["rotation"] += 1
         return ACCEPTED
 
     def _make_sun(self, key: int, m: SunMeasurement, batch: _Batch) -> str:
@@ -470,7 +523,7 @@ class FusionGraph:
         else:
             # a late reading (older than the previous one) walks back over the same |interval|
             seconds = abs(stamp - previous[1]) * 1e-9
-            batch.factors.add(sun_bias_walk(previous[0], bias_key, np.asarray(sun.bias_walk_sigma), seconds))
+            batch.factors.add(offset_walk(previous[0], bias_key, np.asarray(sun.bias_walk_sigma), seconds))
         self._sun_bias.append((bias_key, stamp))
         batch.factors.add(sun_factor(key, sun_map, m.direction, covariance, sun.huber_k, bias_key))
         self.factor_counts["sun"] += 1
@@ -535,6 +588,8 @@ class FusionGraph:
             self._finished.append(FusedPose(stamp, self._estimates[key].matrix()))
         while self._sun_bias and not estimate.exists(self._sun_bias[0][0]):
             self._sun_bias.popleft()
+        while self._rotation_bias and not estimate.exists(self._rotation_bias[0][0]):
+            self._rotation_bias.popleft()
         self._estimates.refresh(estimate)
         self.last_update_seconds = time.perf_counter() - start
 
@@ -543,9 +598,9 @@ class FusionGraph:
         last = self._estimates[self._keys[stamp]]
         for s in self._stamps:
             self._finished.append(FusedPose(s, self._estimates[self._keys[s]].matrix()))
-        index, bias_index = self._next_index, self._next_bias
+        indices = self._next_index, self._next_bias, self._next_rotation_bias
         self._reset_smoother()
-        self._next_index, self._next_bias = index, bias_index
+        self._next_index, self._next_bias, self._next_rotation_bias = indices
         self._initial_pose = last.matrix()
         self._initial_covariance = np.eye(6) * self.config.inputs.vo.lost_variance
         self._start(stamp)
@@ -562,7 +617,8 @@ class FusionGraph:
         return self._estimates[key].matrix()
 
     def _joint_covariance(self, keys: list[int]) -> Array:
-        """Joint marginal covariance (GTSAM order/perturbation; 6 rows per pose, 2 per sun offset) of live states.
+        """Joint marginal covariance (GTSAM order/perturbation; 6 rows per pose, 2 per sun offset, 3 per rotation
+        offset) of live states.
 
         iSAM2: from its Bayes tree (QR-factorised, cost independent of the lag); batch: dense QR of the window.
         """
@@ -575,17 +631,19 @@ class FusionGraph:
         return self._dense_joint_covariance(keys)
 
     def _dense_joint_covariance(self, keys: list[int]) -> Array:
-        """Joint marginal covariance of live states (poses: 6, sun offsets: 2) by dense QR of the relinearised window."""
+        """Joint marginal covariance of live states (poses: 6, sun offsets: 2, rotation offsets: 3) by dense QR of the
+        relinearised window."""
         graph = self._smoother.getFactors()
         linear = graph.linearize(self._smoother.calculateEstimate())
-        live = [self._keys[s] for s in self._stamps] + [k for k, _ in self._sun_bias if self._estimates.has_vector(k)]
+        offsets = [k for k, _ in (*self._sun_bias, *self._rotation_bias) if self._estimates.has_vector(k)]
+        live = [self._keys[s] for s in self._stamps] + offsets
         ordering = gtsam.Ordering()
         for key in live:
             ordering.push_back(key)
         a, _ = linear.jacobian(ordering)
         r = np.linalg.qr(a, mode="r")
         # Σ = (RᵀR)^-1; only the requested blocks are needed.
-        sizes = [2 if gtsam.Symbol(k).chr() == ord("b") else 6 for k in live]
+        sizes = [{ord("b"): 2, ord("o"): 3}.get(gtsam.Symbol(k).chr(), 6) for k in live]
         starts = dict(zip(live, np.concatenate([[0], np.cumsum(sizes)[:-1]]), strict=True))
         size = dict(zip(live, sizes, strict=True))
         cols = np.concatenate([np.arange(starts[k], starts[k] + size[k]) for k in keys])
@@ -642,7 +700,7 @@ class _Estimates:
         self._added.clear()
 
     def has_vector(self, key: int) -> bool:
-        """Whether the smoother has solved the vector state ``key`` (a sun offset) yet."""
+        """Whether the smoother has solved the vector state ``key`` (a sun or rotation offset) yet."""
         return bool(self._values.exists(key))
 
     def vector(self, key: int) -> Array:

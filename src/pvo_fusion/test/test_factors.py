@@ -5,7 +5,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
-from gtsam.symbol_shorthand import X
+from gtsam.symbol_shorthand import B, X
 from pvo_core.lie import se3_exp, se3_inverse, so3_exp
 from pvo_fusion.factors import (
     between_measurement,
@@ -151,6 +151,25 @@ def test_rotation_factor_matches_eq_7_22_and_uses_the_rotation_block() -> None:
     robust = rotation_factor(X(0), X(1), bumped, covariance, huber_k=1.0)
     whitened = 0.03 / np.sqrt(2e-4)
     assert robust.error(values) == pytest.approx(1.0 * (whitened - 0.5), rel=1e-6)
+
+
+def test_a_rotation_read_with_an_offset_is_exact_at_that_offset_and_its_jacobian_is_the_identity() -> None:
+    pose_from, pose_to = random_pose(), random_pose()
+    offset = np.array([0.002, -0.004, 0.001])
+    c_from_to = pose_from.rotation().matrix().T @ pose_to.rotation().matrix() @ so3_exp(offset)
+    reading = np.eye(4)
+    reading[:3, :3] = c_from_to.T  # a RelativePose carries C_to,from
+    factor = rotation_factor(X(0), X(1), reading, np.diag([9.0, 9.0, 9.0, 1e-4, 2e-4, 3e-4]), bias_key=B(0))
+    values = gtsam.Values()
+    values.insert(X(0), pose_from)
+    values.insert(X(1), pose_to)
+    values.insert(B(0), offset)
+    np.testing.assert_allclose(factor.unwhitenedError(values), 0.0, atol=1e-12)
+    values.update(B(0), np.zeros(3))
+    np.testing.assert_allclose(factor.unwhitenedError(values), -offset, atol=1e-9)  # Log(Exp(-b)) without the state
+    jacobians = factor.linearize(values).jacobian()[0]
+    whitening = np.linalg.cholesky(np.linalg.inv(np.diag([1e-4, 2e-4, 3e-4]))).T
+    np.testing.assert_allclose(np.abs(jacobians[:, 12:]), np.abs(whitening), atol=1e-9)  # de/db = I, whitened
 
 
 def test_gtsam_between_and_prior_factors_match_finite_differences() -> None:
