@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 from pvo_core.lie import so3_log
+from pvo_core.readers.sidecars import read_rotation_predictions_csv
 from pvo_core.trajectory import read_kitti_poses
 from scipy.spatial.transform import Rotation
 
@@ -28,14 +29,16 @@ def slopes(true: np.ndarray, error: np.ndarray) -> np.ndarray:
 def pair(args: argparse.Namespace) -> None:
     from pvo_tools.dpc import vo_run
 
-    csv = np.genfromtxt(args.predictions, delimiter=",", names=True)
+    rows = read_rotation_predictions_csv(args.predictions)
     truth = read_kitti_poses(args.sequence / "poses.txt")
+    if rows[:, :2].max() >= len(truth):
+        raise ValueError(f"{args.predictions} names frame {int(rows[:, :2].max())}; {args.sequence} has {len(truth)} poses")
     vo = vo_run(args.sequence)[0].poses
     true, hydranet, odometry = [], [], []
-    for row in np.atleast_1d(csv):
-        a, b = int(row["frame_prev"]), int(row["frame"])
+    for row in rows:
+        a, b = int(row[0]), int(row[1])
         rotation = (np.linalg.inv(truth[b]) @ truth[a])[:3, :3]
-        predicted = Rotation.from_quat([row["qx"], row["qy"], row["qz"], row["qw"]]).as_matrix()
+        predicted = Rotation.from_quat(row[[3, 4, 5, 2]]).as_matrix()
         measured = (np.linalg.inv(vo[b]) @ vo[a])[:3, :3]
         true.append(so3_log(rotation))
         hydranet.append(so3_log(predicted @ rotation.T))
@@ -101,7 +104,15 @@ def main() -> None:
     drives.add_argument("drives", nargs="+")
     drives.set_defaults(run=kitti)
     args = parser.parse_args()
-    args.run(args)
+    for path in (getattr(args, "predictions", None), getattr(args, "sequence", None)):
+        if path is not None and not path.exists():
+            raise SystemExit(f"{path}: no such file or directory")
+    if args.what == "pair" and not (args.sequence / "poses.txt").is_file():
+        raise SystemExit(f"{args.sequence}: no poses.txt (the truth the errors are measured against)")
+    try:
+        args.run(args)
+    except (OSError, ValueError) as error:  # a bad CSV, a missing pose file, a corpus without a manifest
+        raise SystemExit(f"hydranet_turn_slope.py {args.what}: {error}") from None
 
 
 if __name__ == "__main__":
