@@ -452,20 +452,12 @@ class FusionGraph:
         if shares:
             assert latest is not None
             bias_key = latest[0]
+            # the state lives as long as its newest reading's pose: the smoother keeps it while a reading may still come
+            batch.timestamps.insert((bias_key, self._timestamp(stamp, index)))
         else:
             bias_key = O(self._next_rotation_bias)
             self._next_rotation_bias += 1
-            batch.values.insert(bias_key, offset)
-            if latest is None:
-                noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(rotation.bias_sigma, dtype=float))
-                batch.factors.add(gtsam.PriorFactorVector(bias_key, np.zeros(3), noise))
-                self.factor_counts["rotation_bias_prior"] += 1
-            else:
-                seconds = abs(stamp - latest[1]) * 1e-9
-                batch.factors.add(offset_walk(latest[0], bias_key, np.asarray(rotation.bias_walk_sigma), seconds))
-            self._rotation_bias.append((bias_key, stamp))
-        # the state lives as long as its newest reading's pose: the smoother keeps it while a reading may still come
-        batch.timestamps.insert((bias_key, self._timestamp(stamp, index)))
+            self._chain_offset("rotation", batch, bias_key, offset, stamp, index, rotation.bias_sigma, rotation.bias_walk_sigma)
         batch.factors.add(rotation_factor(reference_key, key, m.transform, m.covariance, rotation.huber_k, bias_key))
         self.factor_counts["rotation"] += 1
         return ACCEPTED
@@ -514,20 +506,38 @@ class FusionGraph:
             return "gated"
         bias_key = B(self._next_bias)
         self._next_bias += 1
-        batch.values.insert(bias_key, offset)
-        batch.timestamps.insert((bias_key, self._timestamp(stamp, gtsam.Symbol(key).index())))
-        if previous is None:
-            noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sun.bias_sigma, dtype=float))
-            batch.factors.add(gtsam.PriorFactorVector(bias_key, np.zeros(2), noise))
-            self.factor_counts["sun_bias_prior"] += 1
-        else:
-            # a late reading (older than the previous one) walks back over the same |interval|
-            seconds = abs(stamp - previous[1]) * 1e-9
-            batch.factors.add(offset_walk(previous[0], bias_key, np.asarray(sun.bias_walk_sigma), seconds))
-        self._sun_bias.append((bias_key, stamp))
+        index = gtsam.Symbol(key).index()
+        self._chain_offset("sun", batch, bias_key, offset, stamp, index, sun.bias_sigma, sun.bias_walk_sigma)
         batch.factors.add(sun_factor(key, sun_map, m.direction, covariance, sun.huber_k, bias_key))
         self.factor_counts["sun"] += 1
         return ACCEPTED
+
+    def _chain_offset(
+        self,
+        kind: str,
+        batch: _Batch,
+        bias_key: int,
+        value: Array,
+        stamp: int,
+        index: int,
+        prior_sigma: tuple[float, ...],
+        walk_sigma: tuple[float, ...],
+    ) -> None:
+        """A new offset state of ``kind`` ("sun" or "rotation") at the pose ``index``: from its prior N(0, prior_sigma²)
+        when that kind has no live offset state, else walked from the newest one."""
+        chain = self._sun_bias if kind == "sun" else self._rotation_bias
+        previous = chain[-1] if chain else None
+        batch.values.insert(bias_key, value)
+        batch.timestamps.insert((bias_key, self._timestamp(stamp, index)))
+        if previous is None:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(prior_sigma, dtype=float))
+            batch.factors.add(gtsam.PriorFactorVector(bias_key, np.zeros(len(prior_sigma)), noise))
+            self.factor_counts[f"{kind}_bias_prior"] += 1
+        else:
+            # a late reading (older than the previous one) walks back over the same |interval|
+            seconds = abs(stamp - previous[1]) * 1e-9
+            batch.factors.add(offset_walk(previous[0], bias_key, np.asarray(walk_sigma, dtype=float), seconds))
+        chain.append((bias_key, stamp))
 
     def _gate(self, kind: str, error: Array, keys: list[int], jacobian: Array, covariance: Array) -> bool:
         """Mahalanobis test of the innovation e against S = J P J^T + R at the current estimate."""
