@@ -28,10 +28,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
 from pvo_core.readers import KittiSequence, read_corpus_manifest
 from pvo_core.trajectory import read_kitti_poses
 from pvo_frontend.offline import run_sequence
 from pvo_frontend.vo import VOConfig
+from pvo_frontend.vo import flatten as flatten_vo
+from pvo_frontend.vo import from_flat as from_flat_vo
 from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
 from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
 from pvo_pseudosensors.learning.checkpoint import ModelFileError
@@ -73,6 +76,15 @@ def main() -> None:
         help="the fusion's rotation offset state (inputs.rotation.bias_sigma and bias_walk_sigma, the same on each "
         "axis), comma-separated S:W in degrees and degrees/sqrt(s); 0: no state (each with each gate)",
     )
+    parser.add_argument(
+        "--vo-param",
+        "-p",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a VO setting (VOConfig's dotted name) for every drive's VO run instead of its default, e.g. "
+        "-p ransac.inlier_threshold=4 (the VO's covariance scales are then learned with it too)",
+    )
     parser.add_argument("--part", default="1/1", help="K/N: every N-th drive from the K-th (default 1/1: all)")
     parser.add_argument("--json", type=Path, help="write the per-drive changes here (for --merge)")
     parser.add_argument("--merge", nargs="+", type=Path, help="only average the per-drive changes of these --json files")
@@ -96,10 +108,23 @@ def main() -> None:
     torch.set_num_threads(1)
     if not args.models:
         parser.error("--models is required (unless --merge)")
+    vo_settings = {}
+    for item in args.vo_param:
+        name, sep, text = item.partition("=")
+        if not sep:
+            parser.error(f"-p {item!r}: expected NAME=VALUE")
+        vo_settings[name] = yaml.safe_load(text)
+    try:
+        vo_config = from_flat_vo(vo_settings)
+    except ValueError as error:
+        parser.error(str(error))
 
     corpus_sequences = []
     for item in [s for s in read_corpus_manifest(args.corpus).split("validation") if s.preset == "urban"]:
-        _, run = vo_rotation_errors(item.root)
+        if vo_settings:
+            run = run_sequence(KittiSequence(item.root, poses_file=item.root / "poses.txt"), vo_config)
+        else:
+            _, run = vo_rotation_errors(item.root)
         relative = run.relative()
         truth = read_kitti_poses(item.root / "poses.txt")
         corpus_sequences.append(CalibrationSequence(item.name, truth, relative["transforms"], relative["covariances"]))
@@ -141,7 +166,7 @@ def main() -> None:
     runs = {}
     for folder in drives:
         sequence = KittiSequence(folder, poses_file=folder / "poses.txt")
-        runs[folder] = (sequence, *vo_of(folder, sequence, args.vo_cache))
+        runs[folder] = (sequence, *vo_of(folder, sequence, args.vo_cache, vo_config))
     for folder in drives:
         started = time.perf_counter()
         sequence, vo_poses, relative = runs[folder]
@@ -210,12 +235,18 @@ def print_means(changes: dict[str, list[list[float]]]) -> None:
         print(f"  {name}: over {len(rows)} drives m-ATE {figures}; m-ATE mean {(mean[0] + mean[1]) / 2:+.2f} %")
 
 
-def vo_of(folder: Path, sequence: KittiSequence, cache: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def vo_of(
+    folder: Path, sequence: KittiSequence, cache: Path, config: VOConfig | None = None
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The VO's poses (N, 4, 4) and relative motions (transforms, covariances) on ``folder``: from ``cache`` when
-    this drive (calib.txt, sim.yaml, frame count) and the VO's code are unchanged, else run and kept there."""
+    this drive (calib.txt, sim.yaml, frame count), the VO's settings and its code are unchanged, else run and kept
+    there."""
     import pvo_frontend
 
+    config = config or VOConfig()
     key = hashlib.sha256(str(len(sequence.stamps)).encode())
+    if config != VOConfig():  # the default's key stays what it was, so existing caches keep answering
+        key.update(repr(sorted(flatten_vo(config).items())).encode())
     for name in ("calib.txt", "sim.yaml"):
         if (folder / name).is_file():
             key.update((folder / name).read_bytes())
@@ -225,7 +256,7 @@ def vo_of(folder: Path, sequence: KittiSequence, cache: Path) -> tuple[np.ndarra
     if path.is_file():
         with np.load(path) as stored:
             return stored["poses"], {"transforms": stored["transforms"], "covariances": stored["covariances"]}
-    run = run_sequence(sequence, VOConfig())
+    run = run_sequence(sequence, config)
     relative = run.relative()
     cache.mkdir(parents=True, exist_ok=True)
     np.savez(path, poses=run.poses, transforms=relative["transforms"], covariances=relative["covariances"])
