@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -30,6 +31,14 @@ def mean_errors(predicted: np.ndarray, odometry: np.ndarray, truth: np.ndarray) 
     return np.degrees(np.mean(hydranet, axis=0)), np.degrees(np.mean(vo, axis=0))
 
 
+def load_model(path: Path) -> tuple[Any, Any]:
+    """The HydraNet model and card at ``path``; a missing or broken model is one line."""
+    try:
+        return load_hydranet(path)
+    except ModelFileError as error:
+        raise SystemExit(str(error)) from None
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("model", type=Path)
@@ -38,10 +47,7 @@ def main() -> None:
     parser.add_argument("--vo-cache", type=Path, default=Path("runs/hydranet-validation-drives/vo"))
     args = parser.parse_args()
     torch.set_num_threads(1)
-    try:
-        model, card = load_hydranet(args.model)
-    except ModelFileError as error:
-        raise SystemExit(str(error)) from None
+    model, card = load_model(args.model)
     drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
     if not drives:
         raise SystemExit(f"{args.drives}: no drive (render them with `pvo dpc-net drives {args.drives} --split validation`)")
