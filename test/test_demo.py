@@ -28,7 +28,7 @@ def test_demo_on_the_kitti_sample_matches_the_ros_free_objects(sample_bag: Path,
     estimates = record["tables"]["estimates"]
     assert estimates["vo"]["frames"] == estimates["fused_smoothed"]["frames"] == 51
     # the stereo VO's figure on the 06 clip, through the nodes
-    assert estimates["vo"]["end_drift_percent"] == pytest.approx(1.006, abs=5e-4)
+    assert estimates["vo"]["end_drift_percent"] == pytest.approx(1.022, abs=5e-4)
     assert 0.0 < estimates["fused_online"]["pose_anees"]
     for name in ("report.md", "trajectory.png", "errors.png", "params.yaml", "sun_reference.csv"):
         assert (sample / name).stat().st_size > 100, name

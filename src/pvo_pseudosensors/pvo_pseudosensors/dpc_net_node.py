@@ -34,6 +34,10 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
         if self.sensor is not None and not self.sensor.measures_anything:
             # published all the same (the graph stays whole), each axis marked unmeasured
             self.get_logger().warning(f"{self.config.model or 'dpc_net'}: {NOTHING_FUSED}")
+        if self.sensor is not None and self.sensor.vo_differences:
+            # the node cannot see the stereo_vo node's parameters: it says which VO its corrections are for
+            listed = " ".join(f"-p {name}:={value}" for name, value in self.sensor.vo_differences.items())
+            self.get_logger().info(f"{self.config.model or 'dpc_net'} corrects the VO run with {listed}")
         self.lefts: dict[int, Image] = {}
         self.vo_frame_id = ""
         self.published = 0

@@ -267,14 +267,18 @@ def _dpc_net() -> ModelEntry:
         return DPCTask(config)
 
     def fit_task(config: DPCNetConfig, train: Any):
-        from .dpc_net.data import vo_signature
+        from .dpc_net.data import vo_config, vo_settings_record, vo_signature
         from .dpc_net.loss import target_covariance
         from .dpc_net.model import DPCTask
         from .dpc_net.rig import training_rig
 
         parts = getattr(train, "datasets", [train])  # a ConcatDataset of several corpora, or one
         targets = np.concatenate([part.targets for part in parts])
-        rig = training_rig(r for part in parts for r in part.rigs) | {"vo": vo_signature()}
+        vo = vo_config(config.vo_settings)
+        rig = training_rig(r for part in parts for r in part.rigs) | {
+            "vo": vo_signature(vo),
+            "vo_settings": vo_settings_record(vo),
+        }
         return DPCTask(config, target_covariance(targets), rig)
 
     def dataset(config: DPCNetConfig, sources, cache_dir, progress=None, training: bool = True):

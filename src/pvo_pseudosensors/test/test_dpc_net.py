@@ -380,18 +380,38 @@ def test_mirrored_inference_is_exactly_mirror_equivariant_and_off_changes_nothin
     assert np.abs(averaged - plain).max() > 1e-4  # the untrained network is not symmetric: the average moved it
 
 
-def test_the_shipped_corrections_name_the_vo_that_runs_by_default() -> None:
-    """A VO setting added since (at the value that keeps the VO as it was) leaves the signature alone; set to
-    another value it names another VO, whose errors the shipped corrections did not learn."""
-    import yaml
+def test_the_shipped_corrections_name_the_vo_they_learned_and_every_tool_runs_it() -> None:
+    """A card records every setting of its VO, so it stays bound to that VO when the defaults change: the
+    settings agree with the signature, and the model's config (which training, calibration and evaluation run)
+    rebuilds exactly that VO. A VO setting added since (at the value that keeps the VO as it was) leaves the
+    signature alone; set to another value it names another VO."""
     from pvo_frontend.vo import VOConfig
-    from pvo_pseudosensors.dpc_net.data import settings_text, vo_signature
+    from pvo_pseudosensors.dpc_net.config import DPCNetConfig, settings_against_defaults, vo_differences
+    from pvo_pseudosensors.dpc_net.data import card_vo_config, settings_text, vo_config, vo_settings_record, vo_signature
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
+    from pvo_pseudosensors.learning.checkpoint import read_card
 
     for name in ("dpc_net", "dpc_net_clean"):
-        card = yaml.safe_load((resolve_model(name) / "model.yaml").read_text())
-        assert card["input"]["rig"]["vo"] == vo_signature(), name
+        card = read_card(resolve_model(name))
+        rig = card.input["rig"]
+        assert vo_signature(card_vo_config(rig)) == rig["vo"], name
+        assert vo_signature(vo_config(DPCNetConfig.from_card(card).vo_settings)) == rig["vo"], name
+        assert card_vo_config(rig).ransac.inlier_threshold == 16.0  # the VO they learned, whatever the default
     default = VOConfig()
-    assert "noise_model" not in settings_text(default) and settings_text(default.solver).startswith("SolverConfig(pixel_sigma=")
     stereo = replace(default, solver=replace(default.solver, noise_model="stereo"))
     assert "noise_model='stereo'" in settings_text(stereo)
+    other = replace(default, solver=replace(default.solver, noise_model="uvd", pixel_sigma=(2.0, 2.0, 4.0)))
+    other = replace(other, ransac=replace(other.ransac, inlier_threshold=9.0), probe=replace(other.probe, model="a b/c"))
+    assert "noise_model='uvd'" not in settings_text(other)
+    record = vo_settings_record(other)
+    text = settings_against_defaults(record)
+    assert "ransac.inlier_threshold=9.0" in text and "'probe.model=\"a b/c\"'" in text
+    assert vo_config(text) == other and vo_config(record) == other
+    assert vo_signature(other) != vo_signature(default)
+    with pytest.raises(ValueError, match="not the VO 0123"):
+        card_vo_config({"vo": "0123", "vo_settings": record})
+    with pytest.raises(ValueError, match="ransac.sneaky"):
+        vo_differences(record | {"ransac.sneaky": 1})
+    with pytest.raises(ValueError, match="'inlier_threshold' must be NAME=VALUE"):
+        vo_config("inlier_threshold")
+    assert card_vo_config(None) == card_vo_config({"vo": "0123"}) == default  # named by signature only: the defaults

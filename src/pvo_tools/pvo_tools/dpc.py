@@ -214,14 +214,22 @@ def miscalibrate(source: Path, out: Path, focal_scale: float) -> Path:
     return out
 
 
-def vo_run(root: Path, rate_hz: float = 10.0) -> Any:
-    """This project's stereo VO (default settings) over the KITTI-layout sequence at ``root``."""
+def vo_run(root: Path, rate_hz: float = 10.0, config: Any = None) -> Any:
+    """This project's stereo VO over the KITTI-layout sequence at ``root``: ``config`` (a ``VOConfig``; a model's
+    is :func:`model_vo`), the defaults when None."""
     from pvo_core.readers import KittiSequence
     from pvo_frontend.offline import run_sequence
     from pvo_frontend.vo import VOConfig
 
     sequence = KittiSequence(root, rate_hz=None if (Path(root) / "times.txt").is_file() else rate_hz)
-    return run_sequence(sequence, VOConfig()), sequence
+    return run_sequence(sequence, config or VOConfig()), sequence
+
+
+def model_vo(card: Any) -> Any:
+    """The VO whose errors the model of ``card`` learned (its card's rig record names it): the one to correct."""
+    from pvo_pseudosensors.dpc_net.data import card_vo_config
+
+    return card_vo_config(card.input.get("rig"))
 
 
 def correct_sequence(
@@ -240,7 +248,8 @@ def correct_sequence(
     ``model``'s corrections applied by ``method`` (``corrections``: those already predicted for this run, else
     they are). ``vo_calibration``: per-axis scales of the VO's covariances
     (:func:`pvo_fusion.calibrate_vo`), None for the VO's own. The model's rig is checked first
-    (:func:`pvo_pseudosensors.dpc_net.rig.check_rig`: ``ValueError`` on another rig unless ``allow_any_rig``)."""
+    (:func:`pvo_pseudosensors.dpc_net.rig.check_rig`: ``ValueError`` on another rig unless ``allow_any_rig``). The VO
+    run here is the model's (:func:`model_vo`); a ``run`` given must be of that VO."""
     from pvo_pseudosensors.dpc_net.infer import overwrite_trajectory, predict_corrections
     from pvo_pseudosensors.dpc_net.rig import check_rig
 
@@ -252,7 +261,7 @@ def correct_sequence(
     warnings = check_rig(card.input.get("rig"), root, allow_any_rig)
     sequence = None
     if run is None:
-        run, sequence = vo_run(root, rate_hz)
+        run, sequence = vo_run(root, rate_hz, model_vo(card))
     if corrections is None:
         corrections = predict_corrections(model, card, root, run.poses, cache_dir)
     if method == "overwrite":
@@ -308,7 +317,7 @@ def choose_vo_span(model: Any, card: Any, sequences: list[Any], spans: list[int]
         raise ValueError(f"VO spans must be positive frame counts, got {spans}")
     prepared = {}
     for sequence in sequences:
-        run, _ = vo_run(sequence.root)
+        run, _ = vo_run(sequence.root, config=model_vo(card))
         truth = read_kitti_poses(sequence.root / "poses.txt")
         relative = run.relative()
         calibration = CalibrationSequence(sequence.name, truth, relative["transforms"], relative["covariances"])
@@ -427,7 +436,7 @@ def choose_fusion(
             )
         for warning in check_rig(card.input.get("rig"), root):
             (say or print)(f"  warning: {root}: {warning}")
-        run, _ = vo_run(root)
+        run, _ = vo_run(root, config=model_vo(card))
         truth = read_kitti_poses(root / "poses.txt")
         relative = run.relative()
         alone = fusion_figures(truth, truth[0] @ run.poses)

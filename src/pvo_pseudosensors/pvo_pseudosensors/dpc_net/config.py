@@ -19,7 +19,9 @@ class DPCNetConfig:
     4} for distorted images), test_delta: the span at prediction (4, or 3); vo_input (beyond the thesis): the
     VO's own estimate of the window, log(T̂_last,first) = [ρ; φ], also goes in, through a linear map added to the
     image head's output (zero at the start) — a wrong calibration biases the VO in proportion to its motion,
-    which the images alone show only as well as a second VO would."""
+    which the images alone show only as well as a second VO would. vo_settings: the stereo VO whose errors it
+    learns, as its settings that differ from the defaults (``NAME=VALUE`` items separated by spaces, as ``pvo vo
+    -p``); the card records every setting (``input.rig.vo_settings``)."""
 
     height: int = 64
     width: int = 208
@@ -30,6 +32,7 @@ class DPCNetConfig:
     deltas: tuple[int, ...] = (3, 4, 5)
     test_delta: int = 4
     vo_input: bool = False
+    vo_settings: str = ""
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
@@ -52,7 +55,39 @@ class DPCNetConfig:
 
     @classmethod
     def from_card(cls, card: Any) -> DPCNetConfig:
+        """The card's settings; ``vo_settings`` from the VO its rig record names (every setting, so a card stays
+        bound to its VO when the VO's defaults change)."""
         values = dict(card.hyperparameters)
         for name in ("stem", "body", "deltas"):
             values[name] = tuple(values[name])
+        rig = (getattr(card, "input", None) or {}).get("rig") or {}
+        if rig.get("vo_settings"):
+            values["vo_settings"] = settings_against_defaults(rig["vo_settings"])
         return cls(**values)
+
+
+def vo_differences(settings: dict[str, Any]) -> dict[str, Any]:
+    """Those of the stereo VO ``settings`` (every one, by dotted name, as a card records them) that differ from the
+    VO's defaults now; ``ValueError`` for a name this VO does not have."""
+    from pvo_frontend.vo import VOConfig, flatten
+
+    defaults = flatten(VOConfig())
+    unknown = sorted(set(settings) - set(defaults))
+    if unknown:
+        raise ValueError(f"the card's VO settings name {', '.join(unknown)}, which this VO does not have")
+    return {
+        name: value
+        for name, value in settings.items()
+        if (list(defaults[name]) if isinstance(defaults[name], tuple) else defaults[name]) != value
+    }
+
+
+def settings_against_defaults(settings: dict[str, Any]) -> str:
+    """The stereo VO ``settings`` (every one, by dotted name) as the ``NAME=VALUE`` items that differ from the
+    VO's defaults now (shell-quoted, as ``--vo-settings`` takes them)."""
+    import json
+    import shlex
+
+    return " ".join(
+        shlex.quote(f"{name}={json.dumps(value, separators=(',', ':'))}") for name, value in vo_differences(settings).items()
+    )

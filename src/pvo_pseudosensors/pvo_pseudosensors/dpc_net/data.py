@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-from collections.abc import Callable, Sequence
+import shlex
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+import yaml
 from numpy.typing import NDArray
 from pvo_core.errors import DataFormatError
 from pvo_core.lie import so3_log
@@ -45,31 +47,69 @@ def settings_text(config: Any, prefix: str = "") -> str:
     return f"{type(config).__qualname__}({', '.join(parts)})"
 
 
-def vo_signature() -> str:
-    """Which VO a correction is for: a digest of this project's stereo VO settings (its defaults, as `pvo vo`
-    and the training run it). A model card records it; another VO's errors are not the ones it learned."""
+def vo_config(settings: str | Mapping[str, Any] = "") -> Any:
+    """The stereo VO (a ``pvo_frontend.vo.VOConfig``) with ``settings`` over its defaults: ``NAME=VALUE`` items
+    separated by spaces (shell quoting) (values read as YAML, as ``pvo vo -p``) or a mapping of dotted names. A bad item is a
+    ``ValueError`` naming it."""
+    from pvo_frontend.vo import from_flat
+
+    if isinstance(settings, str):
+        items: dict[str, Any] = {}
+        for item in shlex.split(settings):
+            name, sep, text = item.partition("=")
+            if not sep or not name:
+                raise ValueError(f"VO setting {item!r} must be NAME=VALUE, e.g. ransac.inlier_threshold=16")
+            items[name] = yaml.safe_load(text)
+        settings = items
+    return from_flat(dict(settings))
+
+
+def vo_signature(config: Any = None) -> str:
+    """Which VO a correction is for: a digest of this project's stereo VO settings (``config``, a ``VOConfig``;
+    the defaults when None). A model card records it; another VO's errors are not the ones it learned."""
     from pvo_frontend.vo import VOConfig
 
-    return hashlib.sha256(settings_text(VOConfig()).encode()).hexdigest()[:16]
+    return hashlib.sha256(settings_text(config or VOConfig()).encode()).hexdigest()[:16]
 
 
-def vo_poses(source: Source, cache_dir: Path | None) -> Array:
-    """The stereo VO's camera poses T_odom,k (N, 4, 4) over ``source`` (default VO settings), cached."""
+def vo_settings_record(config: Any) -> dict[str, Any]:
+    """Every setting of the VO ``config`` by dotted name, as a card stores them (lists for tuples)."""
+    from pvo_frontend.vo import flatten
+
+    return {name: list(value) if isinstance(value, tuple) else value for name, value in flatten(config).items()}
+
+
+def card_vo_config(rig: Mapping[str, Any] | None) -> Any:
+    """The VO whose errors a model learned, from its card's rig record: ``vo_settings`` (every VO setting by dotted
+    name) when the card has them, else the VO's defaults (a card that names its VO by signature alone; the rig
+    check warns when the defaults have changed since). Every tool that runs the VO for a model runs this one."""
+    if rig and rig.get("vo_settings"):
+        config = vo_config(rig["vo_settings"])
+        if rig.get("vo") not in (None, vo_signature(config)):
+            raise ValueError(f"the card's vo_settings are not the VO {rig['vo']} it names (signature {vo_signature(config)})")
+        return config
+    return vo_config()
+
+
+def vo_poses(source: Source, cache_dir: Path | None, config: Any = None) -> Array:
+    """The stereo VO's camera poses T_odom,k (N, 4, 4) over ``source`` (``config``: a ``VOConfig``, the defaults
+    when None), cached by the VO's settings and the images."""
     from pvo_core.readers import KittiSequence
     from pvo_frontend.offline import run_sequence
     from pvo_frontend.vo import VOConfig
 
+    config = config or VOConfig()
     sequence = KittiSequence(source.root, rate_hz=10.0)
     file = None
     if cache_dir is not None:
-        digest = hashlib.sha256(settings_text(VOConfig()).encode())
+        digest = hashlib.sha256(settings_text(config).encode())
         for path in [*sequence.left_paths, *sequence.right_paths, source.root / "calib.txt"]:
             stat = path.stat()
             digest.update(f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}".encode())
         file = Path(cache_dir) / f"vo-{digest.hexdigest()[:24]}.npy"
         if file.is_file():
             return np.load(file)
-    poses = run_sequence(sequence, VOConfig()).poses
+    poses = run_sequence(sequence, config).poses
     if file is not None:
         file.parent.mkdir(parents=True, exist_ok=True)
         np.save(file, poses)
@@ -94,7 +134,7 @@ class DPCWindows(torch.utils.data.Dataset):
     override, e.g. the test span): ``first``, ``last`` (C, H, W) float32 in [0, 1] (left and right stacked for
     the pose variant); ``target`` (4, 4) T*; ``estimate`` (6,) the VO's log(T̂_last,first); ``target_yaw`` its
     rotation about the camera's y axis (rad); ``sequence``, ``frame`` (k), ``delta``; ``rigs``: each sequence's
-    camera (:mod:`.rig`)."""
+    camera (:mod:`.rig`). The VO whose errors are learned: ``config.vo_settings``."""
 
     sources: Sequence[Source]
     config: DPCNetConfig
@@ -117,7 +157,7 @@ class DPCWindows(torch.utils.data.Dataset):
             if not poses_file.is_file():
                 raise DataFormatError(poses_file, f"needed for DPC-Net's targets but missing ({source.name})")
             truth = read_kitti_poses(poses_file)
-            estimates = vo_poses(source, self.cache_dir)
+            estimates = vo_poses(source, self.cache_dir, vo_config(self.config.vo_settings))
             if len(truth) != len(estimates):
                 raise DataFormatError(poses_file, f"{len(truth)} poses for {len(estimates)} frames")
             left = cached_images(source.images("left", False), size, False, self.cache_dir, self.progress)

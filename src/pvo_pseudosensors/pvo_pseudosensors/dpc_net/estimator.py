@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -86,6 +87,13 @@ class DPCNetSensor:
         self.lost_at: int | None = None  # a lost VO frame inside the current window
         self.dropped: str | None = None  # why the last window gave no correction
         self.pending: tuple[int, int, Array] | None = None  # (first, last, VO estimate): a window awaiting images
+
+    @property
+    def vo_differences(self) -> dict[str, Any]:
+        """The settings (dotted names) in which the VO the model learned differs from the VO's defaults now."""
+        from .config import vo_differences
+
+        return vo_differences((self.card.input.get("rig") or {}).get("vo_settings") or {})
 
     @property
     def measures_anything(self) -> bool:

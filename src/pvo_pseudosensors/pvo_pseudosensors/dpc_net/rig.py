@@ -128,10 +128,11 @@ def rig_problems(trained: Mapping[str, Any] | None, rig: Rig, vo: str | None = N
 
 def check_rig(trained: Mapping[str, Any] | None, root: Path, allow_any: bool = False) -> list[str]:
     """The warnings for using the model on the sequence at ``root``; ``ValueError`` (one line naming the model's
-    rig and the sequence's) when it is another rig's, unless ``allow_any``."""
-    from .data import vo_signature
+    rig and the sequence's) when it is another rig's, unless ``allow_any``. The VO is the one the card names
+    (:func:`.data.card_vo_config`): flagged only when the card names it by a signature the defaults no longer have."""
+    from .data import card_vo_config, vo_signature
 
-    refusals, warnings = rig_problems(trained, sequence_rig(root), vo_signature())
+    refusals, warnings = rig_problems(trained, sequence_rig(root), vo_signature(card_vo_config(trained)))
     if refusals and not allow_any:
         raise ValueError(f"{root}: not this DPC-Net model's rig: {'; '.join(refusals)} (--any-rig to use it anyway)")
     return [*refusals, *warnings]

@@ -248,6 +248,8 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
 
         correction_config = DPCNetSensorConfig(model=settings.dpc_net_model)
     vo_parameters = {"probe.model": settings.probe_model} if learned and settings.probe_model else {}
+    if correction_config is not None:  # DPC-Net corrects the VO it learned: the graph runs that one
+        vo_parameters = dpc_net_vo(settings.dpc_net_model) | vo_parameters
     parameters = {
         "stereo_vo": vo_parameters,
         sun_node: sun_parameters,
@@ -290,6 +292,24 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     result.seconds = time.perf_counter() - start
     result.figures["timing"] = {"graph_s": graph_seconds, "total_s": result.seconds}
     return result
+
+
+def dpc_net_vo(model: str) -> dict[str, Any]:
+    """The VO settings (dotted names) that differ from the defaults in the VO the DPC-Net ``model`` learned (its
+    card names it), announced on stderr when there are any."""
+    from pvo_pseudosensors.dpc_net.config import vo_differences
+    from pvo_pseudosensors.dpc_net.estimator import resolve_model
+    from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
+
+    try:
+        rig = read_card(resolve_model(model)).input.get("rig") or {}
+        differences = vo_differences(rig.get("vo_settings") or {})
+    except (ModelFileError, ValueError) as exc:
+        raise PvoError(f"{model}: {exc}") from None
+    if differences:
+        listed = ", ".join(f"{name}={value}" for name, value in differences.items())
+        print(f"pvo demo: stereo_vo runs the VO that {model} learned to correct ({listed})", file=sys.stderr, flush=True)
+    return differences
 
 
 def run_graph(

@@ -171,7 +171,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     import numpy as np
     from pvo_core.readers import read_corpus_manifest
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
-    from pvo_pseudosensors.dpc_net.data import DPCWindows, vo_signature
+    from pvo_pseudosensors.dpc_net.data import DPCWindows
     from pvo_pseudosensors.dpc_net.infer import AXES, load_dpc_net, residual_covariance
     from pvo_pseudosensors.learning.checkpoint import write_card
     from pvo_pseudosensors.learning.data import Source
@@ -194,8 +194,6 @@ def run_calibrate(args: argparse.Namespace) -> int:
     windows = DPCWindows(sources, config, args.cache or manifests[0].path.parent / ".cache", (config.test_delta,))
     card.calibration["mirrored"] = bool(args.mirrored)  # the inference mode the residual (and all below) is made in
     covariance, figures = residual_covariance(model, card, windows)
-    if card.input.get("rig"):  # calibrated for this VO
-        card.input["rig"]["vo"] = vo_signature()
     for stale in (
         "fused_axes",
         "remove_mean",

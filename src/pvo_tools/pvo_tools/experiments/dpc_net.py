@@ -37,7 +37,9 @@ SEQUENCES: tuple[tuple[str, str, int], ...] = tuple((d.name, d.drive, d.start) f
 #: reach, so a target can be read against what the rig's error is worth
 CLEAN_REFERENCE = "S-VO on the clean rig"
 _VALIDATION_RUNS: dict[tuple[Path, ...], list[Any]] = {}  # per corpora: the VO over their validation splits, run once
-_VO_RUNS: dict[Path, Any] = {}  # per drive folder: its VO run, once (a clean drive serves as both tables' reference)
+_VO_RUNS: dict[
+    tuple[Path, str], Any
+] = {}  # per drive folder and VO: its run, once (a clean drive serves as both tables' reference)
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -101,7 +103,7 @@ def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
 
     from pvo_fusion import CalibrationSequence, calibrate_vo
 
-    from ..dpc import card_vo_calibration, rig_sequences, vo_run
+    from ..dpc import card_vo_calibration, model_vo, rig_sequences, vo_run
 
     carried = card_vo_calibration(card) if span is None else None
     if carried is not None:
@@ -121,7 +123,7 @@ def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
         sequences = []
         for corpus in corpora:
             for sequence in rig_sequences(read_corpus_manifest(corpus), card):
-                run, _ = vo_run(sequence.root)
+                run, _ = vo_run(sequence.root, config=model_vo(card))
                 relative = run.relative()
                 truth = read_kitti_poses(sequence.root / "poses.txt")
                 sequences.append(CalibrationSequence(sequence.name, truth, relative["transforms"], relative["covariances"]))
@@ -137,13 +139,32 @@ def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
     return calibration
 
 
-def vo_of(folder: Path) -> Any:
-    """The VO's run over the drive at ``folder`` (:func:`pvo_tools.dpc.vo_run`), made once per process."""
+def vo_of(folder: Path, config: Any = None) -> Any:
+    """The run of the VO ``config`` (the defaults when None) over the drive at ``folder``
+    (:func:`pvo_tools.dpc.vo_run`), made once per process."""
+    from pvo_pseudosensors.dpc_net.data import vo_signature
+
     from ..dpc import vo_run
 
-    if folder not in _VO_RUNS:
-        _VO_RUNS[folder] = vo_run(folder)[0]
-    return _VO_RUNS[folder]
+    key = (folder, vo_signature(config))
+    if key not in _VO_RUNS:
+        _VO_RUNS[key] = vo_run(folder, config=config)[0]
+    return _VO_RUNS[key]
+
+
+def models_vo(models: dict[str, tuple[Any, Any]]) -> Any:
+    """The one VO the ``models`` (name: (model, card)) all learned — the S-VO their rows are measured against;
+    ``ValueError`` when their cards name different VOs."""
+    from pvo_pseudosensors.dpc_net.data import vo_signature
+
+    from ..dpc import model_vo
+
+    configs = {name: model_vo(card) for name, (_, card) in models.items()}
+    signatures = {vo_signature(config) for config in configs.values()}
+    if len(signatures) > 1:
+        named = ", ".join(f"{name} VO {vo_signature(config)}" for name, config in configs.items())
+        raise ValueError(f"the models learned different VOs ({named}): compare them one rig at a time")
+    return next(iter(configs.values()), None)
 
 
 def evaluate_rig(
@@ -164,19 +185,19 @@ def evaluate_rig(
 
     calibrations = {name: vo_calibration(card, say, vo_span) for name, (_, card) in models.items()}
     clean = {folder.name: folder for folder in clean_folders or []}
+    vo = models_vo(models)
     results: dict[str, dict[str, dict[str, float]]] = {}
     trajectories: dict[str, dict[str, Array]] = {}
     for folder in folders:
         truth = read_kitti_poses(folder / "poses.txt")
         say(f"{label} {folder.name}: VO ...")
-        run = vo_of(folder)
+        run = vo_of(folder, vo)
         estimates = {"S-VO": truth[0] @ run.poses}
         if folder.name in clean:
             if not np.allclose(read_kitti_poses(clean[folder.name] / "poses.txt"), truth):
                 raise ValueError(f"{clean[folder.name]} drives another path than {folder}: no clean-rig reference for it")
-            if clean[folder.name] not in _VO_RUNS:
-                say(f"{label} {folder.name}: the clean rig's VO ...")
-            estimates[CLEAN_REFERENCE] = truth[0] @ vo_of(clean[folder.name]).poses
+            say(f"{label} {folder.name}: the clean rig's VO ...")
+            estimates[CLEAN_REFERENCE] = truth[0] @ vo_of(clean[folder.name], vo).poses
         for name, (model, card) in models.items():
             for method in methods.get(name, ("fusion",)):
                 corrected = correct_sequence(folder, model, card, method, calibrations[name], run=run)
@@ -282,6 +303,8 @@ def run(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net
     from pvo_pseudosensors.dpc_net.rig import rig_problems, sequence_rig
 
+    from ..dpc import model_vo
+
     if not 1 <= args.sequences <= len(SEQUENCES):
         raise ValueError(f"--sequences must be in [1, {len(SEQUENCES)}], got {args.sequences}")
     if args.frames < 100:
@@ -372,7 +395,7 @@ def run(args: argparse.Namespace) -> int:
     report += ["### The model card's rig check", "", "| model | sequence | verdict |", "|---|---|---|"]
     for name, (_, card) in loaded.items():
         for rig in (rig for rig in ("clean", "calib", "lens") if folders.get(rig)):
-            refusals, warnings = rig_problems(card.input.get("rig"), sequence_rig(folders[rig][0]), vo_signature())
+            refusals, warnings = rig_problems(card.input.get("rig"), sequence_rig(folders[rig][0]), vo_signature(model_vo(card)))
             verdict = (
                 "refused: " + "; ".join(refusals)
                 if refusals
