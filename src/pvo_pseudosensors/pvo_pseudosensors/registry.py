@@ -305,6 +305,8 @@ def _dpc_net() -> ModelEntry:
             "deltas": "frame spans of the training windows, comma-separated (thesis 3,4,5; 2,3,4 for distorted images)",
             "test_delta": "frame span at prediction and validation",
             "vo_input": "also feed the VO's estimate of the window, log(T̂), through a linear map (beyond the thesis)",
+            "vo_settings": "the stereo VO whose errors the model learns: its settings that differ from the defaults, "
+            "'NAME=VALUE ...' as `pvo vo -p` (the card records every setting; its tools run that VO)",
         },
     )
 
