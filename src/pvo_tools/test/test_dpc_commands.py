@@ -201,6 +201,39 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     assert figures["VO.m_ate_trans"] > 0.0 and np.isfinite(figures["corrected.m_ate_trans"])
 
 
+def test_a_model_for_another_vo_is_corrected_on_that_vo(corpus: Path, tmp_path: Path, capsys) -> None:
+    """`train --vo-settings` learns another VO's errors; the card records that VO's every setting, and the tools run
+    it (not the defaults): the trajectory `correct` starts from is that VO's."""
+    from pvo_core.readers import KittiSequence
+    from pvo_frontend.offline import run_sequence
+    from pvo_frontend.vo import VOConfig, from_flat
+    from pvo_pseudosensors.dpc_net.config import DPCNetConfig
+    from pvo_pseudosensors.dpc_net.infer import load_dpc_net
+    from pvo_tools.dpc import correct_sequence, model_vo
+
+    model = tmp_path / "model"
+    train = ["dpc-net", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "--batch-size", "8", "-q"]
+    assert main([*train, "--threads", "1", *TINY, "--vo-settings", "ransac.inlier_threshold=9 tracker.window=11"]) == 0
+    capsys.readouterr()
+    network, card = load_dpc_net(model)
+    settings = card.input["rig"]["vo_settings"]
+    assert settings["ransac.inlier_threshold"] == 9.0 and settings["tracker.window"] == 11
+    assert settings["solver.loss"] == VOConfig().solver.loss  # every setting, not only the changed ones
+    other = from_flat({"ransac.inlier_threshold": 9.0, "tracker.window": 11})
+    assert model_vo(card) == other
+    assert sorted(DPCNetConfig.from_card(card).vo_settings.split()) == ["ransac.inlier_threshold=9.0", "tracker.window=11"]
+    sequence = corpus / "0002"
+    corrected = correct_sequence(sequence, network, card, "overwrite")
+    on_other = run_sequence(KittiSequence(sequence, rate_hz=10.0), other).poses
+    on_default = run_sequence(KittiSequence(sequence, rate_hz=10.0), VOConfig()).poses
+    assert np.allclose(corrected.vo, on_other) and not np.allclose(corrected.vo, on_default)
+    assert not any("VO" in warning for warning in corrected.warnings)  # the card's own VO: nothing to flag
+    assert main([*train, "--vo-settings", "ransac.no_such=1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "vo_settings 'ransac.no_such=1'" in err and "ransac.no_such" in err
+    assert "left out" not in err  # refused before any data is read
+
+
 def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     missing = ["dpc-net", "correct", str(corpus / "0002"), "--model", str(tmp_path / "none"), "-o", str(tmp_path / "x.txt")]
     assert main(missing) == 2

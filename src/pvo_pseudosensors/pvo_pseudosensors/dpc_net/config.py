@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,6 +44,11 @@ class DPCNetConfig:
             raise ValueError(f"the frame spans must be >= 1, got deltas {self.deltas} and test_delta {self.test_delta}")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if self.vo_settings:
+            try:
+                vo_config(self.vo_settings)
+            except ValueError as exc:
+                raise ValueError(f"vo_settings {self.vo_settings!r}: {exc}") from None
 
     @property
     def outputs(self) -> int:
@@ -64,6 +70,26 @@ class DPCNetConfig:
         if rig.get("vo_settings"):
             values["vo_settings"] = settings_against_defaults(rig["vo_settings"])
         return cls(**values)
+
+
+def vo_config(settings: str | Mapping[str, Any] = "") -> Any:
+    """The stereo VO (a ``pvo_frontend.vo.VOConfig``) with ``settings`` over its defaults: ``NAME=VALUE`` items
+    separated by spaces (shell quoting) (values read as YAML, as ``pvo vo -p``) or a mapping of dotted names. A bad item is a
+    ``ValueError`` naming it."""
+    import shlex
+
+    import yaml
+    from pvo_frontend.vo import from_flat
+
+    if isinstance(settings, str):
+        items: dict[str, Any] = {}
+        for item in shlex.split(settings):
+            name, sep, text = item.partition("=")
+            if not sep or not name:
+                raise ValueError(f"VO setting {item!r} must be NAME=VALUE, e.g. ransac.inlier_threshold=16")
+            items[name] = yaml.safe_load(text)
+        settings = items
+    return from_flat(dict(settings))
 
 
 def vo_differences(settings: dict[str, Any]) -> dict[str, Any]:

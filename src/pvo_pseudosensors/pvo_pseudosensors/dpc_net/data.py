@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import shlex
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,13 +16,12 @@ from typing import Any
 
 import numpy as np
 import torch
-import yaml
 from numpy.typing import NDArray
 from pvo_core.errors import DataFormatError
 from pvo_core.lie import so3_log
 
 from ..learning.data import Source, cached_images
-from .config import DPCNetConfig
+from .config import DPCNetConfig, vo_config
 from .model import estimate_input
 from .rig import Rig, sequence_rig
 
@@ -45,23 +43,6 @@ def settings_text(config: Any, prefix: str = "") -> str:
         if f.repr and not (name in SIGNATURE_NEUTRAL and SIGNATURE_NEUTRAL[name] == value):
             parts.append(f"{f.name}={settings_text(value, f'{name}.')}")
     return f"{type(config).__qualname__}({', '.join(parts)})"
-
-
-def vo_config(settings: str | Mapping[str, Any] = "") -> Any:
-    """The stereo VO (a ``pvo_frontend.vo.VOConfig``) with ``settings`` over its defaults: ``NAME=VALUE`` items
-    separated by spaces (shell quoting) (values read as YAML, as ``pvo vo -p``) or a mapping of dotted names. A bad item is a
-    ``ValueError`` naming it."""
-    from pvo_frontend.vo import from_flat
-
-    if isinstance(settings, str):
-        items: dict[str, Any] = {}
-        for item in shlex.split(settings):
-            name, sep, text = item.partition("=")
-            if not sep or not name:
-                raise ValueError(f"VO setting {item!r} must be NAME=VALUE, e.g. ransac.inlier_threshold=16")
-            items[name] = yaml.safe_load(text)
-        settings = items
-    return from_flat(dict(settings))
 
 
 def vo_signature(config: Any = None) -> str:
