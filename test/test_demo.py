@@ -52,10 +52,16 @@ def test_demo_runs_sun_bcnn_where_the_bag_has_gps(tmp_path: Path, ros_env) -> No
     assert "sun_bcnn:" in params and "hydranet:" in params and "dpc_net:" in params and "simulated_sun" not in params
     assert "probe.model: probe_sim" in params  # stereo_vo with the shipped PROBE model of this rig
     import yaml
+    from pvo_pseudosensors.dpc_net.config import vo_differences
+    from pvo_pseudosensors.dpc_net.estimator import resolve_model as resolve_dpc_net
     from pvo_pseudosensors.learning.checkpoint import read_card
     from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
     from pvo_pseudosensors.sun_bcnn.infer import card_fusion
 
+    # stereo_vo runs the VO whose errors DPC-Net's model learned (its card names every setting)
+    dpc_vo = vo_differences(read_card(resolve_dpc_net("dpc_net_clean")).input["rig"]["vo_settings"])
+    vo_parameters = yaml.safe_load(params)["stereo_vo"]["ros__parameters"]
+    assert all(vo_parameters[name] == value for name, value in dpc_vo.items())
     fusion_parameters = yaml.safe_load(params)["fusion"]["ros__parameters"]
     asked = card_fusion(read_card(resolve_model("sun_bcnn")))  # how the shipped model's card says to fuse it
     assert asked and all(fusion_parameters[name] == list(value) for name, value in asked.items())

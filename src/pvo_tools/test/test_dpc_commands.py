@@ -234,6 +234,26 @@ def test_a_model_for_another_vo_is_corrected_on_that_vo(corpus: Path, tmp_path: 
     assert "left out" not in err  # refused before any data is read
 
 
+def test_the_demo_runs_the_vo_a_dpc_net_model_learned(tmp_path: Path, capsys) -> None:
+    """`pvo demo` gives stereo_vo the settings in which the DPC-Net model's VO differs from the defaults, says so,
+    and a card naming a setting the VO does not have is one line naming the model."""
+    from pvo_pseudosensors.dpc_net.estimator import resolve_model
+    from pvo_tools.commands.demo import dpc_net_vo
+    from pvo_tools.errors import PvoError
+
+    model = tmp_path / "model"
+    shutil.copytree(resolve_model("dpc_net_clean"), model)
+    card = yaml.safe_load((model / "model.yaml").read_text())
+    card["input"]["rig"]["vo_settings"] |= {"ransac.inlier_threshold": 9.0, "tracker.window": 13}
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    assert dpc_net_vo(str(model)) == {"ransac.inlier_threshold": 9.0, "tracker.window": 13}
+    assert "stereo_vo runs the VO that" in capsys.readouterr().err
+    card["input"]["rig"]["vo_settings"]["tracker.no_such"] = 1
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    with pytest.raises(PvoError, match="tracker.no_such"):
+        dpc_net_vo(str(model))
+
+
 def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     missing = ["dpc-net", "correct", str(corpus / "0002"), "--model", str(tmp_path / "none"), "-o", str(tmp_path / "x.txt")]
     assert main(missing) == 2
