@@ -68,6 +68,13 @@ def main() -> None:
     parser.add_argument(
         "--also", type=Path, nargs="+", default=[], help="other models to compare, each with its own prior as trained"
     )
+    parser.add_argument(
+        "--probe-gates",
+        type=float,
+        nargs="+",
+        default=[VOConfig().probe.gate_threshold],
+        help="probe.gate_threshold values, each candidate with each (default: the VO's)",
+    )
     args = parser.parse_args()
 
     model = ProbeModel.load(args.model)
@@ -82,7 +89,8 @@ def main() -> None:
     hooks = {label: candidate.feature_noise() for label, candidate in models.items()}
     if args.propagate_reference:
         hooks.update({f"{label} +propagated": propagated(hook) for label, hook in list(hooks.items())})
-    labels = list(hooks)
+    gated = {f"{label} gate {gate:g}": (hook, gate) for label, hook in hooks.items() for gate in args.probe_gates}
+    labels = list(gated)
     changes: dict[str, dict[str, float]] = {label: {} for label in labels}
     conditions = {}
     items = [
@@ -98,8 +106,9 @@ def main() -> None:
         for seed in range(args.seeds):
             config = replace(VOConfig(), ransac=replace(VOConfig().ransac, seed=seed))
             runs["default"].append(metrics.armse(sequence.poses, run_sequence(sequence, config).poses)["trans"])
-            for spec, hook in hooks.items():
-                poses = run_sequence(sequence, config, feature_noise=hook).poses
+            for spec, (hook, gate) in gated.items():
+                probe_config = replace(config, probe=replace(config.probe, gate_threshold=gate))
+                poses = run_sequence(sequence, probe_config, feature_noise=hook).poses
                 runs[spec].append(metrics.armse(sequence.poses, poses)["trans"])
         for label in labels:
             changes[label][key] = float(np.mean(runs[label]) / np.mean(runs["default"]) - 1.0)

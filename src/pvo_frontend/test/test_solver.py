@@ -166,7 +166,9 @@ def test_student_t_features_are_gated_at_their_own_quantile() -> None:
     scale = np.diag([0.25, 0.13, 0.2]) ** 2
     obs_cur = obs_cur + multivariate_t(loc=np.zeros(3), shape=scale, df=3.0, seed=12).rvs(size=n)
     covariances = np.broadcast_to(scale, (n, 3, 3))
-    config = from_flat({"ransac.inlier_threshold": 16.0})  # the chi-square 4-sigma gate the quantiles above match
+    # PROBE-GK's features at their own gate (probe.gate_threshold, 16 by default), the others at the RANSAC threshold
+    config = from_flat({"ransac.inlier_threshold": 16.0})
+    assert VOConfig().probe.gate_threshold == 16.0
     estimates = {
         name: estimate_motion(
             CAMERA, obs_ref, obs_cur, covariances, config, np.random.default_rng(0), None, dofs, "student_t", False
@@ -175,6 +177,13 @@ def test_student_t_features_are_gated_at_their_own_quantile() -> None:
     }
     assert estimates["student_t"].inliers.mean() > 0.99
     assert estimates["chi_square"].inliers.mean() < 0.95
+    # the default VO's tight RANSAC gate leaves them alone; their own gate set as tight drops a quarter
+    for gate, kept in ((16.0, (0.99, 1.0)), (4.0, (0.6, 0.85))):
+        tight = from_flat({"ransac.inlier_threshold": 4.0, "probe.gate_threshold": gate})
+        estimate = estimate_motion(
+            CAMERA, obs_ref, obs_cur, covariances, tight, np.random.default_rng(0), None, np.full(n, 3.0), "student_t", False
+        )
+        assert kept[0] < estimate.inliers.mean() <= kept[1], gate
 
 
 @pytest.mark.parametrize("loss", ["huber", "cauchy", "geman_mcclure", "student_t"])

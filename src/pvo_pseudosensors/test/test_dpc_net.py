@@ -396,7 +396,9 @@ def test_the_shipped_corrections_name_the_vo_they_learned_and_every_tool_runs_it
         rig = card.input["rig"]
         assert vo_signature(card_vo_config(rig)) == rig["vo"], name
         assert vo_signature(vo_config(DPCNetConfig.from_card(card).vo_settings)) == rig["vo"], name
-        assert card_vo_config(rig).ransac.inlier_threshold == 16.0  # the VO they learned, whatever the default
+    # the lens model learned the VO of the 4-sigma RANSAC gate and keeps it; the clean one, retrained, the default VO
+    assert card_vo_config(read_card(resolve_model("dpc_net")).input["rig"]).ransac.inlier_threshold == 16.0
+    assert card_vo_config(read_card(resolve_model("dpc_net_clean")).input["rig"]) == VOConfig()
     default = VOConfig()
     stereo = replace(default, solver=replace(default.solver, noise_model="stereo"))
     assert "noise_model='stereo'" in settings_text(stereo)

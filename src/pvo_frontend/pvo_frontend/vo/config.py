@@ -140,9 +140,14 @@ class ProbeSettings:
     name (``probe_kitti``); "" = off. A PROBE-GK model whitens each feature with its predicted Student-t scale
     and uses its degrees of freedom in a Student-t loss (eq. 4.25) instead of ``solver.loss``; a k-NN model
     scales ``solver.pixel_sigma`` by its beta and drops the features it weighs down most (app. A).
+    gate_threshold: the chi-square threshold (3 dof) whose probability gates a PROBE-GK feature under its own
+    Student-t (16: 99.9 %). Its covariance is fitted to the tracked features' errors, unlike the nominal
+    ``solver.pixel_sigma``, so the tight ``ransac.inlier_threshold`` (a 2 sigma gate of a noise several times the
+    tracked features') would drop a quarter of its true errors.
     """
 
     model: str = ""
+    gate_threshold: float = 16.0
 
 
 @dataclass(frozen=True)
@@ -177,6 +182,7 @@ def validate(config: VOConfig) -> None:
         (config.tracker.epipolar_px > 0.0, "tracker.epipolar_px must be positive"),
         (0.0 < config.tracker.min_disparity < config.tracker.max_disparity, "tracker.min/max_disparity out of order"),
         (config.ransac.inlier_threshold > 0.0, "ransac.inlier_threshold must be positive"),
+        (config.probe.gate_threshold > 0.0, "probe.gate_threshold must be positive"),
         (0.0 < config.ransac.confidence < 1.0, "ransac.confidence must be in (0, 1)"),
         (1 <= config.ransac.min_iterations <= config.ransac.max_iterations, "ransac.min/max_iterations out of order"),
         (config.ransac.batch >= 1, "ransac.batch must be >= 1"),

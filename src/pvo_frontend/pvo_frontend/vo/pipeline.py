@@ -156,7 +156,10 @@ def estimate_motion(
     cov_ref = covariances if propagate else None
 
     tic = time.perf_counter()
-    gate = inlier_gate(cfg.ransac.inlier_threshold, loss_name or cfg.solver.loss, loss_scale)
+    loss_name = loss_name or cfg.solver.loss
+    # features with learned Student-t noise (PROBE-GK) at their own gate; the rest at the RANSAC threshold
+    learned = loss_name == "student_t" and loss_scale is not None
+    gate = inlier_gate(cfg.probe.gate_threshold if learned else cfg.ransac.inlier_threshold, loss_name, loss_scale)
     information = feature_information(camera, prediction, obs_ref, covariances, cov_ref)
     ransac = ransac_motion(
         camera,

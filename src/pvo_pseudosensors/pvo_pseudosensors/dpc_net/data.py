@@ -30,7 +30,7 @@ Array = NDArray[np.float64]
 
 #: VO settings added after cards began to record the VO, each at the value that keeps the VO as it was: left
 #: out of the signature, so that an older card still names the same VO (and its cached runs stay valid)
-SIGNATURE_NEUTRAL: dict[str, Any] = {"solver.noise_model": "uvd"}
+SIGNATURE_NEUTRAL: dict[str, Any] = {"solver.noise_model": "uvd", "probe.gate_threshold": 16.0}
 
 
 def settings_text(config: Any, prefix: str = "") -> str:
