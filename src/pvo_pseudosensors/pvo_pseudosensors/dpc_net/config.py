@@ -74,8 +74,8 @@ class DPCNetConfig:
 
 def vo_config(settings: str | Mapping[str, Any] = "") -> Any:
     """The stereo VO (a ``pvo_frontend.vo.VOConfig``) with ``settings`` over its defaults: ``NAME=VALUE`` items
-    separated by spaces (shell quoting) (values read as YAML, as ``pvo vo -p``) or a mapping of dotted names. A bad item is a
-    ``ValueError`` naming it."""
+    separated by spaces (shell-quoted; values read as YAML, as ``pvo vo -p``) or a mapping of dotted names. A bad
+    item is a ``ValueError`` naming it."""
     import shlex
 
     import yaml
