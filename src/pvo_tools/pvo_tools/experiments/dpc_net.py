@@ -37,9 +37,8 @@ SEQUENCES: tuple[tuple[str, str, int], ...] = tuple((d.name, d.drive, d.start) f
 #: reach, so a target can be read against what the rig's error is worth
 CLEAN_REFERENCE = "S-VO on the clean rig"
 _VALIDATION_RUNS: dict[tuple[Path, ...], list[Any]] = {}  # per corpora: the VO over their validation splits, run once
-_VO_RUNS: dict[
-    tuple[Path, str], Any
-] = {}  # per drive folder and VO: its run, once (a clean drive serves as both tables' reference)
+#: per drive folder and VO: its run, once (a clean drive serves as both tables' reference)
+_VO_RUNS: dict[tuple[Path, str], Any] = {}
 
 
 def register(parser: argparse.ArgumentParser) -> None:
