@@ -8,7 +8,7 @@ and :func:`from_flat` builds the typed config back, checking names and types.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any, TypeVar
 
 C = TypeVar("C")
@@ -25,6 +25,20 @@ def flatten(config: Any, prefix: str = "") -> dict[str, Any]:
         else:
             out[name] = list(value) if isinstance(value, tuple) else value
     return out
+
+
+def parse_assignments(items: Iterable[str]) -> dict[str, Any]:
+    """``{"name": value}`` from ``NAME=VALUE`` items (command-line overrides), each value read as YAML (``3`` an
+    int, ``[1, 2]`` a list, ``''`` the empty string); ``ValueError`` naming an item that is not ``NAME=VALUE``."""
+    import yaml
+
+    values: dict[str, Any] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"{item!r} must be NAME=VALUE, e.g. solver.loss=huber")
+        values[name.strip()] = yaml.safe_load(text)
+    return values
 
 
 def _coerce(name: str, value: Any, default: Any, what: str) -> Any:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import pytest
-from pvo_core.config import flatten, from_flat
+from pvo_core.config import flatten, from_flat, parse_assignments
 
 
 @dataclass(frozen=True)
@@ -72,3 +72,11 @@ def test_validation_sees_the_final_values_only() -> None:
 def test_bad_values_name_the_parameter(values: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         from_flat(values, Outer(), what="test")
+
+
+def test_assignments_read_their_values_as_yaml_and_name_a_bad_item() -> None:
+    values = parse_assignments(["a.b=3", "c=[1, 2.5]", " d =''", "e=x=y", "f=true"])
+    assert values == {"a.b": 3, "c": [1, 2.5], "d": "", "e": "x=y", "f": True}
+    for bad in ("nothing", "=3"):
+        with pytest.raises(ValueError, match=f"{bad!r} must be NAME=VALUE"):
+            parse_assignments(["ok=1", bad])

@@ -267,7 +267,9 @@ def _dpc_net() -> ModelEntry:
         return DPCTask(config)
 
     def fit_task(config: DPCNetConfig, train: Any):
-        from .dpc_net.data import vo_config, vo_settings_record, vo_signature
+        from pvo_frontend.vo import flatten
+
+        from .dpc_net.data import vo_config, vo_signature
         from .dpc_net.loss import target_covariance
         from .dpc_net.model import DPCTask
         from .dpc_net.rig import training_rig
@@ -277,7 +279,7 @@ def _dpc_net() -> ModelEntry:
         vo = vo_config(config.vo_settings)
         rig = training_rig(r for part in parts for r in part.rigs) | {
             "vo": vo_signature(vo),
-            "vo_settings": vo_settings_record(vo),
+            "vo_settings": flatten(vo),  # every setting, lists for tuples
         }
         return DPCTask(config, target_covariance(targets), rig)
 

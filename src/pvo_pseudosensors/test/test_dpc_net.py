@@ -385,9 +385,9 @@ def test_the_shipped_corrections_name_the_vo_they_learned_and_every_tool_runs_it
     settings agree with the signature, and the model's config (which training, calibration and evaluation run)
     rebuilds exactly that VO. A VO setting added since (at the value that keeps the VO as it was) leaves the
     signature alone; set to another value it names another VO."""
-    from pvo_frontend.vo import VOConfig
+    from pvo_frontend.vo import VOConfig, flatten
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig, settings_against_defaults, vo_differences
-    from pvo_pseudosensors.dpc_net.data import card_vo_config, settings_text, vo_config, vo_settings_record, vo_signature
+    from pvo_pseudosensors.dpc_net.data import card_vo_config, settings_text, vo_config, vo_signature
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.learning.checkpoint import read_card
 
@@ -405,7 +405,7 @@ def test_the_shipped_corrections_name_the_vo_they_learned_and_every_tool_runs_it
     other = replace(default, solver=replace(default.solver, noise_model="uvd", pixel_sigma=(2.0, 2.0, 4.0)))
     other = replace(other, ransac=replace(other.ransac, inlier_threshold=9.0), probe=replace(other.probe, model="a b/c"))
     assert "noise_model='uvd'" not in settings_text(other)
-    record = vo_settings_record(other)
+    record = flatten(other)
     text = settings_against_defaults(record)
     assert "ransac.inlier_threshold=9.0" in text and "'probe.model=\"a b/c\"'" in text
     assert vo_config(text) == other and vo_config(record) == other

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from pvo_core.config import parse_assignments
 
 from .errors import PvoError
 
@@ -30,9 +31,8 @@ def parse_overrides(items: list[str] | None, params_file: Path | None = None, no
     values: dict[str, Any] = {}
     if params_file is not None:
         values.update(read_params_file(params_file, node))
-    for item in items or []:
-        name, sep, text = item.partition("=")
-        if not sep or not name.strip():
-            raise PvoError(f"parameter {item!r} must be NAME=VALUE, e.g. solver.loss=huber")
-        values[name.strip()] = yaml.safe_load(text)
+    try:
+        values.update(parse_assignments(items or []))
+    except ValueError as exc:
+        raise PvoError(f"parameter {exc}") from None
     return values

@@ -78,34 +78,27 @@ def vo_config(settings: str | Mapping[str, Any] = "") -> Any:
     item is a ``ValueError`` naming it."""
     import shlex
 
-    import yaml
+    from pvo_core.config import parse_assignments
     from pvo_frontend.vo import from_flat
 
     if isinstance(settings, str):
-        items: dict[str, Any] = {}
-        for item in shlex.split(settings):
-            name, sep, text = item.partition("=")
-            if not sep or not name:
-                raise ValueError(f"VO setting {item!r} must be NAME=VALUE, e.g. ransac.inlier_threshold=16")
-            items[name] = yaml.safe_load(text)
-        settings = items
+        try:
+            settings = parse_assignments(shlex.split(settings))
+        except ValueError as exc:
+            raise ValueError(f"VO setting {exc}") from None
     return from_flat(dict(settings))
 
 
 def vo_differences(settings: dict[str, Any]) -> dict[str, Any]:
-    """Those of the stereo VO ``settings`` (every one, by dotted name, as a card records them) that differ from the
-    VO's defaults now; ``ValueError`` for a name this VO does not have."""
+    """Those of the stereo VO ``settings`` (every one, by dotted name, lists for tuples, as a card records them:
+    ``flatten``) that differ from the VO's defaults now; ``ValueError`` for a name this VO does not have."""
     from pvo_frontend.vo import VOConfig, flatten
 
     defaults = flatten(VOConfig())
     unknown = sorted(set(settings) - set(defaults))
     if unknown:
         raise ValueError(f"the card's VO settings name {', '.join(unknown)}, which this VO does not have")
-    return {
-        name: value
-        for name, value in settings.items()
-        if (list(defaults[name]) if isinstance(defaults[name], tuple) else defaults[name]) != value
-    }
+    return {name: value for name, value in settings.items() if defaults[name] != value}
 
 
 def settings_against_defaults(settings: dict[str, Any]) -> str:

@@ -53,13 +53,6 @@ def vo_signature(config: Any = None) -> str:
     return hashlib.sha256(settings_text(config or VOConfig()).encode()).hexdigest()[:16]
 
 
-def vo_settings_record(config: Any) -> dict[str, Any]:
-    """Every setting of the VO ``config`` by dotted name, as a card stores them (lists for tuples)."""
-    from pvo_frontend.vo import flatten
-
-    return {name: list(value) if isinstance(value, tuple) else value for name, value in flatten(config).items()}
-
-
 def card_vo_config(rig: Mapping[str, Any] | None) -> Any:
     """The VO whose errors a model learned, from its card's rig record: ``vo_settings`` (every VO setting by dotted
     name) when the card has them, else the VO's defaults (a card that names its VO by signature alone; the rig
