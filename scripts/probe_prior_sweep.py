@@ -11,12 +11,14 @@ figures the README's PROBE section quotes. The candidate priors are refitted fro
 ``--corpus`` may be given more than once (say, data/corpus-sun and a validation-only corpus rendered for more clean
 sequences); ``--propagate-reference`` adds each candidate again with the reference observation's noise propagated
 (``solver.propagate_reference_noise``'s whitening, which PROBE-GK leaves off because its stored errors hold that
-noise already), labelled ``… +propagated``.
+noise already), labelled ``… +propagated``. ``--jobs N`` runs N sequences at a time (forked workers; the printed
+figures do not depend on N).
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -53,6 +55,25 @@ def propagated(hook: Any) -> Any:
     return propagating_hook
 
 
+#: what every worker needs, set before the workers fork: the candidates (hook, gate) by label and the seeds
+_CANDIDATES: dict[str, tuple[Any, float]] = {}
+_SEEDS = 5
+
+
+def sequence_armse(root: Path) -> dict[str, list[float]]:
+    """Translational ARMSE of the default VO and of each candidate on one corpus sequence, one per RANSAC seed."""
+    sequence = KittiSequence(root, poses_file=root / "poses.txt")
+    runs: dict[str, list[float]] = {"default": [], **{label: [] for label in _CANDIDATES}}
+    for seed in range(_SEEDS):
+        config = replace(VOConfig(), ransac=replace(VOConfig().ransac, seed=seed))
+        runs["default"].append(metrics.armse(sequence.poses, run_sequence(sequence, config).poses)["trans"])
+        for label, (hook, gate) in _CANDIDATES.items():
+            probe_config = replace(config, probe=replace(config.probe, gate_threshold=gate))
+            poses = run_sequence(sequence, probe_config, feature_noise=hook).poses
+            runs[label].append(metrics.armse(sequence.poses, poses)["trans"])
+    return runs
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("model", type=Path, help="a PROBE-GK model trained on the corpus's training split")
@@ -75,6 +96,7 @@ def main() -> None:
         default=[VOConfig().probe.gate_threshold],
         help="probe.gate_threshold values, each candidate with each (default: the VO's)",
     )
+    parser.add_argument("--jobs", type=int, default=1, help="sequences run at a time (default 1)")
     args = parser.parse_args()
 
     model = ProbeModel.load(args.model)
@@ -98,18 +120,18 @@ def main() -> None:
         for corpus in args.corpus or [Path("data/corpus-sun")]
         for item in read_corpus_manifest(corpus).split("validation")[: args.max_sequences or None]
     ]
-    for item in items:
-        sequence = KittiSequence(item.root, poses_file=item.root / "poses.txt")
+    global _SEEDS
+    _CANDIDATES.update(gated)
+    _SEEDS = args.seeds
+    roots = [item.root for item in items]
+    if args.jobs > 1:
+        pool = multiprocessing.get_context("fork").Pool(args.jobs)
+        results = pool.imap(sequence_armse, roots)
+    else:
+        pool, results = None, map(sequence_armse, roots)
+    for item, runs in zip(items, results, strict=True):
         key = f"{item.root.parent.name}/{item.name}"  # sequence names repeat across corpora
         conditions[key] = set(item.conditions)
-        runs: dict[str, list[float]] = {"default": [], **{label: [] for label in labels}}
-        for seed in range(args.seeds):
-            config = replace(VOConfig(), ransac=replace(VOConfig().ransac, seed=seed))
-            runs["default"].append(metrics.armse(sequence.poses, run_sequence(sequence, config).poses)["trans"])
-            for spec, (hook, gate) in gated.items():
-                probe_config = replace(config, probe=replace(config.probe, gate_threshold=gate))
-                poses = run_sequence(sequence, probe_config, feature_noise=hook).poses
-                runs[spec].append(metrics.armse(sequence.poses, poses)["trans"])
         for label in labels:
             changes[label][key] = float(np.mean(runs[label]) / np.mean(runs["default"]) - 1.0)
         print(
@@ -118,6 +140,9 @@ def main() -> None:
             " ".join(f"{s} {100 * changes[s][key]:+.1f} %" for s in labels),
             flush=True,
         )
+    if pool is not None:
+        pool.close()
+        pool.join()
     for spec, change in changes.items():
         clean = {name: c for name, c in change.items() if not conditions[name]}
         hard = [c for name, c in change.items() if conditions[name] & HARD]
