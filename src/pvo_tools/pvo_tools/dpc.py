@@ -383,6 +383,34 @@ def select_fusion(changes: Mapping[Candidate, Any]) -> Candidate | None:
     return min(accepted, key=lambda key: float(accepted[key].mean(axis=0).sum()))
 
 
+def nearest_fusion(candidates: Mapping[str, Mapping[str, Any]]) -> tuple[str, dict[str, list[float]]] | None:
+    """When no candidate lowered every drive: the one that lowered both m-ATEs on the most drives (ties: the lowest
+    mean sum), with the drives it did not lower and their changes (translation, rotation) - what a user reads to see
+    how near the rule came. ``candidates``: :attr:`FusionChoice.candidates`. None without candidates."""
+    if not candidates:
+        return None
+
+    def lowered(candidate: Mapping[str, Any]) -> int:
+        return sum(all(v < 0.0 for v in changes) for changes in candidate["per_drive"].values())
+
+    label = max(candidates, key=lambda key: (lowered(candidates[key]), -sum(candidates[key]["mean"])))
+    worse = {drive: list(c) for drive, c in candidates[label]["per_drive"].items() if not all(v < 0.0 for v in c)}
+    return label, worse
+
+
+def describe_nearest(candidates: Mapping[str, Mapping[str, Any]]) -> str | None:
+    """One line on :func:`nearest_fusion`: the candidate, how many drives it lowered, the others' changes (%)."""
+    nearest = nearest_fusion(candidates)
+    if nearest is None:
+        return None
+    label, worse = nearest
+    total = len(candidates[label]["per_drive"])
+    drives = ", ".join(f"{drive} {100 * c[0]:+.1f} / {100 * c[1]:+.1f} %" for drive, c in worse.items())
+    return (
+        f"nearest: {label}, {total - len(worse)} of {total} drives lowered; not lowered (m-ATE translation / rotation): {drives}"
+    )
+
+
 @dataclass
 class FusionChoice:
     """How the corrections are fused, chosen on long validation drives: ``span`` (frames over which the VO's
@@ -479,10 +507,11 @@ def choose_fusion(
                 )
             changes[(span, axes_label, remove_mean)] = np.asarray(rows)
             if say is not None:
-                mean = 100 * changes[(span, axes_label, remove_mean)].mean(axis=0)
+                drive_changes = changes[(span, axes_label, remove_mean)]
+                mean = 100 * drive_changes.mean(axis=0)
                 say(
                     f"  span {span:4d}, {named(axes_label, remove_mean):<25} axes: m-ATE {mean[0]:+6.1f} % translation, "
-                    f"{mean[1]:+6.1f} % rotation"
+                    f"{mean[1]:+6.1f} % rotation; {int(np.all(drive_changes < 0.0, axis=1).sum())} of {len(names)} drives lowered"
                 )
     best = select_fusion(changes)
     candidates = {

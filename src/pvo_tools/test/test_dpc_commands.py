@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 from pvo_tools.cli import main
-from pvo_tools.dpc import select_fusion
+from pvo_tools.dpc import describe_nearest, nearest_fusion, select_fusion
 
 TINY = ["--height", "32", "--width", "104", "--stem", "4,4,8", "--body", "8,16", "--deltas", "2,3", "--test-delta", "3"]
 
@@ -111,7 +111,8 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     chosen = select_fusion({label: list(c["per_drive"].values()) for label, c in candidates.items()})
     if chosen is None:
         assert drive_card["fused_axes"] == [] and drive_card["drive_calibration"]["chosen"] is None
-        assert "nothing is fused" in capsys.readouterr().out
+        out = capsys.readouterr().out
+        assert "nothing is fused" in out and str(describe_nearest(candidates)) in out
         assert main(["dpc-net", "correct", str(corpus / "0002"), "--model", str(drove), "-o", str(tmp_path / "d.txt")]) == 0
         assert "fuses no axis" in capsys.readouterr().err
     else:
@@ -324,6 +325,24 @@ def test_a_fusion_is_chosen_only_where_it_lowered_every_drive() -> None:
     assert select_fusion({k: v for k, v in changes.items() if k != "both lower everywhere"}) == "lower everywhere, less"
     assert select_fusion({"worse on one drive": [[-0.5, -0.5], [-0.5, 0.0]]}) is None  # unchanged is not lowered
     assert select_fusion({}) is None
+
+
+def test_the_nearest_fusion_lowered_the_most_drives_and_names_the_others() -> None:
+    def candidate(*per_drive: list[float]) -> dict:
+        changes = np.asarray(per_drive)
+        return {"per_drive": {f"d{i}": list(c) for i, c in enumerate(per_drive)}, "mean": list(changes.mean(axis=0))}
+
+    candidates = {
+        "large mean, two drives worse": candidate([-0.9, -0.9], [0.1, -0.2], [-0.5, 0.3]),
+        "one drive worse": candidate([-0.1, -0.1], [-0.1, -0.1], [-0.2, 0.05]),
+        "one drive worse, lower on average": candidate([-0.3, -0.2], [-0.2, -0.1], [-0.2, 0.0]),
+    }
+    assert nearest_fusion(candidates) == ("one drive worse, lower on average", {"d2": [-0.2, 0.0]})  # unchanged: not lowered
+    assert describe_nearest(candidates) == (
+        "nearest: one drive worse, lower on average, 2 of 3 drives lowered; "
+        "not lowered (m-ATE translation / rotation): d2 -20.0 / +0.0 %"
+    )
+    assert nearest_fusion({}) is None and describe_nearest({}) is None
 
 
 def test_the_report_says_how_a_card_weighs_its_corrections() -> None:

@@ -258,7 +258,7 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
     import numpy as np
     from pvo_pseudosensors.learning.checkpoint import write_card
 
-    from ..dpc import DRIVE_SPANS, choose_fusion
+    from ..dpc import DRIVE_SPANS, choose_fusion, describe_nearest
 
     roots = drive_folders(args.drives)
     spans = args.vo_spans or list(DRIVE_SPANS)
@@ -289,6 +289,9 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
     write_card(args.model, card)
     if chosen is None:
         print(f"{args.model}: no choice lowered every drive's m-ATE: nothing is fused (the VO alone)")
+        nearest = describe_nearest(choice.candidates)
+        if nearest is not None:
+            print(f"  {nearest}")
     else:
         mean = 100 * np.asarray(
             next(
