@@ -98,6 +98,8 @@ def main() -> None:
     )
     parser.add_argument("--jobs", type=int, default=1, help="sequences run at a time (default 1)")
     args = parser.parse_args()
+    if args.jobs < 1:
+        parser.error(f"--jobs must be at least 1, got {args.jobs}")
 
     model = ProbeModel.load(args.model)
     trained = model.estimator.config
