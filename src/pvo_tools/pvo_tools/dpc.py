@@ -372,12 +372,17 @@ DRIVE_SPANS = (3, 30, 100, 250)
 Candidate = TypeVar("Candidate")
 
 
+def drives_lowered(changes: Any) -> int:
+    """How many drives a fusion lowered on both m-ATEs: ``changes`` the relative changes (drives, 2) against the VO."""
+    return int(np.all(np.asarray(changes, dtype=float).reshape(-1, 2) < 0.0, axis=1).sum())
+
+
 def select_fusion(changes: Mapping[Candidate, Any]) -> Candidate | None:
     """The candidate whose fusion lowered both the translational and the rotational m-ATE on every drive (each
     value: relative changes (drives, 2) against the VO alone), the lowest mean sum among them; None when none did
     — then nothing is fused, as a correction that harmed one validation drive cannot be told from one that
     harms a user's."""
-    accepted = {key: np.asarray(c, dtype=float) for key, c in changes.items() if np.all(np.asarray(c, dtype=float) < 0.0)}
+    accepted = {key: np.asarray(c, dtype=float) for key, c in changes.items() if drives_lowered(c) == len(c)}
     if not accepted:
         return None
     return min(accepted, key=lambda key: float(accepted[key].mean(axis=0).sum()))
@@ -391,7 +396,7 @@ def nearest_fusion(candidates: Mapping[str, Mapping[str, Any]]) -> tuple[str, di
         return None
 
     def lowered(candidate: Mapping[str, Any]) -> int:
-        return sum(all(v < 0.0 for v in changes) for changes in candidate["per_drive"].values())
+        return drives_lowered(list(candidate["per_drive"].values()))
 
     label = max(candidates, key=lambda key: (lowered(candidates[key]), -sum(candidates[key]["mean"])))
     worse = {drive: list(c) for drive, c in candidates[label]["per_drive"].items() if not all(v < 0.0 for v in c)}
@@ -511,7 +516,7 @@ def choose_fusion(
                 mean = 100 * drive_changes.mean(axis=0)
                 say(
                     f"  span {span:4d}, {named(axes_label, remove_mean):<25} axes: m-ATE {mean[0]:+6.1f} % translation, "
-                    f"{mean[1]:+6.1f} % rotation; {int(np.all(drive_changes < 0.0, axis=1).sum())} of {len(names)} drives lowered"
+                    f"{mean[1]:+6.1f} % rotation; {drives_lowered(drive_changes)} of {len(names)} drives lowered"
                 )
     best = select_fusion(changes)
     candidates = {
