@@ -23,7 +23,8 @@ from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, reliable, run_node, st
 from .dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
 
 #: what the status says when the model card's calibration measures no axis (`pvo dpc-net calibrate --drives` found
-#: no weighing that lowered every validation drive's m-ATE, or no axis improved on the validation windows)
+#: no weighing that lowered the mean m-ATE within its harm tolerance on every validation drive, or no axis improved
+#: on the validation windows)
 NOTHING_FUSED = "the model card's calibration measures no axis; the corrections carry no weight"
 
 

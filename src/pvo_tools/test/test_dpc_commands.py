@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 from pvo_tools.cli import main
-from pvo_tools.dpc import describe_nearest, nearest_fusion, select_fusion
+from pvo_tools.dpc import describe_nearest, nearest_fusion, select_fusion, worst_change
 
 TINY = ["--height", "32", "--width", "104", "--stem", "4,4,8", "--body", "8,16", "--deltas", "2,3", "--test-delta", "3"]
 
@@ -96,6 +96,10 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         with pytest.raises(SystemExit) as exit_status:
             main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", bad])
         assert exit_status.value.code == 2 and f"argument --vo-spans: {message}" in capsys.readouterr().err
+    for bad in ("-1", "x", "inf", "nan"):
+        with pytest.raises(SystemExit) as exit_status:
+            main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--harm-tolerance", bad])
+        assert exit_status.value.code == 2 and "argument --harm-tolerance: " in capsys.readouterr().err
 
     # the fusion chosen on long drives (here the validation and test clips): every candidate's per-drive figures kept,
     # the choice the one select_fusion makes of them (none: nothing fused, and `correct` says so)
@@ -108,7 +112,11 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     assert {c["span"] for c in candidates.values()} == {3, 6} and all(len(c["per_drive"]) == 2 for c in candidates.values())
     # each weighing tried with the corrections as predicted and with the validation split's mean error taken off
     assert sum(c["remove_mean"] for c in candidates.values()) == sum(not c["remove_mean"] for c in candidates.values()) > 0
-    chosen = select_fusion({label: list(c["per_drive"].values()) for label, c in candidates.items()})
+    chosen = select_fusion({label: list(c["per_drive"].values()) for label, c in candidates.items()}, harm_tolerance=0.05)
+    assert drive_card["drive_calibration"]["harm_tolerance"] == 0.05  # the default: the no-harm bound
+    for c in candidates.values():
+        assert c["worst"] == pytest.approx(max(max(v) for v in c["per_drive"].values()), abs=1e-4)
+        assert c["accepted"] == (c["worst"] < 0.05 and max(c["mean"]) < 0.0)
     if chosen is None:
         assert drive_card["fused_axes"] == [] and drive_card["drive_calibration"]["chosen"] is None
         out = capsys.readouterr().out
@@ -315,16 +323,28 @@ def test_a_biased_rig_is_read_beside_the_clean_rigs_vo_on_the_same_drive(pvo_dat
         evaluate_rig("t", [tmp_path / "calib" / "06"], {}, lambda _: None, {}, clean_folders=[tmp_path / "other" / "06"])
 
 
-def test_a_fusion_is_chosen_only_where_it_lowered_every_drive() -> None:
+def test_a_fusion_is_chosen_only_where_it_harmed_no_drive_beyond_the_tolerance() -> None:
     changes = {
         "both lower everywhere": [[-0.2, -0.1], [-0.1, -0.05]],
-        "lower on average, worse on one drive": [[-0.9, -0.9], [0.01, -0.2]],
+        "lower on average, 1 % worse on one drive": [[-0.9, -0.9], [0.01, -0.2]],
+        "lower on average, 6 % worse on one drive": [[-0.95, -0.95], [-0.2, 0.06]],
         "lower everywhere, less": [[-0.05, -0.01], [-0.02, -0.01]],
     }
-    assert select_fusion(changes) == "both lower everywhere"
-    assert select_fusion({k: v for k, v in changes.items() if k != "both lower everywhere"}) == "lower everywhere, less"
-    assert select_fusion({"worse on one drive": [[-0.5, -0.5], [-0.5, 0.0]]}) is None  # unchanged is not lowered
+    # the default: no drive 5 % worse or more (the no-harm bound), then the lowest mean sum
+    assert select_fusion(changes) == "lower on average, 1 % worse on one drive"
+    # tolerance 0: every drive lowered on both m-ATEs (unchanged is not lowered)
+    strict = {k: v for k, v in changes.items() if k != "both lower everywhere"}
+    assert select_fusion(changes, harm_tolerance=0.0) == "both lower everywhere"
+    assert select_fusion(strict, harm_tolerance=0.0) == "lower everywhere, less"
+    assert select_fusion({"worse on one drive": [[-0.5, -0.5], [-0.5, 0.0]]}, harm_tolerance=0.0) is None
+    assert select_fusion({"worse on one drive": [[-0.5, -0.5], [-0.5, 0.0]]}) == "worse on one drive"
+    # within the tolerance on every drive but not lower on average: nothing to gain, nothing fused
+    assert select_fusion({"slightly worse": [[0.01, -0.01], [0.02, 0.0]]}) is None
+    assert select_fusion({"6 % worse": changes["lower on average, 6 % worse on one drive"]}) is None
     assert select_fusion({}) is None
+    assert worst_change(changes["lower on average, 6 % worse on one drive"]) == 0.06
+    with pytest.raises(ValueError, match="the harm tolerance must be a finite fraction >= 0, got -0.1"):
+        select_fusion(changes, harm_tolerance=-0.1)
 
 
 def test_the_nearest_fusion_lowered_the_most_drives_and_names_the_others() -> None:
@@ -358,7 +378,12 @@ def test_the_report_says_how_a_card_weighs_its_corrections() -> None:
         "VO span 250 frames; the validation split's mean residual removed from the corrections"
     )
     refused = chosen | {"fused_axes": []}
-    assert "nothing fused" in fusion_summary(SimpleNamespace(calibration=refused))
+    # a card from before the harm tolerance had every drive lowered; a newer one says its tolerance
+    assert fusion_summary(SimpleNamespace(calibration=refused)).endswith("nothing fused (no choice lowered every drive's m-ATE)")
+    tolerant = refused | {"drive_calibration": {"drives": ["v/03"], "harm_tolerance": 0.05}}
+    assert fusion_summary(SimpleNamespace(calibration=tolerant)).endswith(
+        "nothing fused (no choice lowered the mean m-ATE and kept every drive within +5 %)"
+    )
 
 
 def test_a_miscalibrated_drive_links_what_the_calibration_does_not_change(tmp_path: Path) -> None:

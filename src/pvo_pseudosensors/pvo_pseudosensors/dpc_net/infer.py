@@ -109,8 +109,8 @@ def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
     the card has it (`pvo dpc-net calibrate`, in the card's inference mode), else the training targets' (eq. 6.6,
     the thesis's; an upper bound: the error of the VO the model corrects). Only the axes the calibration validated
     are measured: those its long validation drives chose (``fused_axes``, `calibrate --drives`; none when no choice
-    lowered every drive's m-ATE), else those whose error the correction lowered on the validation windows
-    (``residual.corrected_*``)."""
+    lowered the mean m-ATE within its harm tolerance on every drive), else those whose error the correction lowered
+    on the validation windows (``residual.corrected_*``)."""
     covariance = np.asarray(calibration.get("residual_covariance", calibration["target_covariance"]), dtype=float)
     if "residual_covariance" in calibration:
         mean = residual_mean(calibration)  # removed from the corrections: the spread about it is what is left

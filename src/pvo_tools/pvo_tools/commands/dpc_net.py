@@ -11,6 +11,8 @@ from typing import Any
 
 
 def register_actions(actions: Any, entry: Any) -> None:
+    from ..dpc import HARM_TOLERANCE
+
     predict = actions.add_parser("predict", help="corrections of a VO trajectory over windows of the model's span")
     predict.set_defaults(handler=run_predict)
     predict.add_argument("sequence", type=Path, help="KITTI-layout sequence directory (stereo)")
@@ -65,7 +67,16 @@ def register_actions(actions: Any, entry: Any) -> None:
         help="long validation drives of the model's rig (sequence directories, or folders of them: `pvo dpc-net drives "
         "OUT`, then OUT/<rig>): the VO span (--vo-spans, default 3,30,100,250), the fused axes and whether the "
         "validation split's mean residual is removed from the corrections are chosen on them — the choice that lowers "
-        "every drive's translational and rotational m-ATE most, else nothing is fused",
+        "the mean translational plus rotational m-ATE most and raises no drive's by --harm-tolerance, else nothing is "
+        "fused",
+    )
+    calibrate.add_argument(
+        "--harm-tolerance",
+        type=percent,
+        default=100 * HARM_TOLERANCE,
+        metavar="PERCENT",
+        help="with --drives: how much a weighing may raise one drive's m-ATE (either) and still be chosen (default "
+        f"{100 * HARM_TOLERANCE:g} %%, the no-harm bound; 0: it must lower every drive)",
     )
     drives = actions.add_parser(
         "drives", help="render the long drives a fusion is chosen on (KITTI 03, 04, 10) or tested on (05, 06, 07), each rig"
@@ -105,6 +116,17 @@ def rig_list(text: str) -> list[str]:
     if unknown or not rigs:
         raise argparse.ArgumentTypeError(f"unknown rig(s) {', '.join(unknown) or '(none)'}: choose from {', '.join(RIGS)}")
     return rigs
+
+
+def percent(text: str) -> float:
+    """``--harm-tolerance 5``: a finite percentage >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a percentage (e.g. 5), got {text!r}") from None
+    if not value >= 0.0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"the harm tolerance must be a finite percentage >= 0, got {text!r}")
+    return value
 
 
 def span_list(text: str) -> list[int]:
@@ -163,7 +185,7 @@ def run_correct(args: argparse.Namespace) -> int:
     )
     print(f"{args.out}: {len(result.vo)} poses, {how}{weighed}; the VO alone in {vo_file}")
     if args.method == "fusion" and card.calibration.get("fused_axes") == []:
-        _warn(["its calibration on validation drives fuses no axis (none lowered every drive's m-ATE): the VO alone"], args.model)
+        _warn(["its calibration on validation drives fuses no axis (no weighing was acceptable there): the VO alone"], args.model)
     return 0
 
 
@@ -268,7 +290,10 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
         file=sys.stderr,
         flush=True,
     )
-    choice = choose_fusion(model, card, roots, spans, say=lambda line: print(line, file=sys.stderr, flush=True))
+    tolerance = args.harm_tolerance / 100.0
+    choice = choose_fusion(
+        model, card, roots, spans, say=lambda line: print(line, file=sys.stderr, flush=True), harm_tolerance=tolerance
+    )
     chosen = (
         f"span {choice.span}, axes {' '.join(choice.axes)}" + (", mean removed" if choice.remove_mean else "")
         if choice.axes
@@ -278,7 +303,11 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
     card.calibration["remove_mean"] = choice.remove_mean
     card.calibration["drive_calibration"] = {
         "drives": [str(r) for r in roots],
-        "rule": "lowers the translational and the rotational m-ATE on every drive; the lowest mean sum",
+        "rule": (
+            "lowers the mean translational and rotational m-ATE and raises no drive's by the harm tolerance or more; "
+            "the lowest mean sum"
+        ),
+        "harm_tolerance": tolerance,
         "chosen": chosen,
         "candidates": choice.candidates,
     }
@@ -288,7 +317,8 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
         card.calibration["vo_static_covariance"] = np.asarray(choice.vo_calibration.static_covariance).tolist()
     write_card(args.model, card)
     if chosen is None:
-        print(f"{args.model}: no choice lowered every drive's m-ATE: nothing is fused (the VO alone)")
+        bound = "lowered every drive's m-ATE" if tolerance == 0.0 else f"kept every drive's m-ATE within +{100 * tolerance:g} %"
+        print(f"{args.model}: no choice {bound} while lowering the mean: nothing is fused (the VO alone)")
         nearest = describe_nearest(choice.candidates)
         if nearest is not None:
             print(f"  {nearest}")

@@ -63,6 +63,15 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
 
 
+def harm_rule(drive_calibration: dict[str, Any]) -> str:
+    """Why a card calibrated on drives fuses nothing, by the harm tolerance it was chosen with (cards before stop
+    63 have none: every drive had to be lowered)."""
+    tolerance = float(drive_calibration.get("harm_tolerance", 0.0))
+    if tolerance == 0.0:
+        return "no choice lowered every drive's m-ATE"
+    return f"no choice lowered the mean m-ATE and kept every drive within +{100 * tolerance:g} %"
+
+
 def fusion_summary(card: Any) -> str:
     """How a card weighs its corrections against the VO, in words (for the report)."""
     calibration = card.calibration or {}
@@ -70,7 +79,7 @@ def fusion_summary(card: Any) -> str:
     if drives is not None:
         names = ", ".join(Path(d).name for d in drives.get("drives", []))
         if not calibration.get("fused_axes"):
-            return f"chosen on the validation drives {names}: nothing fused (no choice lowered every drive's m-ATE)"
+            return f"chosen on the validation drives {names}: nothing fused ({harm_rule(drives)})"
         return (
             f"chosen on the validation drives {names}: axes {' '.join(calibration['fused_axes'])}, VO span "
             f"{calibration.get('vo_span')} frames"
@@ -333,9 +342,9 @@ def run(args: argparse.Namespace) -> int:
         f"({', '.join(f'{d} from {s}' for _, d, s in SEQUENCES[: args.sequences])}); the VO is this project's stereo VO "
         "with its defaults. Each model's corrections are weighed against the VO as its card's calibration says: "
         "chosen on long validation drives of its rig rendered like these (along KITTI 03, 04 and 10, `pvo dpc-net drives`; "
-        "`pvo dpc-net calibrate --drives`: the VO span and the fused axes that lowered every drive's m-ATE, else nothing "
-        "fused) when it has that, else the VO's covariances scaled on the validation split its corrections were "
-        "calibrated on over "
+        "`pvo dpc-net calibrate --drives`: the VO span and the fused axes that lowered the mean m-ATE most and raised "
+        "no drive's by the card's harm tolerance, else nothing fused) when it has that, else the VO's covariances "
+        "scaled on the validation split its corrections were calibrated on over "
         + (f"{args.vo_span} frames" if args.vo_span else "the span its card chose on that split (else Δp)")
         + " and the axes whose error over 100 windows the correction lowers there. The corrections' covariance is "
         "their residual covariance on that split (`pvo dpc-net calibrate`; the training targets' of eq. 6.6 without it). "
