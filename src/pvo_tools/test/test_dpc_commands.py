@@ -544,3 +544,23 @@ def test_mirrored_validation_drives_are_their_drives_through_a_mirror(tmp_path: 
     assert made.stat().st_mtime_ns > before
     with pytest.raises(ValueError, match="drive 10am mirrors 10a, which is not among the drives rendered"):
         dpc.render_drives(drives[1:], Path("data"), tmp_path, say=lambda _: None, rigs=("calib",))
+
+
+def test_the_experiment_renders_its_test_drives_through_another_world(tmp_path: Path, monkeypatch, capsys) -> None:
+    """``--world K``: the same test drives (motion, start, frames) with the scenery drawn from another seed, a fresh
+    test set; a negative world is refused in one line before anything is loaded or rendered."""
+    from pvo_tools.dpc import TEST_DRIVES, WORLD_SEED_STRIDE
+    from pvo_tools.experiments import dpc_net as experiment
+
+    asked: list = []
+    monkeypatch.setattr(experiment, "render_drives", lambda drives, *rest: asked.append(drives) or {})
+    experiment.render_sequences(tmp_path, 2, 1000, tmp_path / "out", 1, print, ("clean",), 3)
+    experiment.render_sequences(tmp_path, 2, 1000, tmp_path / "out", 1, print, ("clean",))
+    world3, own = asked
+    assert [d.seed for d in own] == [d.seed for d in TEST_DRIVES[:2]]
+    assert [d.seed for d in world3] == [d.seed + 3 * WORLD_SEED_STRIDE for d in TEST_DRIVES[:2]]
+    assert [(d.drive, d.start, d.heading) for d in world3] == [(d.drive, d.start, d.heading) for d in TEST_DRIVES[:2]]
+
+    assert main(["experiment", "dpc-net", "--world", "-1", "-o", str(tmp_path / "x")]) != 0
+    assert "--world must be >= 0, got -1" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..dpc import RIGS, TEST_DRIVES, render_drives
+from ..dpc import RIGS, TEST_DRIVES, in_world, render_drives
 from ..paths import data_directory
 from .common import TRAJECTORY_METRICS, ExperimentRun, fusion_figures, trajectory_tables
 
@@ -50,6 +50,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sequences", type=int, default=5, help=f"long sequences per rig (1-{len(SEQUENCES)}, default 5)")
     parser.add_argument("--frames", type=int, default=1000, help="frames per sequence (default 1000)")
     parser.add_argument("--sequence-dir", type=Path, help="where the sequences are rendered (default OUT/sequences)")
+    parser.add_argument(
+        "--world",
+        type=int,
+        default=0,
+        help="the test drives through another world (their motion kept, the scenery drawn with another seed; 0: their "
+        "own, default): a fresh test set for a rule chosen after the first was seen (give it its own --sequence-dir)",
+    )
     parser.add_argument("--jobs", "-j", type=int, default=2, help="sequences rendered in parallel (default 2)")
     parser.add_argument("--data", type=Path, help="the shared data directory (default ../shared/data)")
     parser.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
@@ -92,11 +99,12 @@ def fusion_summary(card: Any) -> str:
 
 
 def render_sequences(
-    data: Path, count: int, frames: int, out: Path, jobs: int, say: Any, rigs: tuple[str, ...] = RIGS
+    data: Path, count: int, frames: int, out: Path, jobs: int, say: Any, rigs: tuple[str, ...] = RIGS, world: int = 0
 ) -> dict[str, list[Path]]:
-    """The first ``count`` of :data:`pvo_tools.dpc.TEST_DRIVES`, ``frames`` each, rendered clean, through the
-    thesis's lens and with a miscalibrated calib.txt — those of ``rigs`` (:func:`pvo_tools.dpc.render_drives`)."""
-    return render_drives(TEST_DRIVES[:count], data, out, frames, jobs, say, rigs)
+    """The first ``count`` of :data:`pvo_tools.dpc.TEST_DRIVES` through world ``world`` (:func:`pvo_tools.dpc.in_world`),
+    ``frames`` each, rendered clean, through the thesis's lens and with a miscalibrated calib.txt — those of ``rigs``
+    (:func:`pvo_tools.dpc.render_drives`)."""
+    return render_drives(in_world(TEST_DRIVES[:count], world), data, out, frames, jobs, say, rigs)
 
 
 def vo_calibration(card: Any, say: Any, span: int | None = None) -> Any:
@@ -317,6 +325,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--sequences must be in [1, {len(SEQUENCES)}], got {args.sequences}")
     if args.frames < 100:
         raise ValueError(f"--frames must be >= 100 (segment errors need 100 m and more), got {args.frames}")
+    in_world((), args.world)  # a negative world fails here, before any model is loaded
     torch.set_num_threads(args.threads)
     session = ExperimentRun.start(args)
     say, out = session.say, session.out
@@ -335,11 +344,15 @@ def run(args: argparse.Namespace) -> int:
     # only the rigs some model is tested on are rendered (the calib rig is the clean renders with another calib.txt)
     # and the clean one, whose VO is the biased rigs' reference
     tested = tuple(rig for rig in RIGS if rig == "clean" or any(name.split()[0] == rig for name in loaded))
-    folders = render_sequences(data, args.sequences, args.frames, args.sequence_dir or out / "sequences", args.jobs, say, tested)
+    folders = render_sequences(
+        data, args.sequences, args.frames, args.sequence_dir or out / "sequences", args.jobs, say, tested, args.world
+    )
     report = ["# pvo experiment dpc-net", "", f"Command: `{session.command}`", ""]
     report += [
         f"{args.sequences} sequences of {args.frames} frames (620x188, KITTI geometry) driven along KITTI's test drives "
-        f"({', '.join(f'{d} from {s}' for _, d, s in SEQUENCES[: args.sequences])}); the VO is this project's stereo VO "
+        f"({', '.join(f'{d} from {s}' for _, d, s in SEQUENCES[: args.sequences])}"
+        + (f"; through world {args.world}, not the drives' own" if args.world else "")
+        + "); the VO is this project's stereo VO "
         "with its defaults. Each model's corrections are weighed against the VO as its card's calibration says: "
         "chosen on long validation drives of its rig rendered like these (along KITTI 03, 04 and 10, `pvo dpc-net drives`; "
         "`pvo dpc-net calibrate --drives`: the VO span and the fused axes that lowered the mean m-ATE most and raised "
