@@ -263,6 +263,34 @@ def test_the_demo_runs_the_vo_a_dpc_net_model_learned(tmp_path: Path, capsys) ->
         dpc_net_vo(str(model))
 
 
+def test_the_demo_weighs_the_corrections_as_the_card_does(tmp_path: Path, capsys) -> None:
+    """With a card that fuses some axis, `pvo demo` gives the fusion node the card's VO covariance scales (what
+    `pvo dpc-net correct` weighs with), and the fusion config accepts them; a card that fuses nothing changes
+    nothing; a broken scale is one line naming the model."""
+    from pvo_pseudosensors.dpc_net.estimator import resolve_model
+    from pvo_tools.commands.demo import dpc_net_fusion
+    from pvo_tools.errors import PvoError
+
+    from pvo_fusion.config import from_flat as fusion_from_flat
+
+    shipped = yaml.safe_load((resolve_model("dpc_net") / "model.yaml").read_text())["calibration"]
+    assert shipped["fused_axes"]
+    parameters = dpc_net_fusion("dpc_net")
+    assert parameters == {"inputs.vo.covariance_scale": pytest.approx(shipped["vo_scale"])}
+    assert "scaled by its card" in capsys.readouterr().err
+    config = fusion_from_flat(parameters)
+    assert config.inputs.vo.covariance_scale == pytest.approx(tuple(shipped["vo_scale"]))
+    assert dpc_net_fusion("dpc_net_clean") == {}  # fuses nothing: the VO keeps its own covariances
+
+    model = tmp_path / "model"
+    shutil.copytree(resolve_model("dpc_net"), model)
+    card = yaml.safe_load((model / "model.yaml").read_text())
+    card["calibration"]["vo_scale"] = [1.0, -2.0]
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    with pytest.raises(PvoError, match="vo_scale must be 6 positive numbers"):
+        dpc_net_fusion(str(model))
+
+
 def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     missing = ["dpc-net", "correct", str(corpus / "0002"), "--model", str(tmp_path / "none"), "-o", str(tmp_path / "x.txt")]
     assert main(missing) == 2

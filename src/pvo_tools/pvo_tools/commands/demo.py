@@ -250,6 +250,8 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     vo_parameters = {"probe.model": settings.probe_model} if learned and settings.probe_model else {}
     if correction_config is not None:  # DPC-Net corrects the VO it learned: the graph runs that one
         vo_parameters = dpc_net_vo(settings.dpc_net_model) | vo_parameters
+        # ... and weighs its corrections against that VO as the card's validation drives chose (`pvo dpc-net correct`)
+        fusion_overrides.update(dpc_net_fusion(settings.dpc_net_model))
     parameters = {
         "stereo_vo": vo_parameters,
         sun_node: sun_parameters,
@@ -310,6 +312,32 @@ def dpc_net_vo(model: str) -> dict[str, Any]:
         listed = ", ".join(f"{name}={value}" for name, value in differences.items())
         print(f"pvo demo: stereo_vo runs the VO that {model} learned to correct ({listed})", file=sys.stderr, flush=True)
     return differences
+
+
+def dpc_net_fusion(model: str) -> dict[str, Any]:
+    """The fusion node's parameters that weigh the DPC-Net ``model``'s corrections as its card's calibration does
+    (`pvo dpc-net calibrate --drives`): the VO's covariance scales (``inputs.vo.covariance_scale``, ROS order) when the
+    card fuses some axis and carries them, announced on stderr; else none (the VO's own covariances)."""
+    from pvo_pseudosensors.dpc_net.estimator import resolve_model
+    from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
+
+    from ..dpc import card_vo_calibration
+
+    try:
+        card = read_card(resolve_model(model))
+        calibration = card_vo_calibration(card)
+    except (ModelFileError, ValueError) as exc:
+        raise PvoError(f"{model}: {exc}") from None
+    if calibration is None or not (card.calibration or {}).get("fused_axes"):
+        return {}
+    scale = [float(v) for v in calibration.scale]
+    listed = " ".join(f"{v:.3g}" for v in scale)
+    print(
+        f"pvo demo: fusion weighs {model}'s corrections against the VO's covariances scaled by its card ({listed})",
+        file=sys.stderr,
+        flush=True,
+    )
+    return {"inputs.vo.covariance_scale": scale}
 
 
 def run_graph(
