@@ -187,6 +187,14 @@ def test_every_variant_becomes_a_left_correction_with_unmeasured_axes() -> None:
     assert np.diag(measurement_covariance(pose, drives)).tolist() == [UNMEASURED] * 2 + [1.5, UNMEASURED, 2.5, UNMEASURED]
     assert np.diag(measurement_covariance(rotation, drives)).tolist() == [UNMEASURED] * 4 + [2.5, UNMEASURED]
     assert np.diag(measurement_covariance(pose, worse | {"fused_axes": []})).tolist() == [UNMEASURED] * 6
+    # corrections made consistent over a longer span: the measured axes scaled, the unmeasured left unmeasured
+    scaled = drives | {"correction_scale": [4.0, 4.0, 9.0, 1.0, 0.25, 1e-6]}
+    assert np.diag(measurement_covariance(pose, scaled)).tolist() == pytest.approx(
+        [UNMEASURED] * 2 + [13.5, UNMEASURED, 0.625, UNMEASURED]
+    )
+    for bad in ([1.0] * 5, [1.0, 1.0, 1.0, 1.0, 1.0, 0.0], [1.0, 1.0, 1.0, 1.0, 1.0, float("nan")]):
+        with pytest.raises(ValueError, match="correction_scale must be 6 positive numbers"):
+            measurement_covariance(pose, drives | {"correction_scale": bad})
 
 
 def test_the_validation_mean_error_is_removed_only_where_the_card_chose_it() -> None:

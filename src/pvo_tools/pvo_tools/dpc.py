@@ -452,6 +452,7 @@ class FusionChoice:
     drives: list[str]
     vo_calibration: Any = None
     remove_mean: bool = False
+    correction_scale: list[float] | None = None
 
 
 def choose_fusion(
@@ -461,15 +462,25 @@ def choose_fusion(
     spans: Sequence[int] = DRIVE_SPANS,
     say: Any = None,
     harm_tolerance: float = HARM_TOLERANCE,
+    consistent_corrections: bool = False,
 ) -> FusionChoice:
     """The VO span and the fused axes (:data:`AXIS_SETS` x ``spans``, each with the corrections as predicted and
     with their validation-split mean error removed, :func:`~pvo_pseudosensors.dpc_net.infer.remove_residual_mean`)
     for ``model``'s corrections, chosen on long validation ``drives`` (sequence directories with poses.txt, of the
     model's rig) by :func:`select_fusion` with ``harm_tolerance``. The VO's scales for a drive are learned on the
-    other drives (leave one drive out; in sample with one drive), so no drive judges a weighing learned on itself."""
+    other drives (leave one drive out; in sample with one drive), so no drive judges a weighing learned on itself.
+    ``consistent_corrections``: for every span longer than the card's Δp each weighing is tried again with the
+    corrections' covariance made consistent over the same span (:func:`correction_calibration`, learned on the other
+    drives too), so the VO chain and the corrected chain are weighed by how far each drifts over that span."""
     from pvo_core.trajectory import read_kitti_poses
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
-    from pvo_pseudosensors.dpc_net.infer import AXES, measurement_covariance, predict_corrections, remove_residual_mean
+    from pvo_pseudosensors.dpc_net.infer import (
+        AXES,
+        corrected_covariance,
+        measurement_covariance,
+        predict_corrections,
+        remove_residual_mean,
+    )
     from pvo_pseudosensors.dpc_net.rig import check_rig
 
     from pvo_fusion import CalibrationSequence, calibrate_vo
@@ -509,26 +520,49 @@ def choose_fusion(
         prepared[root.name] = (root, run, truth, alone, sequence, predict_corrections(model, as_predicted, root, run.poses))
     names = list(prepared)
     means = (False, True) if (card.calibration or {}).get("residual") else (False,)
+    delta = DPCNetConfig.from_card(card).test_delta
     labels = [(label, mean) for mean in means for label in axis_sets]
-    changes: dict[tuple[int, str, bool], Array] = {}  # (span, axis set, mean removed) -> per-drive changes
+    # (span, axis set, mean removed, corrections consistent over the span) -> per-drive changes
+    changes: dict[tuple[int, str, bool, bool], Array] = {}
 
-    def named(axes_label: str, remove_mean: bool) -> str:
-        return axes_label + (", mean removed" if remove_mean else "")
+    def named(axes_label: str, remove_mean: bool, consistent: bool = False) -> str:
+        return axes_label + (", mean removed" if remove_mean else "") + (", corrections over the span" if consistent else "")
+
+    def weighing(axes_label: str, remove_mean: bool) -> Any:
+        candidate = copy.deepcopy(card)
+        candidate.calibration["fused_axes"] = list(axis_sets[axes_label])
+        candidate.calibration["remove_mean"] = remove_mean
+        candidate.calibration.pop("correction_scale", None)
+        return candidate
+
+    def corrected_chain(name: str, candidate: Any) -> Any:
+        # every axis's own spread, not the unmeasured variance the fusion gives an axis it does not take: that one
+        # would leak into the measured axes as the chain's covariance is carried over the span
+        _, _, truth, _, _, predicted = prepared[name]
+        transforms = remove_residual_mean(predicted.transforms, candidate.calibration)
+        return correction_sequence(name, truth, predicted, transforms, corrected_covariance(candidate.calibration))
 
     for span in spans:
         scales = {name: calibrate_vo([prepared[o][4] for o in names if o != name] or [prepared[name][4]], span) for name in names}
-        for axes_label, remove_mean in labels:
-            candidate = copy.deepcopy(card)
-            candidate.calibration["fused_axes"] = list(axis_sets[axes_label])
-            candidate.calibration["remove_mean"] = remove_mean
+        tried = [(label, mean, False) for label, mean in labels]
+        if consistent_corrections and span > delta:
+            tried += [(label, mean, True) for label, mean in labels]
+        for axes_label, remove_mean, consistent in tried:
+            candidate = weighing(axes_label, remove_mean)
             covariance = measurement_covariance(DPCNetConfig.from_card(candidate), candidate.calibration)
             rows = []
             for name in names:
                 root, run, truth, alone, _, predicted = prepared[name]
+                drive_covariance = covariance
+                if consistent:
+                    others = [corrected_chain(o, candidate) for o in names if o != name] or [corrected_chain(name, candidate)]
+                    drive_card = copy.deepcopy(candidate)
+                    drive_card.calibration["correction_scale"] = correction_calibration(others, span, delta)
+                    drive_covariance = measurement_covariance(DPCNetConfig.from_card(drive_card), drive_card.calibration)
                 weighed = replace(
                     predicted,
                     transforms=remove_residual_mean(predicted.transforms, candidate.calibration),
-                    covariances=np.broadcast_to(covariance, predicted.covariances.shape).copy(),
+                    covariances=np.broadcast_to(drive_covariance, predicted.covariances.shape).copy(),
                 )
                 fused = correct_sequence(root, model, candidate, "fusion", scales[name], run=run, corrections=weighed)
                 figures = fusion_figures(truth, truth[0] @ fused.corrected_online)
@@ -538,30 +572,57 @@ def choose_fusion(
                         figures["m_ate_rot_deg"] / max(alone["m_ate_rot_deg"], 1e-12) - 1.0,
                     ]
                 )
-            changes[(span, axes_label, remove_mean)] = np.asarray(rows)
+            changes[(span, axes_label, remove_mean, consistent)] = np.asarray(rows)
             if say is not None:
-                drive_changes = changes[(span, axes_label, remove_mean)]
+                drive_changes = changes[(span, axes_label, remove_mean, consistent)]
                 mean = 100 * drive_changes.mean(axis=0)
                 say(
-                    f"  span {span:4d}, {named(axes_label, remove_mean):<25} axes: m-ATE {mean[0]:+6.1f} % translation, "
+                    f"  span {span:4d}, {named(axes_label, remove_mean, consistent):<25} axes: "
+                    f"m-ATE {mean[0]:+6.1f} % translation, "
                     f"{mean[1]:+6.1f} % rotation; {drives_lowered(drive_changes)} of {len(names)} drives lowered, "
                     f"worst {100 * worst_change(drive_changes):+.1f} %"
                 )
     best = select_fusion(changes, harm_tolerance)
     candidates = {
-        f"span {span}, {named(axes_label, remove_mean)}": {
+        f"span {span}, {named(axes_label, remove_mean, consistent)}": {
             "span": span,
             "axes": list(axis_sets[axes_label]),
             "remove_mean": remove_mean,
+            **({"corrections_over_span": True} if consistent else {}),
             "per_drive": {name: [round(float(v), 4) for v in row] for name, row in zip(names, c, strict=True)},
             "mean": [round(float(v), 4) for v in c.mean(axis=0)],
             "worst": round(worst_change(c), 4),
             "accepted": fusion_accepted(c, harm_tolerance),
         }
-        for (span, axes_label, remove_mean), c in changes.items()
+        for (span, axes_label, remove_mean, consistent), c in changes.items()
     }
     if best is None:
         return FusionChoice(None, [], candidates, names)
-    span, axes_label, remove_mean = best
+    span, axes_label, remove_mean, consistent = best
     calibration = calibrate_vo([prepared[n][4] for n in names], span)
-    return FusionChoice(span, list(axis_sets[axes_label]), candidates, names, calibration, remove_mean)
+    correction_scale = None
+    if consistent:
+        chosen = weighing(axes_label, remove_mean)
+        correction_scale = correction_calibration([corrected_chain(n, chosen) for n in names], span, delta)
+    return FusionChoice(span, list(axis_sets[axes_label]), candidates, names, calibration, remove_mean, correction_scale)
+
+
+def correction_sequence(name: str, truth: Array, predicted: Any, transforms: Array, covariance: Array) -> Any:
+    """The corrected chain of one drive as a :class:`pvo_fusion.CalibrationSequence`: the truth at the windows'
+    boundaries (consecutive windows 0 → Δp → 2Δp ...), the corrected transforms T_last,first (N, 4, 4) as its
+    motions and ``covariance`` (6, 6, ROS order) as each one's."""
+    from pvo_fusion import CalibrationSequence
+
+    boundaries = np.concatenate([predicted.first[:1], predicted.last]).astype(int)
+    return CalibrationSequence(name, truth[boundaries], transforms, np.broadcast_to(covariance, (len(transforms), 6, 6)).copy())
+
+
+def correction_calibration(chains: Sequence[Any], span: int, delta: int) -> list[float]:
+    """Per-axis variance scales (ROS order) that make the corrected chains (:func:`correction_sequence`) consistent
+    over ``span`` frames (span // Δp windows): the VO's calibration (:func:`pvo_fusion.calibrate_vo`) applied to the
+    corrections. Axes the corrections do not measure come out near 0; :func:`measurement_covariance` keeps them
+    unmeasured whatever their scale."""
+    from pvo_fusion import calibrate_vo
+
+    scale = np.asarray(calibrate_vo(chains, max(1, span // delta)).scale, dtype=float)
+    return [float(v) for v in np.maximum(scale, 1e-6)]

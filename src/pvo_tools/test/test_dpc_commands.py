@@ -127,6 +127,24 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         assert drive_card["fused_axes"] == candidates[chosen]["axes"] and drive_card["vo_span"] == candidates[chosen]["span"]
         assert drive_card["remove_mean"] == candidates[chosen]["remove_mean"]
         assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
+    # the corrections made consistent over the span too: tried for the spans longer than Δp, each named so
+    consistent = tmp_path / "consistent"
+    shutil.copytree(model, consistent)
+    calibrate[calibrate.index(str(drove))] = str(consistent)
+    assert main([*calibrate, "--drives", str(corpus / "0001"), str(corpus / "0002"), "--consistent-corrections"]) == 0
+    capsys.readouterr()
+    consistent_card = yaml.safe_load((consistent / "model.yaml").read_text())["calibration"]
+    tried = consistent_card["drive_calibration"]["candidates"]
+    delta = yaml.safe_load((consistent / "model.yaml").read_text())["hyperparameters"]["test_delta"]
+    over = {label: c for label, c in tried.items() if c.get("corrections_over_span")}
+    assert {c["span"] for c in over.values()} == {s for s in (3, 6) if s > delta}
+    assert all(label.endswith(", corrections over the span") for label in over)
+    assert len(tried) == len(candidates) + len(over)  # the others as without the flag
+    chosen = select_fusion({label: list(c["per_drive"].values()) for label, c in tried.items()}, harm_tolerance=0.05)
+    if chosen is not None and tried[chosen].get("corrections_over_span"):
+        assert len(consistent_card["correction_scale"]) == 6 and min(consistent_card["correction_scale"]) > 0.0
+    else:
+        assert "correction_scale" not in consistent_card
     # a new residual without drives: what the drives chose with the old one (axes, mean removal) goes with it
     stale = yaml.safe_load((drove / "model.yaml").read_text())
     stale["calibration"]["remove_mean"] = True
@@ -134,7 +152,7 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     assert main(["dpc-net", "calibrate", "--model", str(drove), "--corpus", str(corpus)]) == 0
     capsys.readouterr()
     recalibrated = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
-    assert not {"remove_mean", "fused_axes", "drive_calibration", "vo_scale"} & set(recalibrated)
+    assert not {"remove_mean", "fused_axes", "drive_calibration", "vo_scale", "correction_scale"} & set(recalibrated)
     assert recalibrated["mirrored"] is False
     # mirrored inference: calibrated in that mode, and the corrections follow the card
     from pvo_core.trajectory import read_kitti_poses
@@ -592,3 +610,37 @@ def test_the_experiment_renders_its_test_drives_through_another_world(tmp_path: 
     assert main(["experiment", "dpc-net", "--world", "-1", "-o", str(tmp_path / "x")]) != 0
     assert "--world must be >= 0, got -1" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_corrections_drifting_together_are_made_consistent_over_the_span() -> None:
+    """The corrected chain's scales over a span (:func:`pvo_tools.dpc.correction_calibration`): corrections whose
+    error is white noise at their covariance stay near 1 at any span; the same noise plus a bias shared by every
+    window grows with the span, as the VO's does."""
+    from types import SimpleNamespace
+
+    from pvo_core.lie import se3_exp
+    from pvo_tools.dpc import correction_calibration, correction_sequence
+
+    rng = np.random.default_rng(0)
+    delta, windows = 3, 600
+    sigma = np.array([0.02, 0.01, 0.05, 1e-3, 2e-3, 1e-3])
+    covariance = np.diag(sigma**2)
+    step = np.eye(4)
+    step[:3, 3] = [0.0, 0.0, 3.0]  # 3 m forward per window
+    truth = np.stack([np.linalg.matrix_power(np.linalg.inv(step), k) for k in range(windows + 1)])  # T_map,k
+    predicted = SimpleNamespace(first=np.arange(windows) * delta, last=np.arange(1, windows + 1) * delta)
+    frames = np.zeros((windows * delta + 1, 4, 4))
+    frames[::delta] = truth  # the truth per frame, only the windows' boundaries read
+
+    def chain(bias: np.ndarray) -> object:
+        noise = rng.normal(size=(windows, 6)) * sigma + bias
+        transforms = np.stack([se3_exp(e) @ step for e in noise])
+        return correction_sequence("d", frames, predicted, transforms, covariance)
+
+    white = [chain(np.zeros(6)) for _ in range(2)]
+    one, long = correction_calibration(white, 3, delta), correction_calibration(white, 120, delta)
+    assert np.allclose(one, 1.0, atol=0.2) and np.allclose(long, 1.0, atol=0.5)
+    biased = [chain(np.array([0.0, 0.0, 0.05, 0.0, 2e-3, 0.0])) for _ in range(2)]
+    over_40 = correction_calibration(biased, 120, delta)  # 40 windows: the bias adds ~40 sigma^2 on z and ry
+    # a yaw bias also swings the forward motion sideways (x); nothing moves the chain up or down (y)
+    assert over_40[2] > 20.0 and over_40[4] > 20.0 and over_40[0] > 20.0 and over_40[1] < 3.0

@@ -103,6 +103,17 @@ def remove_residual_mean(transforms: Array, calibration: dict) -> Array:
     return se3_exp(mean) @ transforms
 
 
+def corrected_covariance(calibration: dict) -> Array:
+    """The corrected transform's covariance (6, 6), ROS order, on every axis: the residual covariance on the validation
+    split about its mean when the card has it (the spread left once the mean is removed), else the training targets'
+    (eq. 6.6). :func:`measurement_covariance` is this on the measured axes."""
+    covariance = np.asarray(calibration.get("residual_covariance", calibration["target_covariance"]), dtype=float)
+    if "residual_covariance" in calibration:
+        mean = residual_mean(calibration)  # removed from the corrections: the spread about it is what is left
+        covariance = covariance - np.outer(mean, mean)
+    return covariance
+
+
 def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
     """The corrected transform's covariance (6, 6), ROS order, on the axes the variant corrects (:data:`UNMEASURED`
     on the others, uncorrelated): the corrected transforms' own residual covariance on the validation split when
@@ -110,11 +121,10 @@ def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
     the thesis's; an upper bound: the error of the VO the model corrects). Only the axes the calibration validated
     are measured: those its long validation drives chose (``fused_axes``, `calibrate --drives`; none when no choice
     lowered the mean m-ATE within its harm tolerance on every drive), else those whose error the correction lowered
-    on the validation windows (``residual.corrected_*``)."""
-    covariance = np.asarray(calibration.get("residual_covariance", calibration["target_covariance"]), dtype=float)
-    if "residual_covariance" in calibration:
-        mean = residual_mean(calibration)  # removed from the corrections: the spread about it is what is left
-        covariance = covariance - np.outer(mean, mean)
+    on the validation windows (``residual.corrected_*``). With ``correction_scale`` (`calibrate --drives
+    --consistent-corrections`: per-axis variance scales, ROS order, that make the chained corrections consistent over
+    the card's VO span) the measured axes' covariance is scaled by them."""
+    covariance = corrected_covariance(calibration)
     axes = {"pose": range(6), "rotation": range(3, 6), "yaw": [4]}[config.variant]
     if calibration.get("fused_axes") is not None:
         axes = [a for a in axes if AXES[a] in calibration["fused_axes"]]
@@ -122,6 +132,13 @@ def measurement_covariance(config: DPCNetConfig, calibration: dict) -> Array:
         residual = calibration.get("residual") or {}
         # an axis the correction made worse on validation is not measured (the VO alone there)
         axes = [a for a in axes if residual.get(f"corrected_{AXES[a]}", 1.0)]
+    if calibration.get("correction_scale") is not None:
+        scale = np.asarray(calibration["correction_scale"], dtype=float)
+        if scale.shape != (6,) or not np.all(np.isfinite(scale)) or np.any(scale <= 0.0):
+            raise ValueError(
+                f"the model card's correction_scale must be 6 positive numbers, got {calibration['correction_scale']}"
+            )
+        covariance = covariance * np.outer(np.sqrt(scale), np.sqrt(scale))
     kept = np.zeros((6, 6), dtype=bool)
     kept[np.ix_(list(axes), list(axes))] = True
     return np.where(kept, covariance, np.diag(np.full(6, UNMEASURED)))

@@ -71,6 +71,13 @@ def register_actions(actions: Any, entry: Any) -> None:
         "fused",
     )
     calibrate.add_argument(
+        "--consistent-corrections",
+        action="store_true",
+        help="with --drives: also try each weighing with the corrections' covariance made consistent over the same "
+        "span as the VO's (per axis, on the other drives; spans longer than Δp), so the two chains are weighed by how "
+        "far each drifts over it; the card then keeps those scales (calibration.correction_scale)",
+    )
+    calibrate.add_argument(
         "--harm-tolerance",
         type=percent,
         default=100 * HARM_TOLERANCE,
@@ -224,6 +231,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         "vo_scale",
         "vo_static_covariance",
         "vo_span_changes",
+        "correction_scale",
     ):
         card.calibration.pop(stale, None)  # a new residual: what was chosen with the old one goes
     card.calibration["residual_covariance"] = covariance.tolist()
@@ -292,15 +300,27 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
     )
     tolerance = args.harm_tolerance / 100.0
     choice = choose_fusion(
-        model, card, roots, spans, say=lambda line: print(line, file=sys.stderr, flush=True), harm_tolerance=tolerance
+        model,
+        card,
+        roots,
+        spans,
+        say=lambda line: print(line, file=sys.stderr, flush=True),
+        harm_tolerance=tolerance,
+        consistent_corrections=args.consistent_corrections,
     )
+    over_span = choice.correction_scale is not None
     chosen = (
-        f"span {choice.span}, axes {' '.join(choice.axes)}" + (", mean removed" if choice.remove_mean else "")
+        f"span {choice.span}, axes {' '.join(choice.axes)}"
+        + (", mean removed" if choice.remove_mean else "")
+        + (", corrections over the span" if over_span else "")
         if choice.axes
         else None
     )
     card.calibration["fused_axes"] = choice.axes
     card.calibration["remove_mean"] = choice.remove_mean
+    card.calibration.pop("correction_scale", None)
+    if over_span:
+        card.calibration["correction_scale"] = choice.correction_scale
     card.calibration["drive_calibration"] = {
         "drives": [str(r) for r in roots],
         "rule": (
@@ -327,12 +347,16 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
             next(
                 c["mean"]
                 for c in choice.candidates.values()
-                if c["span"] == choice.span and c["axes"] == choice.axes and c["remove_mean"] == choice.remove_mean
+                if c["span"] == choice.span
+                and c["axes"] == choice.axes
+                and c["remove_mean"] == choice.remove_mean
+                and c.get("corrections_over_span", False) == over_span
             )
         )
         print(
             f"{args.model}: fused axes {' '.join(choice.axes)}"
             + (" (the validation mean error removed)" if choice.remove_mean else "")
+            + (", the corrections' covariance made consistent over the span too" if over_span else "")
             + f", VO span {choice.span} frames ({len(roots)} validation "
             f"drives; m-ATE {mean[0]:+.1f} % translation, {mean[1]:+.1f} % rotation)"
         )
