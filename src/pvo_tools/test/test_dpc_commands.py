@@ -96,6 +96,9 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         with pytest.raises(SystemExit) as exit_status:
             main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", bad])
         assert exit_status.value.code == 2 and f"argument --vo-spans: {message}" in capsys.readouterr().err
+    for flag in (["--consistent-corrections"], ["--harm-tolerance", "5"]):
+        assert main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), *flag]) == 2
+        assert f"{flag[0]} weighs the corrections on long validation drives: give them with --drives" in (capsys.readouterr().err)
     for bad in ("-1", "x", "inf", "nan"):
         with pytest.raises(SystemExit) as exit_status:
             main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--harm-tolerance", bad])

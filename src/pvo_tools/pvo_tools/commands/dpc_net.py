@@ -80,7 +80,6 @@ def register_actions(actions: Any, entry: Any) -> None:
     calibrate.add_argument(
         "--harm-tolerance",
         type=percent,
-        default=100 * HARM_TOLERANCE,
         metavar="PERCENT",
         help="with --drives: how much a weighing may raise one drive's m-ATE (either) and still be chosen (default "
         f"{100 * HARM_TOLERANCE:g} %%, the no-harm bound; 0: it must lower every drive)",
@@ -205,8 +204,13 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.learning.checkpoint import write_card
     from pvo_pseudosensors.learning.data import Source
 
-    from ..dpc import rig_sequences
+    from ..dpc import HARM_TOLERANCE, rig_sequences
 
+    if not args.drives and (args.consistent_corrections or args.harm_tolerance is not None):
+        given = "--consistent-corrections" if args.consistent_corrections else "--harm-tolerance"
+        raise ValueError(f"{given} weighs the corrections on long validation drives: give them with --drives")
+    if args.harm_tolerance is None:
+        args.harm_tolerance = 100 * HARM_TOLERANCE
     model, card = load_dpc_net(args.model)
     config = DPCNetConfig.from_card(card)
     manifests = [read_corpus_manifest(corpus) for corpus in args.corpus]
