@@ -535,12 +535,27 @@ def choose_fusion(
         candidate.calibration.pop("correction_scale", None)
         return candidate
 
+    chains: dict[tuple[str, bool], Any] = {}
+    correction_scales: dict[tuple[int, bool, str], list[float]] = {}
+
     def corrected_chain(name: str, candidate: Any) -> Any:
         # every axis's own spread, not the unmeasured variance the fusion gives an axis it does not take: that one
-        # would leak into the measured axes as the chain's covariance is carried over the span
-        _, _, truth, _, _, predicted = prepared[name]
-        transforms = remove_residual_mean(predicted.transforms, candidate.calibration)
-        return correction_sequence(name, truth, predicted, transforms, corrected_covariance(candidate.calibration))
+        # would leak into the measured axes as the chain's covariance is carried over the span. The chain depends on
+        # the mean removal only (not on the fused axes), so it is made once per drive and mean removal.
+        key = (name, bool(candidate.calibration.get("remove_mean")))
+        if key not in chains:
+            _, _, truth, _, _, predicted = prepared[name]
+            transforms = remove_residual_mean(predicted.transforms, candidate.calibration)
+            chains[key] = correction_sequence(name, truth, predicted, transforms, corrected_covariance(candidate.calibration))
+        return chains[key]
+
+    def held_out_correction_scale(name: str, span: int, candidate: Any) -> list[float]:
+        # learned on the other drives, as the VO's scales are; the same for every axis set of a span and mean removal
+        key = (span, bool(candidate.calibration.get("remove_mean")), name)
+        if key not in correction_scales:
+            others = [corrected_chain(o, candidate) for o in names if o != name] or [corrected_chain(name, candidate)]
+            correction_scales[key] = correction_calibration(others, span, delta)
+        return correction_scales[key]
 
     for span in spans:
         scales = {name: calibrate_vo([prepared[o][4] for o in names if o != name] or [prepared[name][4]], span) for name in names}
@@ -555,9 +570,8 @@ def choose_fusion(
                 root, run, truth, alone, _, predicted = prepared[name]
                 drive_covariance = covariance
                 if consistent:
-                    others = [corrected_chain(o, candidate) for o in names if o != name] or [corrected_chain(name, candidate)]
                     drive_card = copy.deepcopy(candidate)
-                    drive_card.calibration["correction_scale"] = correction_calibration(others, span, delta)
+                    drive_card.calibration["correction_scale"] = held_out_correction_scale(name, span, candidate)
                     drive_covariance = measurement_covariance(DPCNetConfig.from_card(drive_card), drive_card.calibration)
                 weighed = replace(
                     predicted,

@@ -294,19 +294,23 @@ def test_the_demo_weighs_the_corrections_as_the_card_does(tmp_path: Path, capsys
 
     from pvo_fusion.config import from_flat as fusion_from_flat
 
-    shipped = yaml.safe_load((resolve_model("dpc_net") / "model.yaml").read_text())["calibration"]
-    assert shipped["fused_axes"]
-    parameters = dpc_net_fusion("dpc_net")
-    assert parameters == {"inputs.vo.covariance_scale": pytest.approx(shipped["vo_scale"])}
-    assert "scaled by its card" in capsys.readouterr().err
-    config = fusion_from_flat(parameters)
-    assert config.inputs.vo.covariance_scale == pytest.approx(tuple(shipped["vo_scale"]))
-    assert dpc_net_fusion("dpc_net_clean") == {}  # fuses nothing: the VO keeps its own covariances
-
+    # a card of its own (the shipped ones' weighings may change): one that fuses two axes at known VO scales
     model = tmp_path / "model"
-    shutil.copytree(resolve_model("dpc_net"), model)
+    shutil.copytree(resolve_model("dpc_net_clean"), model)
     card = yaml.safe_load((model / "model.yaml").read_text())
-    card["calibration"]["vo_scale"] = [1.0, -2.0]
+    scales = [2.0, 0.5, 3.0, 0.25, 4.0, 1.5]
+    card["calibration"] |= {"fused_axes": ["z", "ry"], "vo_scale": scales, "vo_static_covariance": np.eye(6).tolist()}
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    parameters = dpc_net_fusion(str(model))
+    assert parameters == {"inputs.vo.covariance_scale": pytest.approx(scales)}
+    assert "scaled by its card (2 0.5 3 0.25 4 1.5)" in capsys.readouterr().err
+    config = fusion_from_flat(parameters)
+    assert config.inputs.vo.covariance_scale == pytest.approx(tuple(scales))
+    card["calibration"]["fused_axes"] = []  # fuses nothing: the VO keeps its own covariances, scales or not
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    assert dpc_net_fusion(str(model)) == {} and capsys.readouterr().err == ""
+
+    card["calibration"] |= {"fused_axes": ["z"], "vo_scale": [1.0, -2.0]}
     (model / "model.yaml").write_text(yaml.safe_dump(card))
     with pytest.raises(PvoError, match="vo_scale must be 6 positive numbers"):
         dpc_net_fusion(str(model))
