@@ -6,6 +6,7 @@ from .config import FusionConfig
 from .graph import FusedPose, FusionGraph
 from .measurements import RelativeMeasurement, SunMeasurement
 from .offline import OfflineResult, ordered_events, run_offline, sun_events
+from .vo_bias import VOBiasTracker, debiased_motions
 
 __all__ = [
     "CalibrationSequence",
@@ -15,8 +16,10 @@ __all__ = [
     "OfflineResult",
     "RelativeMeasurement",
     "SunMeasurement",
+    "VOBiasTracker",
     "VOCalibration",
     "calibrate_vo",
+    "debiased_motions",
     "ordered_events",
     "run_offline",
     "sun_events",

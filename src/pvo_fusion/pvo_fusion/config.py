@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -119,10 +120,18 @@ class SunInputConfig:
 
 @dataclass(frozen=True)
 class CorrectionInputConfig:
-    """``/pvo/dpc/correction``: a between factor over the Δp frames it spans."""
+    """``/pvo/dpc/correction``: a between factor over the Δp frames it spans.
+
+    ``vo_bias_windows`` > 0: the corrections also teach the VO's bias (:class:`pvo_fusion.vo_bias.VOBiasTracker`):
+    the running mean of their disagreement with the VO's chain under them, per frame, over about this many
+    corrections, is removed from each later VO motion on the ``vo_bias_axes`` (ROS order, 1 = tracked). A
+    systematic VO error (a miscalibrated rig) that the VO's per-frame covariance does not carry then stops
+    accumulating between the corrections. 0: the VO's motions as it reads them."""
 
     enabled: bool = True
     gate_probability: float = 0.9999
+    vo_bias_windows: float = 0.0
+    vo_bias_axes: tuple[float, ...] = (1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -253,6 +262,14 @@ def validate(config: FusionConfig) -> None:
         (
             not config.inputs.sun.has_bias or min(sun_bias, default=0.0) > 0.0,
             "inputs.sun.bias_sigma and inputs.sun.bias_walk_sigma: all four > 0 for a bias state (bias_sigma 0 0: none)",
+        ),
+        (
+            math.isfinite(config.inputs.correction.vo_bias_windows) and config.inputs.correction.vo_bias_windows >= 0.0,
+            "inputs.correction.vo_bias_windows must be >= 0 (corrections; 0 = the VO's motions as read)",
+        ),
+        (
+            len(config.inputs.correction.vo_bias_axes) == 6 and set(config.inputs.correction.vo_bias_axes) <= {0.0, 1.0},
+            "inputs.correction.vo_bias_axes needs 6 values of 0 or 1 (x y z rotX rotY rotZ; 1 = tracked)",
         ),
         (config.inputs.rotation.max_covariance_det > 0.0, "inputs.rotation.max_covariance_det must be positive"),
         (

@@ -50,6 +50,7 @@ from .factors import (
 )
 from .measurements import RelativeMeasurement, SunMeasurement, relative_problem, sun_problem
 from .sun_reference import SunReference
+from .vo_bias import VOBiasTracker
 
 Array = NDArray[np.float64]
 
@@ -98,6 +99,10 @@ class FusionGraph:
         scale = np.sqrt(np.asarray(self.config.inputs.vo.covariance_scale, dtype=float))
         self._vo_scale = np.outer(scale, scale)
         self._vo_gain = np.asarray(self.config.inputs.vo.gain_sigma, dtype=float)
+        correction = self.config.inputs.correction
+        self.vo_bias = (
+            VOBiasTracker(correction.vo_bias_windows, correction.vo_bias_axes) if correction.vo_bias_windows > 0.0 else None
+        )
         from scipy.stats import chi2  # 0.5 s to import: only where a graph is built, not on `pvo --help`
 
         self._gates = {
@@ -243,6 +248,9 @@ class FusionGraph:
                 return self._count("vo", "rejected.duplicate_stamp")
             return self._count("vo", "rejected.out_of_order")
         transform = np.asarray(m.transform, dtype=float)
+        if self.vo_bias is not None and float(np.max(np.diag(m.covariance))) < self.config.inputs.vo.lost_variance:
+            self.vo_bias.observe(m.reference_stamp, m.stamp, transform)
+            transform = self.vo_bias.debias(transform)
         motion_covariance = self._vo_covariance(transform, np.asarray(m.covariance, dtype=float))
         covariance = motion_covariance
         reference_key = self._find(m.reference_stamp)
@@ -410,6 +418,10 @@ class FusionGraph:
             return "gated"
         batch.factors.add(factor)
         self.factor_counts[kind] += 1
+        if self.vo_bias is not None:
+            # only a correction the gate let in teaches the VO's bias: an outlier would move it for ~windows corrections
+            learned = self.vo_bias.update(m.reference_stamp, m.stamp, m.transform)
+            self.counts["vo_bias." + ("learned" if learned else "no_vo_chain")] += 1
         return ACCEPTED
 
     def _make_rotation(self, reference_key: int, key: int, m: RelativeMeasurement, batch: _Batch) -> str:

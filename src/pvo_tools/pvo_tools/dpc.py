@@ -278,7 +278,8 @@ def correct_sequence(
         ("correction", RelativeMeasurement(int(stamps[b]), int(stamps[a]), t, c))
         for a, b, t, c in zip(corrections.first, corrections.last, corrections.transforms, corrections.covariances, strict=True)
     ]
-    graph = FusionGraph(from_flat({"prior.source": "given"}))
+    bias = card_vo_bias(card)
+    graph = FusionGraph(from_flat({"prior.source": "given"} | ({"inputs.correction.vo_bias_windows": bias} if bias else {})))
     graph.set_initial_pose(np.eye(4))
     fused = run_offline(graph, stamps, ordered_events(vo, others))
     accepted = int(fused.counts.get("correction.accepted", 0))
@@ -359,6 +360,17 @@ def card_vo_calibration(card: Any) -> Any:
     return VOCalibration(scale, static, ("model card",))
 
 
+def card_vo_bias(card: Any) -> float:
+    """The corrections over which the fusion learns the VO's translation bias from them (`pvo dpc-net calibrate
+    --drives` chose it: ``calibration.vo_bias_windows``; ``inputs.correction.vo_bias_windows`` of the fusion); 0 for
+    none, and when the card fuses nothing."""
+    calibration = card.calibration or {}
+    windows = float(calibration.get("vo_bias_windows") or 0.0)
+    if not np.isfinite(windows) or windows < 0.0:
+        raise ValueError(f"the model card's vo_bias_windows must be a number of corrections >= 0, got {windows}")
+    return windows if calibration.get("fused_axes") else 0.0
+
+
 #: the fused-axis sets a drive calibration tries, within the model variant's axes; "validated": those the
 #: correction improved on the validation windows (``residual.corrected_*``)
 AXIS_SETS: dict[str, tuple[str, ...] | None] = {
@@ -367,6 +379,9 @@ AXIS_SETS: dict[str, tuple[str, ...] | None] = {
     "translation": ("x", "y", "z"),
     "rotation": ("rx", "ry", "rz"),
 }
+#: the corrections over which a drive calibration's debiased candidates learn the VO's translation bias (stop 64's
+#: rule 18, fixed before any figure of it: about 30 s of driving at Δp 3 and 10 Hz)
+VO_BIAS_WINDOWS = 30.0
 #: the VO spans a drive calibration tries by default (frames)
 DRIVE_SPANS = (3, 30, 100, 250)
 Candidate = TypeVar("Candidate")
@@ -453,6 +468,7 @@ class FusionChoice:
     vo_calibration: Any = None
     remove_mean: bool = False
     correction_scale: list[float] | None = None
+    vo_bias_windows: float = 0.0
 
 
 def choose_fusion(
@@ -463,6 +479,7 @@ def choose_fusion(
     say: Any = None,
     harm_tolerance: float = HARM_TOLERANCE,
     consistent_corrections: bool = False,
+    vo_bias_windows: float = VO_BIAS_WINDOWS,
 ) -> FusionChoice:
     """The VO span and the fused axes (:data:`AXIS_SETS` x ``spans``, each with the corrections as predicted and
     with their validation-split mean error removed, :func:`~pvo_pseudosensors.dpc_net.infer.remove_residual_mean`)
@@ -471,7 +488,10 @@ def choose_fusion(
     other drives (leave one drive out; in sample with one drive), so no drive judges a weighing learned on itself.
     ``consistent_corrections``: for every span longer than the card's Δp each weighing is tried again with the
     corrections' covariance made consistent over the same span (:func:`correction_calibration`, learned on the other
-    drives too), so the VO chain and the corrected chain are weighed by how far each drifts over that span."""
+    drives too), so the VO chain and the corrected chain are weighed by how far each drifts over that span.
+    ``vo_bias_windows`` > 0: every weighing that fuses the translation is tried again with the VO's translation bias
+    learned from the corrections as the fusion does (``inputs.correction.vo_bias_windows``,
+    :class:`pvo_fusion.VOBiasTracker`), the VO's scales then learned on the VO so debiased."""
     from pvo_core.trajectory import read_kitti_poses
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
     from pvo_pseudosensors.dpc_net.infer import (
@@ -483,7 +503,7 @@ def choose_fusion(
     )
     from pvo_pseudosensors.dpc_net.rig import check_rig
 
-    from pvo_fusion import CalibrationSequence, calibrate_vo
+    from pvo_fusion import CalibrationSequence, calibrate_vo, debiased_motions
 
     from .experiments.common import fusion_figures
 
@@ -522,18 +542,40 @@ def choose_fusion(
     means = (False, True) if (card.calibration or {}).get("residual") else (False,)
     delta = DPCNetConfig.from_card(card).test_delta
     labels = [(label, mean) for mean in means for label in axis_sets]
-    # (span, axis set, mean removed, corrections consistent over the span) -> per-drive changes
-    changes: dict[tuple[int, str, bool, bool], Array] = {}
+    # (span, axis set, mean removed, corrections consistent over the span, VO bias windows) -> per-drive changes
+    changes: dict[tuple[int, str, bool, bool, float], Array] = {}
 
-    def named(axes_label: str, remove_mean: bool, consistent: bool = False) -> str:
-        return axes_label + (", mean removed" if remove_mean else "") + (", corrections over the span" if consistent else "")
+    def named(axes_label: str, remove_mean: bool, consistent: bool = False, bias: float = 0.0) -> str:
+        return (
+            axes_label
+            + (", mean removed" if remove_mean else "")
+            + (", corrections over the span" if consistent else "")
+            + (f", VO debiased over {bias:g}" if bias else "")
+        )
 
-    def weighing(axes_label: str, remove_mean: bool) -> Any:
+    def weighing(axes_label: str, remove_mean: bool, bias: float = 0.0) -> Any:
         candidate = copy.deepcopy(card)
         candidate.calibration["fused_axes"] = list(axis_sets[axes_label])
         candidate.calibration["remove_mean"] = remove_mean
         candidate.calibration.pop("correction_scale", None)
+        candidate.calibration.pop("vo_bias_windows", None)
+        if bias:
+            candidate.calibration["vo_bias_windows"] = bias
         return candidate
+
+    debiased: dict[tuple[str, bool], Any] = {}
+
+    def debiased_sequence(name: str, remove_mean: bool) -> Any:
+        # the VO as the fusion takes it once the corrections (as weighed: the mean removed or not) taught its bias
+        if (name, remove_mean) not in debiased:
+            _, _, truth, _, sequence, predicted = prepared[name]
+            weighed = remove_residual_mean(predicted.transforms, {**card.calibration, "remove_mean": remove_mean})
+            motions = debiased_motions(sequence.motions, predicted.first, predicted.last, weighed, vo_bias_windows)
+            debiased[(name, remove_mean)] = CalibrationSequence(name, truth, motions, sequence.covariances)
+        return debiased[(name, remove_mean)]
+
+    def translation_fused(axes_label: str) -> bool:
+        return {"x", "y", "z"} <= set(axis_sets[axes_label])
 
     chains: dict[tuple[str, bool], Any] = {}
     correction_scales: dict[tuple[int, bool, str], list[float]] = {}
@@ -559,11 +601,23 @@ def choose_fusion(
 
     for span in spans:
         scales = {name: calibrate_vo([prepared[o][4] for o in names if o != name] or [prepared[name][4]], span) for name in names}
-        tried = [(label, mean, False) for label, mean in labels]
+        tried = [(label, mean, False, 0.0) for label, mean in labels]
         if consistent_corrections and span > delta:
-            tried += [(label, mean, True) for label, mean in labels]
-        for axes_label, remove_mean, consistent in tried:
-            candidate = weighing(axes_label, remove_mean)
+            tried += [(label, mean, True, 0.0) for label, mean in labels]
+        if vo_bias_windows:
+            tried += [(label, mean, False, vo_bias_windows) for label, mean in labels if translation_fused(label)]
+        for axes_label, remove_mean, consistent, bias in tried:
+            candidate = weighing(axes_label, remove_mean, bias)
+            if bias:
+                drive_scales = {
+                    name: calibrate_vo(
+                        [debiased_sequence(o, remove_mean) for o in names if o != name] or [debiased_sequence(name, remove_mean)],
+                        span,
+                    )
+                    for name in names
+                }
+            else:
+                drive_scales = scales
             covariance = measurement_covariance(DPCNetConfig.from_card(candidate), candidate.calibration)
             rows = []
             for name in names:
@@ -578,7 +632,7 @@ def choose_fusion(
                     transforms=remove_residual_mean(predicted.transforms, candidate.calibration),
                     covariances=np.broadcast_to(drive_covariance, predicted.covariances.shape).copy(),
                 )
-                fused = correct_sequence(root, model, candidate, "fusion", scales[name], run=run, corrections=weighed)
+                fused = correct_sequence(root, model, candidate, "fusion", drive_scales[name], run=run, corrections=weighed)
                 figures = fusion_figures(truth, truth[0] @ fused.corrected_online)
                 rows.append(
                     [
@@ -586,39 +640,43 @@ def choose_fusion(
                         figures["m_ate_rot_deg"] / max(alone["m_ate_rot_deg"], 1e-12) - 1.0,
                     ]
                 )
-            changes[(span, axes_label, remove_mean, consistent)] = np.asarray(rows)
+            changes[(span, axes_label, remove_mean, consistent, bias)] = np.asarray(rows)
             if say is not None:
-                drive_changes = changes[(span, axes_label, remove_mean, consistent)]
+                drive_changes = changes[(span, axes_label, remove_mean, consistent, bias)]
                 mean = 100 * drive_changes.mean(axis=0)
                 say(
-                    f"  span {span:4d}, {named(axes_label, remove_mean, consistent):<25} axes: "
+                    f"  span {span:4d}, {named(axes_label, remove_mean, consistent, bias):<25} axes: "
                     f"m-ATE {mean[0]:+6.1f} % translation, "
                     f"{mean[1]:+6.1f} % rotation; {drives_lowered(drive_changes)} of {len(names)} drives lowered, "
                     f"worst {100 * worst_change(drive_changes):+.1f} %"
                 )
     best = select_fusion(changes, harm_tolerance)
     candidates = {
-        f"span {span}, {named(axes_label, remove_mean, consistent)}": {
+        f"span {span}, {named(axes_label, remove_mean, consistent, bias)}": {
             "span": span,
             "axes": list(axis_sets[axes_label]),
             "remove_mean": remove_mean,
             **({"corrections_over_span": True} if consistent else {}),
+            **({"vo_bias_windows": bias} if bias else {}),
             "per_drive": {name: [round(float(v), 4) for v in row] for name, row in zip(names, c, strict=True)},
             "mean": [round(float(v), 4) for v in c.mean(axis=0)],
             "worst": round(worst_change(c), 4),
             "accepted": fusion_accepted(c, harm_tolerance),
         }
-        for (span, axes_label, remove_mean, consistent), c in changes.items()
+        for (span, axes_label, remove_mean, consistent, bias), c in changes.items()
     }
     if best is None:
         return FusionChoice(None, [], candidates, names)
-    span, axes_label, remove_mean, consistent = best
-    calibration = calibrate_vo([prepared[n][4] for n in names], span)
+    span, axes_label, remove_mean, consistent, bias = best
+    if bias:
+        calibration = calibrate_vo([debiased_sequence(n, remove_mean) for n in names], span)
+    else:
+        calibration = calibrate_vo([prepared[n][4] for n in names], span)
     correction_scale = None
     if consistent:
         chosen = weighing(axes_label, remove_mean)
         correction_scale = correction_calibration([corrected_chain(n, chosen) for n in names], span, delta)
-    return FusionChoice(span, list(axis_sets[axes_label]), candidates, names, calibration, remove_mean, correction_scale)
+    return FusionChoice(span, list(axis_sets[axes_label]), candidates, names, calibration, remove_mean, correction_scale, bias)
 
 
 def correction_sequence(name: str, truth: Array, predicted: Any, transforms: Array, covariance: Array) -> Any:

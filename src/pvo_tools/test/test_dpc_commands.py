@@ -96,13 +96,14 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         with pytest.raises(SystemExit) as exit_status:
             main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", bad])
         assert exit_status.value.code == 2 and f"argument --vo-spans: {message}" in capsys.readouterr().err
-    for flag in (["--consistent-corrections"], ["--harm-tolerance", "5"]):
+    for flag in (["--consistent-corrections"], ["--harm-tolerance", "5"], ["--vo-bias-windows", "30"]):
         assert main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), *flag]) == 2
         assert f"{flag[0]} weighs the corrections on long validation drives: give them with --drives" in (capsys.readouterr().err)
     for bad in ("-1", "x", "inf", "nan"):
-        with pytest.raises(SystemExit) as exit_status:
-            main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--harm-tolerance", bad])
-        assert exit_status.value.code == 2 and "argument --harm-tolerance: " in capsys.readouterr().err
+        for option in ("--harm-tolerance", "--vo-bias-windows"):
+            with pytest.raises(SystemExit) as exit_status:
+                main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), option, bad])
+            assert exit_status.value.code == 2 and f"argument {option}: " in capsys.readouterr().err
 
     # the fusion chosen on long drives (here the validation and test clips): every candidate's per-drive figures kept,
     # the choice the one select_fusion makes of them (none: nothing fused, and `correct` says so)
@@ -129,12 +130,36 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     else:
         assert drive_card["fused_axes"] == candidates[chosen]["axes"] and drive_card["vo_span"] == candidates[chosen]["span"]
         assert drive_card["remove_mean"] == candidates[chosen]["remove_mean"]
+        assert drive_card.get("vo_bias_windows", 0.0) == candidates[chosen].get("vo_bias_windows", 0.0)
         assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
+    # by default every weighing that fuses the translation is tried again with the VO's translation bias learned from
+    # the corrections (30 of them), named so; a weighing without the translation is not
+    debiased = {label: c for label, c in candidates.items() if c.get("vo_bias_windows")}
+    plain = {label: c for label, c in candidates.items() if not c.get("vo_bias_windows")}
+    assert debiased and all(
+        label.endswith(", VO debiased over 30") and c["vo_bias_windows"] == 30.0 for label, c in debiased.items()
+    )
+    assert {label.removesuffix(", VO debiased over 30") for label in debiased} == {
+        label for label, c in plain.items() if {"x", "y", "z"} <= set(c["axes"])
+    }
     # the corrections made consistent over the span too: tried for the spans longer than Δp, each named so
     consistent = tmp_path / "consistent"
     shutil.copytree(model, consistent)
     calibrate[calibrate.index(str(drove))] = str(consistent)
-    assert main([*calibrate, "--drives", str(corpus / "0001"), str(corpus / "0002"), "--consistent-corrections"]) == 0
+    assert (
+        main(
+            [
+                *calibrate,
+                "--drives",
+                str(corpus / "0001"),
+                str(corpus / "0002"),
+                "--consistent-corrections",
+                "--vo-bias-windows",
+                "0",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     consistent_card = yaml.safe_load((consistent / "model.yaml").read_text())["calibration"]
     tried = consistent_card["drive_calibration"]["candidates"]
@@ -142,7 +167,8 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     over = {label: c for label, c in tried.items() if c.get("corrections_over_span")}
     assert {c["span"] for c in over.values()} == {s for s in (3, 6) if s > delta}
     assert all(label.endswith(", corrections over the span") for label in over)
-    assert len(tried) == len(candidates) + len(over)  # the others as without the flag
+    assert len(tried) == len(plain) + len(over)  # the others as without the flags (--vo-bias-windows 0: no debiased ones)
+    assert not any(c.get("vo_bias_windows") for c in tried.values())
     chosen = select_fusion({label: list(c["per_drive"].values()) for label, c in tried.items()}, harm_tolerance=0.05)
     if chosen is not None and tried[chosen].get("corrections_over_span"):
         assert len(consistent_card["correction_scale"]) == 6 and min(consistent_card["correction_scale"]) > 0.0
@@ -155,7 +181,9 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     assert main(["dpc-net", "calibrate", "--model", str(drove), "--corpus", str(corpus)]) == 0
     capsys.readouterr()
     recalibrated = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
-    assert not {"remove_mean", "fused_axes", "drive_calibration", "vo_scale", "correction_scale"} & set(recalibrated)
+    assert not {"remove_mean", "fused_axes", "drive_calibration", "vo_scale", "correction_scale", "vo_bias_windows"} & set(
+        recalibrated
+    )
     assert recalibrated["mirrored"] is False
     # mirrored inference: calibrated in that mode, and the corrections follow the card
     from pvo_core.trajectory import read_kitti_poses

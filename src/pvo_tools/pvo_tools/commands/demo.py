@@ -321,7 +321,7 @@ def dpc_net_fusion(model: str) -> dict[str, Any]:
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
 
-    from ..dpc import card_vo_calibration
+    from ..dpc import card_vo_bias, card_vo_calibration
 
     try:
         card = read_card(resolve_model(model))
@@ -332,12 +332,14 @@ def dpc_net_fusion(model: str) -> dict[str, Any]:
         return {}
     scale = [float(v) for v in calibration.scale]
     listed = " ".join(f"{v:.3g}" for v in scale)
+    bias = card_vo_bias(card)
     print(
-        f"pvo demo: fusion weighs {model}'s corrections against the VO's covariances scaled by its card ({listed})",
+        f"pvo demo: fusion weighs {model}'s corrections against the VO's covariances scaled by its card ({listed})"
+        + (f", the VO's translation bias learned from them over {bias:g} corrections" if bias else ""),
         file=sys.stderr,
         flush=True,
     )
-    return {"inputs.vo.covariance_scale": scale}
+    return {"inputs.vo.covariance_scale": scale} | ({"inputs.correction.vo_bias_windows": bias} if bias else {})
 
 
 def run_graph(

@@ -11,7 +11,7 @@ from typing import Any
 
 
 def register_actions(actions: Any, entry: Any) -> None:
-    from ..dpc import HARM_TOLERANCE
+    from ..dpc import HARM_TOLERANCE, VO_BIAS_WINDOWS
 
     predict = actions.add_parser("predict", help="corrections of a VO trajectory over windows of the model's span")
     predict.set_defaults(handler=run_predict)
@@ -84,6 +84,14 @@ def register_actions(actions: Any, entry: Any) -> None:
         help="with --drives: how much a weighing may raise one drive's m-ATE (either) and still be chosen (default "
         f"{100 * HARM_TOLERANCE:g} %%, the no-harm bound; 0: it must lower every drive)",
     )
+    calibrate.add_argument(
+        "--vo-bias-windows",
+        type=non_negative,
+        metavar="N",
+        help="with --drives: also try each weighing that fuses the translation with the VO's translation bias learned "
+        "from the corrections over about N of them, as the fusion does (inputs.correction.vo_bias_windows; default "
+        f"{VO_BIAS_WINDOWS:g}; 0: no such candidate); the card then keeps N (calibration.vo_bias_windows)",
+    )
     drives = actions.add_parser(
         "drives", help="render the long drives a fusion is chosen on (KITTI 03, 04, 10) or tested on (05, 06, 07), each rig"
     )
@@ -132,6 +140,17 @@ def percent(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a percentage (e.g. 5), got {text!r}") from None
     if not value >= 0.0 or value == float("inf"):
         raise argparse.ArgumentTypeError(f"the harm tolerance must be a finite percentage >= 0, got {text!r}")
+    return value
+
+
+def non_negative(text: str) -> float:
+    """``--vo-bias-windows 30``: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number (e.g. 30), got {text!r}") from None
+    if not value >= 0.0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
     return value
 
 
@@ -204,13 +223,21 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.learning.checkpoint import write_card
     from pvo_pseudosensors.learning.data import Source
 
-    from ..dpc import HARM_TOLERANCE, rig_sequences
+    from ..dpc import HARM_TOLERANCE, VO_BIAS_WINDOWS, rig_sequences
 
-    if not args.drives and (args.consistent_corrections or args.harm_tolerance is not None):
-        given = "--consistent-corrections" if args.consistent_corrections else "--harm-tolerance"
+    if not args.drives and (args.consistent_corrections or args.harm_tolerance is not None or args.vo_bias_windows is not None):
+        given = (
+            "--consistent-corrections"
+            if args.consistent_corrections
+            else "--harm-tolerance"
+            if args.harm_tolerance is not None
+            else "--vo-bias-windows"
+        )
         raise ValueError(f"{given} weighs the corrections on long validation drives: give them with --drives")
     if args.harm_tolerance is None:
         args.harm_tolerance = 100 * HARM_TOLERANCE
+    if args.vo_bias_windows is None:
+        args.vo_bias_windows = VO_BIAS_WINDOWS
     model, card = load_dpc_net(args.model)
     config = DPCNetConfig.from_card(card)
     manifests = [read_corpus_manifest(corpus) for corpus in args.corpus]
@@ -236,6 +263,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         "vo_static_covariance",
         "vo_span_changes",
         "correction_scale",
+        "vo_bias_windows",
     ):
         card.calibration.pop(stale, None)  # a new residual: what was chosen with the old one goes
     card.calibration["residual_covariance"] = covariance.tolist()
@@ -311,12 +339,14 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
         say=lambda line: print(line, file=sys.stderr, flush=True),
         harm_tolerance=tolerance,
         consistent_corrections=args.consistent_corrections,
+        vo_bias_windows=args.vo_bias_windows,
     )
     over_span = choice.correction_scale is not None
     chosen = (
         f"span {choice.span}, axes {' '.join(choice.axes)}"
         + (", mean removed" if choice.remove_mean else "")
         + (", corrections over the span" if over_span else "")
+        + (f", VO debiased over {choice.vo_bias_windows:g}" if choice.vo_bias_windows else "")
         if choice.axes
         else None
     )
@@ -325,6 +355,9 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
     card.calibration.pop("correction_scale", None)
     if over_span:
         card.calibration["correction_scale"] = choice.correction_scale
+    card.calibration.pop("vo_bias_windows", None)
+    if choice.vo_bias_windows:
+        card.calibration["vo_bias_windows"] = choice.vo_bias_windows
     card.calibration["drive_calibration"] = {
         "drives": [str(r) for r in roots],
         "rule": (
@@ -355,12 +388,18 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
                 and c["axes"] == choice.axes
                 and c["remove_mean"] == choice.remove_mean
                 and c.get("corrections_over_span", False) == over_span
+                and c.get("vo_bias_windows", 0.0) == choice.vo_bias_windows
             )
         )
         print(
             f"{args.model}: fused axes {' '.join(choice.axes)}"
             + (" (the validation mean error removed)" if choice.remove_mean else "")
             + (", the corrections' covariance made consistent over the span too" if over_span else "")
+            + (
+                f", the VO's translation bias learned from about {choice.vo_bias_windows:g} corrections"
+                if choice.vo_bias_windows
+                else ""
+            )
             + f", VO span {choice.span} frames ({len(roots)} validation "
             f"drives; m-ATE {mean[0]:+.1f} % translation, {mean[1]:+.1f} % rotation)"
         )

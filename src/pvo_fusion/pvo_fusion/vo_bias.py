@@ -1,0 +1,116 @@
+"""The VO's slowly varying bias as the pose corrections reveal it, removed from later VO motions.
+
+A miscalibrated rig (a focal length or baseline off, a lens processed as if undistorted) makes a stereo VO read every
+motion a little wrong in the same way: its per-frame covariance carries none of it, so a fusion that treats the VO's
+errors as independent keeps most of it — the per-frame error is small beside a correction's, but it never averages
+out. A correction (DPC-Net, T_k,k-Δp) re-measures the VO's chain over its Δp frames; their disagreement
+``Log(T_corrected T_vo⁻¹) / Δp`` is, on average over many windows, the VO's bias per frame. Its running mean
+(exponentially weighted over ``windows`` corrections; the plain mean until that many have come) is that estimate,
+and each new VO motion is taken as ``Exp(β) T_k,k-1`` — the left perturbation the correction itself has (thesis eq.
+6.1). Only the disagreement of corrections already received is used (causal): the fusion node's online estimate and
+the offline one agree. ``axes`` (ROS order x y z rotX rotY rotZ, 1 = tracked) limits it to the axes whose bias the
+corrections know better than the VO: on the long validation drives of both DPC-Net rigs, the translation.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pvo_core.lie import se3_exp, se3_inverse, se3_log
+
+Array = NDArray[np.float64]
+
+#: the axes (ROS order) whose bias is tracked by default: the translation (see the module docstring)
+TRANSLATION_AXES = (1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
+
+
+class VOBiasTracker:
+    """The running per-frame bias β (6,) of a VO's relative motions T_k,k-1 (ROS-order tangent, left perturbation:
+    m and rad per frame), learned from corrections spanning several of its motions.
+
+    ``windows``: the exponential mean's time constant, in corrections (> 0); ``axes``: 6 weights, 1 to track an axis,
+    0 to leave it alone; ``history``: how many raw VO motions are kept to chain under a correction (the oldest go)."""
+
+    def __init__(self, windows: float, axes: ArrayLike = TRANSLATION_AXES, history: int = 1000) -> None:
+        axes = np.asarray(axes, dtype=float)
+        if not (np.isfinite(windows) and windows > 0.0):
+            raise ValueError(f"the VO bias's time constant must be a positive number of corrections, got {windows}")
+        if axes.shape != (6,) or not np.all((axes == 0.0) | (axes == 1.0)):
+            raise ValueError(f"the VO bias's axes must be 6 weights of 0 or 1 (x y z rotX rotY rotZ), got {axes.tolist()}")
+        self.windows = float(windows)
+        self.axes = axes
+        self.updates = 0
+        self._bias = np.zeros(6)
+        self._history = history
+        self._motions: OrderedDict[int, tuple[int, Array]] = OrderedDict()
+
+    @property
+    def bias(self) -> Array:
+        """β (6,), ROS order: the bias per VO motion removed from each new one."""
+        return self._bias.copy()
+
+    def debias(self, transform: ArrayLike) -> Array:
+        """``Exp(β) T_k,k-1`` (4, 4): a VO motion with the current bias estimate removed."""
+        transform = np.asarray(transform, dtype=float)
+        if not self._bias.any():
+            return transform.copy()
+        return se3_exp(self._bias) @ transform
+
+    def observe(self, reference_stamp: int, stamp: int, transform: ArrayLike) -> None:
+        """Keep the VO's own motion T_stamp,reference (4, 4), as the VO read it (before :meth:`debias`)."""
+        self._motions[int(stamp)] = (int(reference_stamp), np.array(transform, dtype=float))
+        self._motions.move_to_end(int(stamp))
+        while len(self._motions) > self._history:
+            self._motions.popitem(last=False)
+
+    def update(self, reference_stamp: int, stamp: int, corrected: ArrayLike) -> bool:
+        """Learn from a correction T_stamp,reference (4, 4) — True when the VO's motions chain from ``reference_stamp``
+        to ``stamp`` (False, nothing learned, across a gap or beyond the kept history)."""
+        chain = np.eye(4)
+        motions = 0
+        at = int(stamp)
+        while at != int(reference_stamp):
+            if at not in self._motions or motions > len(self._motions):
+                return False
+            previous, transform = self._motions[at]
+            chain = chain @ transform  # T_stamp,at T_at,previous
+            at = previous
+            motions += 1
+            if at < int(reference_stamp):
+                return False
+        if motions == 0:
+            return False
+        disagreement = self.axes * se3_log(np.asarray(corrected, dtype=float) @ se3_inverse(chain)) / motions
+        if not np.all(np.isfinite(disagreement)):
+            return False
+        self.updates += 1
+        weight = max(1.0 / self.updates, 1.0 / self.windows)
+        self._bias = (1.0 - weight) * self._bias + weight * disagreement
+        return True
+
+
+def debiased_motions(
+    transforms: ArrayLike,
+    first: ArrayLike,
+    last: ArrayLike,
+    corrected: ArrayLike,
+    windows: float,
+    axes: ArrayLike = TRANSLATION_AXES,
+) -> Array:
+    """The VO's motions T_k,k-1 (frames k = 1..N; (N, 4, 4)) as a fusion with :class:`VOBiasTracker` takes them, given
+    the corrections T_last,first (M, 4, 4) over frames ``first`` → ``last`` (M,): motion k debiased with what the
+    corrections ending at frame k-1 or before taught (a correction ending at k is received after motion k)."""
+    transforms = np.asarray(transforms, dtype=float)
+    tracker = VOBiasTracker(windows, axes, history=len(transforms) + 1)
+    ending: dict[int, list[tuple[int, Array]]] = {}
+    for a, b, t in zip(np.asarray(first), np.asarray(last), np.asarray(corrected, dtype=float), strict=True):
+        ending.setdefault(int(b), []).append((int(a), t))
+    out = np.empty_like(transforms)
+    for k in range(1, len(transforms) + 1):
+        tracker.observe(k - 1, k, transforms[k - 1])
+        out[k - 1] = tracker.debias(transforms[k - 1])
+        for a, t in ending.get(k, []):
+            tracker.update(a, k, t)
+    return out
