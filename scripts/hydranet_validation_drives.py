@@ -44,7 +44,8 @@ from pvo_tools.experiments.hydranet import FIRST_STAMP_NS, rotation_measurements
 from pvo_fusion import CalibrationSequence, FusionGraph, calibrate_vo, ordered_events, run_offline, vo_measurements
 from pvo_fusion.config import from_flat
 
-Setting = tuple[float, float, int, tuple[float, ...], float, tuple[float, ...]]  # gate huber span gain scale offset
+# gate, huber, span, gain, scale, offset, VO bias windows
+Setting = tuple[float, float, int, tuple[float, ...], float, tuple[float, ...], float]
 
 
 def main() -> None:
@@ -75,6 +76,12 @@ def main() -> None:
         default="0",
         help="the fusion's rotation offset state (inputs.rotation.bias_sigma and bias_walk_sigma, the same on each "
         "axis), comma-separated S:W in degrees and degrees/sqrt(s); 0: no state (each with each gate)",
+    )
+    parser.add_argument(
+        "--vo-bias-windows",
+        default="0",
+        help="the VO's rotation bias learned from HydraNet's rotations over about this many readings and removed from "
+        "its motions (inputs.rotation.vo_bias_windows), comma-separated; 0: none (each with each gate)",
     )
     parser.add_argument(
         "--vo-param",
@@ -146,6 +153,7 @@ def main() -> None:
         for gain in gains
         for scale in (float(v) for v in args.covariance_scales.split(","))
         for bias in biases
+        for vo_bias in (float(v) for v in args.vo_bias_windows.split(","))
     ]
     try:
         models = [(path, *load_hydranet(path)) for path in args.models]
@@ -191,7 +199,7 @@ def main() -> None:
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
             line += f" | {path.name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
             for setting in settings:
-                gate, huber, span, gain, scale, bias = setting
+                gate, huber, span, gain, scale, bias, vo_bias = setting
                 scaled = dataclasses.replace(
                     predictions, epistemic=predictions.epistemic * scale, aleatoric=predictions.aleatoric * scale
                 )
@@ -204,6 +212,7 @@ def main() -> None:
                     "inputs.vo.gain_sigma": list(gain),
                     "inputs.rotation.bias_sigma": [np.radians(bias[0])] * 3,
                     "inputs.rotation.bias_walk_sigma": [np.radians(bias[1])] * 3,
+                    "inputs.rotation.vo_bias_windows": vo_bias,
                 }
                 graph = FusionGraph(from_flat(flat))
                 graph.set_initial_pose(truth[0])
@@ -211,7 +220,8 @@ def main() -> None:
                 change = [fused[k] / max(alone[k], 1e-12) - 1.0 for k in TRAJECTORY_METRICS]
                 changes[(str(path), setting)].append(change)
                 line += f"; gate {gate:g} huber {huber:g} span {span} gain {gain[0]:g}:{gain[1]:g} x{scale:g}"
-                line += f" offset {bias[0]:g}:{bias[1]:g}: " if max(bias) > 0 else ": "
+                line += f" offset {bias[0]:g}:{bias[1]:g}" if max(bias) > 0 else ""
+                line += f" VO bias over {vo_bias:g}: " if vo_bias else ": "
                 line += f"{100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
         print(f"{line} ({time.perf_counter() - started:.0f} s)", flush=True)
     named = {setting_name(path, setting): rows for (path, setting), rows in changes.items()}
@@ -221,11 +231,12 @@ def main() -> None:
 
 
 def setting_name(path: str, setting: Setting) -> str:
-    gate, huber, span, gain, scale, bias = setting
+    gate, huber, span, gain, scale, bias, vo_bias = setting
     vo = f"VO scales over {span} frames on the other drives" if span else "VO scales from the corpus"
     covariance = "" if scale == 1.0 else f" HydraNet covariance x{scale:g}"
     offset = f" offset state {bias[0]:g} deg, walk {bias[1]:g} deg/sqrt(s)" if max(bias) > 0 else ""
-    return f"{path} gate {gate:g} huber {huber:g} VO gain {gain[0]:g}:{gain[1]:g}{covariance}{offset}, {vo}"
+    learned = f" VO rotation bias learned over {vo_bias:g}" if vo_bias else ""
+    return f"{path} gate {gate:g} huber {huber:g} VO gain {gain[0]:g}:{gain[1]:g}{covariance}{offset}{learned}, {vo}"
 
 
 def print_means(changes: dict[str, list[list[float]]]) -> None:

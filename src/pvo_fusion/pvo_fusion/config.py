@@ -153,7 +153,12 @@ class RotationInputConfig:
     and walks by ``bias_walk_sigma`` (rad/√s) from one interval's state to the next. A learned rotation sensor's errors
     are partly an offset shared by a drive's pairs (HydraNet's yaw 0.02–0.05° per pair on a clean KITTI 10 drive, a third
     to a half of its per-pair sigma): fused as white noise, it turns a good VO by the drive's sum of it. (0 0 0): no
-    state, every reading independent (eq. 7.22)."""
+    state, every reading independent (eq. 7.22).
+
+    ``vo_bias_windows`` > 0: the other way round — the rotations teach the *VO's* rotation bias, as the corrections
+    can its translation (``CorrectionInputConfig``; :class:`pvo_fusion.vo_bias.VOBiasTracker`): the running mean of
+    their disagreement with the VO's motions under them, over about this many readings, removed from each later VO
+    motion on the ``vo_bias_axes`` (rotation axes only). 0: none."""
 
     enabled: bool = True
     gate_probability: float = 0.65
@@ -162,6 +167,8 @@ class RotationInputConfig:
     bias_sigma: tuple[float, ...] = (0.0, 0.0, 0.0)
     bias_walk_sigma: tuple[float, ...] = (0.0, 0.0, 0.0)
     bias_interval: float = 1.0
+    vo_bias_windows: float = 0.0
+    vo_bias_axes: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
 
     @property
     def has_bias(self) -> bool:
@@ -270,6 +277,23 @@ def validate(config: FusionConfig) -> None:
         (
             len(config.inputs.correction.vo_bias_axes) == 6 and set(config.inputs.correction.vo_bias_axes) <= {0.0, 1.0},
             "inputs.correction.vo_bias_axes needs 6 values of 0 or 1 (x y z rotX rotY rotZ; 1 = tracked)",
+        ),
+        (
+            math.isfinite(config.inputs.rotation.vo_bias_windows) and config.inputs.rotation.vo_bias_windows >= 0.0,
+            "inputs.rotation.vo_bias_windows must be >= 0 (readings; 0 = the VO's motions as read)",
+        ),
+        (
+            len(config.inputs.rotation.vo_bias_axes) == 6
+            and set(config.inputs.rotation.vo_bias_axes) <= {0.0, 1.0}
+            and not any(config.inputs.rotation.vo_bias_axes[:3]),
+            "inputs.rotation.vo_bias_axes needs 6 values of 0 or 1, the first three (translation) 0: a rotation measures none",
+        ),
+        (
+            not (config.inputs.correction.vo_bias_windows > 0.0 and config.inputs.rotation.vo_bias_windows > 0.0)
+            or not any(
+                a and b for a, b in zip(config.inputs.correction.vo_bias_axes, config.inputs.rotation.vo_bias_axes, strict=False)
+            ),
+            "inputs.correction.vo_bias_axes and inputs.rotation.vo_bias_axes overlap: one input learns each axis's VO bias",
         ),
         (config.inputs.rotation.max_covariance_det > 0.0, "inputs.rotation.max_covariance_det must be positive"),
         (

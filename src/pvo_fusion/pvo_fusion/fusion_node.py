@@ -331,8 +331,8 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
             "last_rejection": self.graph.last_rejection,
             "sun_reference": "none" if self.graph.sun_reference is None else type(self.graph.sun_reference).__name__,
         }
-        if self.graph.vo_bias is not None:
-            values["vo_bias"] = " ".join(f"{v:.6g}" for v in self.graph.vo_bias.bias)  # per frame, x y z m, rot rad
+        for kind, tracker in self.graph.vo_biases.items():
+            values[f"vo_bias.{kind}"] = " ".join(f"{v:.6g}" for v in tracker.bias)  # per frame: x y z m, rot rad
         values.update({f"factors.{k}": v for k, v in sorted(self.graph.factor_counts.items())})
         values.update({f"count.{k}": v for k, v in sorted(self.graph.counts.items()) if v})
         values.update({f"handled.{k}": v for k, v in sorted(self.handled.items())})

@@ -99,10 +99,12 @@ class FusionGraph:
         scale = np.sqrt(np.asarray(self.config.inputs.vo.covariance_scale, dtype=float))
         self._vo_scale = np.outer(scale, scale)
         self._vo_gain = np.asarray(self.config.inputs.vo.gain_sigma, dtype=float)
-        correction = self.config.inputs.correction
-        self.vo_bias = (
-            VOBiasTracker(correction.vo_bias_windows, correction.vo_bias_axes) if correction.vo_bias_windows > 0.0 else None
-        )
+        # per input kind that teaches the VO's bias (their axes do not overlap: validated)
+        self.vo_biases = {
+            kind: VOBiasTracker(source.vo_bias_windows, source.vo_bias_axes)
+            for kind, source in (("correction", self.config.inputs.correction), ("rotation", self.config.inputs.rotation))
+            if source.vo_bias_windows > 0.0
+        }
         from scipy.stats import chi2  # 0.5 s to import: only where a graph is built, not on `pvo --help`
 
         self._gates = {
@@ -248,9 +250,11 @@ class FusionGraph:
                 return self._count("vo", "rejected.duplicate_stamp")
             return self._count("vo", "rejected.out_of_order")
         transform = np.asarray(m.transform, dtype=float)
-        if self.vo_bias is not None and float(np.max(np.diag(m.covariance))) < self.config.inputs.vo.lost_variance:
-            self.vo_bias.observe(m.reference_stamp, m.stamp, transform)
-            transform = self.vo_bias.debias(transform)
+        if self.vo_biases and float(np.max(np.diag(m.covariance))) < self.config.inputs.vo.lost_variance:
+            raw = transform
+            for tracker in self.vo_biases.values():
+                tracker.observe(m.reference_stamp, m.stamp, raw)
+                transform = tracker.debias(transform)
         motion_covariance = self._vo_covariance(transform, np.asarray(m.covariance, dtype=float))
         covariance = motion_covariance
         reference_key = self._find(m.reference_stamp)
@@ -418,11 +422,15 @@ class FusionGraph:
             return "gated"
         batch.factors.add(factor)
         self.factor_counts[kind] += 1
-        if self.vo_bias is not None:
-            # only a correction the gate let in teaches the VO's bias: an outlier would move it for ~windows corrections
-            learned = self.vo_bias.update(m.reference_stamp, m.stamp, m.transform)
-            self.counts["vo_bias." + ("learned" if learned else "no_vo_chain")] += 1
+        self._learn_vo_bias(kind, m)
         return ACCEPTED
+
+    def _learn_vo_bias(self, kind: str, m: RelativeMeasurement) -> None:
+        # only a measurement the gate let in teaches the VO's bias: an outlier would move it for ~windows readings
+        tracker = self.vo_biases.get(kind)
+        if tracker is not None:
+            learned = tracker.update(m.reference_stamp, m.stamp, m.transform)
+            self.counts[f"vo_bias.{kind}." + ("learned" if learned else "no_vo_chain")] += 1
 
     def _make_rotation(self, reference_key: int, key: int, m: RelativeMeasurement, batch: _Batch) -> str:
         """The relative-rotation factor; with an offset state, on the interval's state o_i (a new one, chained to the
@@ -440,6 +448,7 @@ class FusionGraph:
                 return "gated"
             batch.factors.add(rotation_factor(reference_key, key, m.transform, m.covariance, rotation.huber_k))
             self.factor_counts["rotation"] += 1
+            self._learn_vo_bias("rotation", m)
             return ACCEPTED
         stamp = self._find_stamp(m.stamp)
         assert stamp is not None
@@ -472,6 +481,7 @@ class FusionGraph:
             self._chain_offset("rotation", batch, bias_key, offset, stamp, index, rotation.bias_sigma, rotation.bias_walk_sigma)
         batch.factors.add(rotation_factor(reference_key, key, m.transform, m.covariance, rotation.huber_k, bias_key))
         self.factor_counts["rotation"] += 1
+        self._learn_vo_bias("rotation", m)
         return ACCEPTED
 
     def _make_sun(self, key: int, m: SunMeasurement, batch: _Batch) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pvo_core.lie import se3_exp, se3_inverse
+from pvo_core.lie import se3_exp, se3_inverse, so3_log
 
 from pvo_fusion import FusionGraph, RelativeMeasurement, VOBiasTracker, debiased_motions
 from pvo_fusion.config import from_flat
@@ -97,11 +97,17 @@ def test_bad_tracker_settings_are_named(windows: float, axes: tuple, message: st
         ("inputs.correction.vo_bias_windows", -1.0, "inputs.correction.vo_bias_windows must be >= 0"),
         ("inputs.correction.vo_bias_axes", [1.0, 1.0, 1.0], "inputs.correction.vo_bias_axes needs 6 values of 0 or 1"),
         ("inputs.correction.vo_bias_axes", [2.0, 0, 0, 0, 0, 0], "inputs.correction.vo_bias_axes needs 6 values of 0 or 1"),
+        ("inputs.rotation.vo_bias_windows", float("inf"), "inputs.rotation.vo_bias_windows must be >= 0"),
+        ("inputs.rotation.vo_bias_axes", [1.0, 0, 0, 1, 1, 1], "the first three \\(translation\\) 0: a rotation measures none"),
     ],
 )
 def test_bad_fusion_parameters_are_named(name: str, value: object, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         from_flat({name: value})
+    both = {"inputs.correction.vo_bias_windows": 30.0, "inputs.rotation.vo_bias_windows": 100.0}
+    FusionGraph(from_flat(both))  # translation from the corrections, rotation from the rotations: fine
+    with pytest.raises(ValueError, match="vo_bias_axes overlap: one input learns each axis's VO bias"):
+        from_flat(both | {"inputs.correction.vo_bias_axes": [1.0, 1.0, 1.0, 0.0, 1.0, 0.0]})
 
 
 def fused_end_error(vo_bias_windows: float, rng: np.random.Generator) -> tuple[float, FusionGraph]:
@@ -137,6 +143,35 @@ def test_the_fusion_learns_the_vo_bias_from_the_corrections_and_stops_its_drift(
     # the bias learned only the corrections' noise is left
     assert plain > 0.8  # 1.10 m at this seed
     assert learned < 0.5 * plain  # 0.41 m: about the corrections' own 2 cm x sqrt(100 windows) per axis
-    assert graph.counts["vo_bias.learned"] == 100 and graph.vo_bias is not None
-    np.testing.assert_allclose(graph.vo_bias.bias[:3], BIAS[:3], atol=0.004)
-    assert graph.vo_bias.bias[3:].tolist() == [0.0, 0.0, 0.0]
+    assert graph.counts["vo_bias.correction.learned"] == 100 and list(graph.vo_biases) == ["correction"]
+    np.testing.assert_allclose(graph.vo_biases["correction"].bias[:3], BIAS[:3], atol=0.004)
+    assert graph.vo_biases["correction"].bias[3:].tolist() == [0.0, 0.0, 0.0]
+
+
+def test_relative_rotations_teach_the_vo_its_rotation_bias() -> None:
+    """A VO whose yaw reads 0.05 deg per frame short on a turning drive; exact rotation-only readings every frame (as
+    HydraNet's), their covariance ten times the VO's: fused as independent they take a tenth of the bias off; with the
+    VO's rotation bias learned from them the heading stays."""
+    n = 200
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.02, 0.0])))  # T_k,k-1: forward, turning about y
+    bias = np.array([0.0, 0.0, 0.0, 0.0, np.radians(0.05), 0.0])
+    read = se3_exp(-bias) @ step
+    vo_cov = np.diag([4e-4, 4e-4, 1e-3, 1e-8, 1e-8, 1e-8])
+    rotation_cov = np.diag([1e6, 1e6, 1e6, 1e-7, 1e-7, 1e-7])
+    headings = {}
+    for windows in (0.0, 20.0):
+        graph = FusionGraph(from_flat({"inputs.rotation.vo_bias_windows": windows, "inputs.rotation.gate_probability": 0.0}))
+        reading = np.eye(4)
+        reading[:3, :3] = step[:3, :3]
+        for k in range(1, n + 1):
+            graph.add_vo(RelativeMeasurement(T0 + k * STEP_NS, T0 + (k - 1) * STEP_NS, read, vo_cov.copy()))
+            graph.add_rotation(
+                RelativeMeasurement(T0 + k * STEP_NS, T0 + (k - 1) * STEP_NS, reading, rotation_cov.copy(), rotation_only=True)
+            )
+        true_end = np.linalg.matrix_power(se3_inverse(step), n)
+        headings[windows] = float(np.linalg.norm(so3_log(graph.pose()[:3, :3] @ true_end[:3, :3].T)))
+        if windows:
+            assert graph.counts["vo_bias.rotation.learned"] == n
+            np.testing.assert_allclose(graph.vo_biases["rotation"].bias, bias, atol=1e-6)
+    assert headings[0.0] > np.radians(8.0)  # 0.05 deg x 200 frames, a tenth taken off
+    assert headings[20.0] < 0.05 * headings[0.0]
