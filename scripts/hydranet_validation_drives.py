@@ -146,7 +146,7 @@ def main() -> None:
     except (ValueError, AssertionError):
         parser.error(f"--rotation-biases {args.rotation_biases!r}: give S:W (degrees, both > 0) or 0, comma-separated")
     settings = [
-        (float(g), float(k), span, gain, scale, bias)
+        (float(g), float(k), span, gain, scale, bias, vo_bias)
         for g in args.gates.split(",")
         for k in args.huber.split(",")
         for span in spans

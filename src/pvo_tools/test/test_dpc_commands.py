@@ -314,8 +314,8 @@ def test_the_demo_runs_the_vo_a_dpc_net_model_learned(tmp_path: Path, capsys) ->
 
 def test_the_demo_weighs_the_corrections_as_the_card_does(tmp_path: Path, capsys) -> None:
     """With a card that fuses some axis, `pvo demo` gives the fusion node the card's VO covariance scales (what
-    `pvo dpc-net correct` weighs with), and the fusion config accepts them; a card that fuses nothing changes
-    nothing; a broken scale is one line naming the model."""
+    `pvo dpc-net correct` weighs with) and, where the card chose it, the VO's bias learned from the corrections; the
+    fusion config accepts them; a card that fuses nothing changes nothing; a broken scale is one line naming the model."""
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_tools.commands.demo import dpc_net_fusion
     from pvo_tools.errors import PvoError
@@ -334,6 +334,18 @@ def test_the_demo_weighs_the_corrections_as_the_card_does(tmp_path: Path, capsys
     assert "scaled by its card (2 0.5 3 0.25 4 1.5)" in capsys.readouterr().err
     config = fusion_from_flat(parameters)
     assert config.inputs.vo.covariance_scale == pytest.approx(tuple(scales))
+    # the VO's translation bias learned from the corrections, where the card chose that
+    card["calibration"]["vo_bias_windows"] = 30.0
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    parameters = dpc_net_fusion(str(model))
+    assert parameters == {"inputs.vo.covariance_scale": pytest.approx(scales), "inputs.correction.vo_bias_windows": 30.0}
+    assert "the VO's translation bias learned from them over 30 corrections" in capsys.readouterr().err
+    assert fusion_from_flat(parameters).inputs.correction.vo_bias_windows == 30.0
+    card["calibration"]["vo_bias_windows"] = -1.0
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    with pytest.raises(PvoError, match="vo_bias_windows must be a number of corrections >= 0, got -1.0"):
+        dpc_net_fusion(str(model))
+    card["calibration"].pop("vo_bias_windows")
     card["calibration"]["fused_axes"] = []  # fuses nothing: the VO keeps its own covariances, scales or not
     (model / "model.yaml").write_text(yaml.safe_dump(card))
     assert dpc_net_fusion(str(model)) == {} and capsys.readouterr().err == ""

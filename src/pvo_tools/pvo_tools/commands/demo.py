@@ -317,7 +317,9 @@ def dpc_net_vo(model: str) -> dict[str, Any]:
 def dpc_net_fusion(model: str) -> dict[str, Any]:
     """The fusion node's parameters that weigh the DPC-Net ``model``'s corrections as its card's calibration does
     (`pvo dpc-net calibrate --drives`): the VO's covariance scales (``inputs.vo.covariance_scale``, ROS order) when the
-    card fuses some axis and carries them, announced on stderr; else none (the VO's own covariances)."""
+    card fuses some axis and carries them, and the corrections over which the VO's translation bias is learned from
+    them when the card chose that (``inputs.correction.vo_bias_windows``), announced on stderr; else none (the VO's
+    own covariances, as read)."""
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
 
@@ -326,13 +328,13 @@ def dpc_net_fusion(model: str) -> dict[str, Any]:
     try:
         card = read_card(resolve_model(model))
         calibration = card_vo_calibration(card)
+        bias = card_vo_bias(card)
     except (ModelFileError, ValueError) as exc:
         raise PvoError(f"{model}: {exc}") from None
     if calibration is None or not (card.calibration or {}).get("fused_axes"):
         return {}
     scale = [float(v) for v in calibration.scale]
     listed = " ".join(f"{v:.3g}" for v in scale)
-    bias = card_vo_bias(card)
     print(
         f"pvo demo: fusion weighs {model}'s corrections against the VO's covariances scaled by its card ({listed})"
         + (f", the VO's translation bias learned from them over {bias:g} corrections" if bias else ""),

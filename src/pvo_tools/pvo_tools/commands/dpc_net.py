@@ -189,7 +189,7 @@ def run_correct(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net
 
-    from ..dpc import card_vo_calibration, correct_sequence
+    from ..dpc import card_vo_bias, card_vo_calibration, correct_sequence
 
     model, card = load_dpc_net(resolve_model(str(args.model)))  # a directory or a shipped name
     vo_calibration = card_vo_calibration(card)
@@ -208,6 +208,8 @@ def run_correct(args: argparse.Namespace) -> int:
         if vo_calibration is not None and args.method == "fusion"
         else ""
     )
+    if args.method == "fusion" and card_vo_bias(card):
+        weighed += f"; the VO's translation bias learned from the corrections (over ~{card_vo_bias(card):g})"
     print(f"{args.out}: {len(result.vo)} poses, {how}{weighed}; the VO alone in {vo_file}")
     if args.method == "fusion" and card.calibration.get("fused_axes") == []:
         _warn(["its calibration on validation drives fuses no axis (no weighing was acceptable there): the VO alone"], args.model)
