@@ -470,6 +470,9 @@ def test_the_report_says_how_a_card_weighs_its_corrections() -> None:
     assert fusion_summary(SimpleNamespace(calibration=chosen | {"remove_mean": True})).endswith(
         "VO span 250 frames; the validation split's mean residual removed from the corrections"
     )
+    assert fusion_summary(SimpleNamespace(calibration=chosen | {"vo_bias_windows": 30.0})).endswith(
+        "VO span 250 frames; the VO's translation bias learned from the corrections over ~30 of them"
+    )
     refused = chosen | {"fused_axes": []}
     # a card from before the harm tolerance had every drive lowered; a newer one says its tolerance
     assert fusion_summary(SimpleNamespace(calibration=refused)).endswith("nothing fused (no choice lowered every drive's m-ATE)")

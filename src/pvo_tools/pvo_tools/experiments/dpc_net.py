@@ -91,6 +91,11 @@ def fusion_summary(card: Any) -> str:
             f"chosen on the validation drives {names}: axes {' '.join(calibration['fused_axes'])}, VO span "
             f"{calibration.get('vo_span')} frames"
             + ("; the validation split's mean residual removed from the corrections" if calibration.get("remove_mean") else "")
+            + (
+                f"; the VO's translation bias learned from the corrections over ~{calibration['vo_bias_windows']:g} of them"
+                if calibration.get("vo_bias_windows")
+                else ""
+            )
         )
     residual = calibration.get("residual") or {}
     axes = " ".join(a for a in ("x", "y", "z", "rx", "ry", "rz") if residual.get(f"corrected_{a}", 1.0))
@@ -355,7 +360,8 @@ def run(args: argparse.Namespace) -> int:
         + "); the VO is this project's stereo VO "
         "with its defaults. Each model's corrections are weighed against the VO as its card's calibration says: "
         "chosen on long validation drives of its rig rendered like these (along KITTI 03, 04 and 10, `pvo dpc-net drives`; "
-        "`pvo dpc-net calibrate --drives`: the VO span and the fused axes that lowered the mean m-ATE most and raised "
+        "`pvo dpc-net calibrate --drives`: the VO span, the fused axes and whether the VO's translation bias is learned "
+        "from the corrections, those that lowered the mean m-ATE most and raised "
         "no drive's by the card's harm tolerance, else nothing fused) when it has that, else the VO's covariances "
         "scaled on the validation split its corrections were calibrated on over "
         + (f"{args.vo_span} frames" if args.vo_span else "the span its card chose on that split (else Δp)")
