@@ -1,7 +1,8 @@
 """The fusion's newest state on disk, so that a restarted fusion node resumes where the killed one stopped.
 
 A checkpoint is the newest state's stamp, pose T_map,cam, its marginal covariance (ROS order, left
-perturbation) and the last VO velocity (motion, covariance, interval). It is written atomically (temporary
+perturbation), the last VO velocity (motion, covariance, interval) and the VO's bias as each input that teaches it
+had learned it (:class:`pvo_fusion.vo_bias.VOBiasTracker`: bias, corrections taken). It is written atomically (temporary
 file, then rename): a node killed while writing leaves the previous checkpoint whole.
 """
 
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ class FusionCheckpoint:
     pose: Array
     covariance: Array
     velocity: tuple[Array, Array, float] | None
+    vo_biases: dict[str, tuple[Array, int]] = field(default_factory=dict)
 
     def write(self, path: str | Path) -> None:
         path = Path(path)
@@ -37,6 +39,10 @@ class FusionCheckpoint:
                 "transform": np.asarray(self.velocity[0], dtype=float).reshape(-1).tolist(),
                 "covariance": np.asarray(self.velocity[1], dtype=float).reshape(-1).tolist(),
                 "seconds": float(self.velocity[2]),
+            },
+            "vo_bias": {
+                kind: {"bias": np.asarray(bias, dtype=float).tolist(), "updates": int(updates)}
+                for kind, (bias, updates) in self.vo_biases.items()
             },
         }
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -58,9 +64,15 @@ class FusionCheckpoint:
                     np.asarray(velocity["covariance"], dtype=float).reshape(6, 6),
                     float(velocity["seconds"]),
                 )
-            checkpoint = cls(int(data["stamp"]), pose, covariance, velocity)
+            vo_biases = {  # absent in a checkpoint from before stop 64: nothing learned
+                str(kind): (np.asarray(entry["bias"], dtype=float).reshape(6), int(entry["updates"]))
+                for kind, entry in (data.get("vo_bias") or {}).items()
+            }
+            checkpoint = cls(int(data["stamp"]), pose, covariance, velocity, vo_biases)
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"fusion checkpoint {path}: {type(exc).__name__}: {exc}") from None
         if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(covariance))):
             raise ValueError(f"fusion checkpoint {path}: non-finite pose or covariance")
+        if not all(np.all(np.isfinite(bias)) and updates >= 0 for bias, updates in vo_biases.values()):
+            raise ValueError(f"fusion checkpoint {path}: non-finite VO bias or a negative count")
         return checkpoint

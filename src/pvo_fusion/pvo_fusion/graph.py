@@ -172,14 +172,19 @@ class FusionGraph:
             self.pose() if pose is None else np.asarray(pose, dtype=float),
             self.covariance() if covariance is None else np.asarray(covariance, dtype=float),
             self._last_velocity,
+            {kind: (tracker.bias, tracker.updates) for kind, tracker in self.vo_biases.items()},
         )
 
     def resume(self, checkpoint: FusionCheckpoint) -> None:
         """Start from a checkpoint (before the first VO): the first state is the checkpoint's, at its stamp, with
-        its covariance; the next VO bridges the time since with the checkpoint's velocity."""
+        its covariance; the next VO bridges the time since with the checkpoint's velocity; the VO's bias goes on
+        from what each input that teaches it here had learned."""
         self.set_initial_pose(checkpoint.pose, checkpoint.covariance)
         self._resume_stamp = int(checkpoint.stamp)
         self._last_velocity = checkpoint.velocity
+        for kind, (bias, updates) in checkpoint.vo_biases.items():
+            if kind in self.vo_biases:
+                self.vo_biases[kind].restore(bias, updates)
 
     # ------------------------------------------------------------------ state look-up
     @property

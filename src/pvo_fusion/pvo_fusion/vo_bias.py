@@ -51,6 +51,15 @@ class VOBiasTracker:
         """β (6,), ROS order: the bias per VO motion removed from each new one."""
         return self._bias.copy()
 
+    def restore(self, bias: ArrayLike, updates: int) -> None:
+        """Go on from a bias learned before (a checkpoint): β (6,), ROS order, masked to this tracker's axes, and the
+        number of corrections it was learned from (the exponential mean's weight goes on from there)."""
+        bias = np.asarray(bias, dtype=float)
+        if bias.shape != (6,) or not np.all(np.isfinite(bias)) or updates < 0:
+            raise ValueError(f"a VO bias to restore must be 6 finite numbers and a count >= 0, got {bias.tolist()}, {updates}")
+        self._bias = self.axes * bias
+        self.updates = int(updates)
+
     def debias(self, transform: ArrayLike) -> Array:
         """``Exp(β) T_k,k-1`` (4, 4): a VO motion with the current bias estimate removed."""
         transform = np.asarray(transform, dtype=float)

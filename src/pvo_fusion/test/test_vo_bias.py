@@ -175,3 +175,39 @@ def test_relative_rotations_teach_the_vo_its_rotation_bias() -> None:
             np.testing.assert_allclose(graph.vo_biases["rotation"].bias, bias, atol=1e-6)
     assert headings[0.0] > np.radians(8.0)  # 0.05 deg x 200 frames, a tenth taken off
     assert headings[20.0] < 0.05 * headings[0.0]
+
+
+def test_a_resumed_fusion_goes_on_from_the_vo_bias_it_had_learned(tmp_path) -> None:
+    """The checkpoint carries each learned VO bias: a fusion restarted from it debiases its first VO motion as the
+    one before did; a checkpoint from before stop 64 (no bias in it) resumes with nothing learned."""
+    import json
+
+    from pvo_fusion.checkpoint import FusionCheckpoint
+
+    truth = straight_motions(12)
+    read = np.array([se3_exp(-BIAS) @ t for t in truth])
+    settings = {"inputs.correction.vo_bias_windows": 30.0}
+    first = FusionGraph(from_flat(settings))
+    for k in range(1, 7):
+        first.add_vo(RelativeMeasurement(T0 + k * STEP_NS, T0 + (k - 1) * STEP_NS, read[k - 1], VO_COV.copy()))
+        if k % 3 == 0:
+            exact = truth[k - 1] @ truth[k - 2] @ truth[k - 3]
+            first.add_correction(RelativeMeasurement(T0 + k * STEP_NS, T0 + (k - 3) * STEP_NS, exact, VO_COV.copy()))
+    assert first.counts["vo_bias.correction.learned"] == 2
+    path = tmp_path / "state.json"
+    first.checkpoint().write(path)
+    resumed = FusionGraph(from_flat(settings))
+    resumed.resume(FusionCheckpoint.read(path))
+    np.testing.assert_allclose(resumed.vo_biases["correction"].bias, BIAS, atol=1e-9)
+    assert resumed.vo_biases["correction"].updates == 2
+    np.testing.assert_allclose(resumed.vo_biases["correction"].debias(read[7]), truth[7], atol=1e-9)
+    data = json.loads(path.read_text())
+    del data["vo_bias"]
+    path.write_text(json.dumps(data))
+    older = FusionGraph(from_flat(settings))
+    older.resume(FusionCheckpoint.read(path))
+    assert older.vo_biases["correction"].updates == 0 and not older.vo_biases["correction"].bias.any()
+    data["vo_bias"] = {"correction": {"bias": [float("nan")] * 6, "updates": 1}}
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="fusion checkpoint .*state.json: non-finite VO bias"):
+        FusionCheckpoint.read(path)
