@@ -110,7 +110,8 @@ def debiased_motions(
 ) -> Array:
     """The VO's motions T_k,k-1 (frames k = 1..N; (N, 4, 4)) as a fusion with :class:`VOBiasTracker` takes them, given
     the corrections T_last,first (M, 4, 4) over frames ``first`` → ``last`` (M,): motion k debiased with what the
-    corrections ending at frame k-1 or before taught (a correction ending at k is received after motion k)."""
+    corrections ending at frame k-1 or before taught (a correction ending at k is received after motion k). Every
+    correction teaches here; the fusion learns only from those its gate lets in (on the validation drives nearly all)."""
     transforms = np.asarray(transforms, dtype=float)
     tracker = VOBiasTracker(windows, axes, history=len(transforms) + 1)
     ending: dict[int, list[tuple[int, Array]]] = {}
