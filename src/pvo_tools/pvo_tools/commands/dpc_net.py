@@ -132,26 +132,25 @@ def rig_list(text: str) -> list[str]:
     return rigs
 
 
-def percent(text: str) -> float:
-    """``--harm-tolerance 5``: a finite percentage >= 0."""
+def finite_non_negative(text: str, example: str, what: str) -> float:
+    """A finite number >= 0 from a command-line value, else an ``ArgumentTypeError`` naming ``what``."""
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a percentage (e.g. 5), got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected {what} (e.g. {example}), got {text!r}") from None
     if not value >= 0.0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"the harm tolerance must be a finite percentage >= 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"{what} must be finite and >= 0, got {text!r}")
     return value
+
+
+def percent(text: str) -> float:
+    """``--harm-tolerance 5``: a finite percentage >= 0."""
+    return finite_non_negative(text, "5", "a percentage")
 
 
 def non_negative(text: str) -> float:
-    """``--vo-bias-windows 30``: a finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number (e.g. 30), got {text!r}") from None
-    if not value >= 0.0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return value
+    """``--vo-bias-windows 30``: a finite number of corrections >= 0."""
+    return finite_non_negative(text, "30", "a number of corrections")
 
 
 def span_list(text: str) -> list[int]:
