@@ -319,3 +319,76 @@ def test_a_restarted_fusion_node_resumes_from_its_state_file(ros_context, tmp_pa
     # 1 m per frame forward: frame 10 at z = 10; the bridge over frames 11..20 continues at that velocity
     assert z[9] == pytest.approx(10.0, abs=1e-6)
     np.testing.assert_allclose(z[10:], [21.0, 22.0, 23.0, 24.0, 25.0], atol=1e-6)
+
+
+def test_the_fusion_node_learns_the_vo_bias_from_corrections_over_dds(ros_context) -> None:
+    """`inputs.correction.vo_bias_windows` set as a node parameter: a VO that reads 3 % long, exact corrections every 3
+    frames on `/pvo/dpc/correction`; the status reports the learned bias per frame, and the odometry equals the
+    ROS-free graph given the same parameter and messages (which ends far nearer the truth than without it)."""
+    fusion = FusionNode(
+        context=ros_context,
+        parameter_overrides=[Parameter("publish_path", value=False), Parameter("inputs.correction.vo_bias_windows", value=30.0)],
+    )
+    io = Node("io", context=ros_context)
+    odometry: list[Odometry] = []
+    statuses: list[DiagnosticArray] = []
+    io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
+    io.create_subscription(DiagnosticArray, "/pvo/fusion/status", statuses.append, RELIABLE)
+    vo_pub = io.create_publisher(RelativePose, "/pvo/vo/relative", RELIABLE)
+    correction_pub = io.create_publisher(RelativePose, "/pvo/dpc/correction", RELIABLE)
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))  # T_k,k-1: 1 m forward
+    bias = np.array([0.0, 0.0, 0.03, 0.0, 0.0, 0.0])
+    read = se3_exp(-bias) @ step  # the VO reads 1.03 m
+    vo_cov = np.diag([4e-4, 4e-4, 1e-3, 1e-8, 1e-8, 1e-8])
+    correction_cov = np.diag([4e-4, 4e-4, 4e-4, 1e-8, 1e-8, 1e-8])
+    exact = step @ step @ step
+    t0 = 1_317_640_000_000_000_000
+    dt = 100_000_000
+    frames = 30
+    messages: list[tuple[str, RelativePose]] = []
+    for k in range(1, frames + 1):
+        messages.append(("vo", relative_msg(t0 + k * dt, t0 + (k - 1) * dt, read, vo_cov)))
+        if k % 3 == 0:
+            messages.append(("correction", relative_msg(t0 + k * dt, t0 + (k - 3) * dt, exact, correction_cov)))
+    try:
+        with Spinner(ros_context, fusion), Spinner(ros_context, io):
+            wait_for(lambda: vo_pub.get_subscription_count() > 0 and correction_pub.get_subscription_count() > 0, 10.0)
+            wait_for(lambda: fusion.pub_status.get_subscription_count() > 0, 10.0)
+            published = 0
+            for kind, msg in messages:
+                (vo_pub if kind == "vo" else correction_pub).publish(msg)
+                if kind == "correction":  # each correction taken before the next VO motion, as offline
+                    published += 1
+                    assert wait_for(lambda n=published: fusion.graph.counts["vo_bias.correction.learned"] >= n, 10.0)
+                else:
+                    expected = len(odometry) + 1
+                    assert wait_for(lambda n=expected: len(odometry) >= n, 10.0)
+            assert wait_for(lambda: len(statuses) >= frames)  # one per VO frame
+    finally:
+        fusion.destroy_node()
+        io.destroy_node()
+    # the status of the last VO frame (one per frame): the nine corrections before it learned, the bias per frame the
+    # VO's own (each correction exact)
+    keys = {kv.key: kv.value for kv in statuses[-1].status[0].values}
+    assert keys["count.vo_bias.correction.learned"] == str(frames // 3 - 1)
+    assert fusion.graph.counts["vo_bias.correction.learned"] == frames // 3
+    np.testing.assert_allclose([float(v) for v in keys["vo_bias.correction"].split()], bias, atol=1e-6)
+
+    from pvo_fusion import RelativeMeasurement
+
+    def offline(settings: dict) -> np.ndarray:
+        graph = FusionGraph(from_flat(settings))
+        for kind, msg in messages:
+            m = RelativeMeasurement(
+                stamp_to_nanoseconds(msg.header.stamp),
+                stamp_to_nanoseconds(msg.reference_stamp),
+                pose_to_matrix(msg.pose.pose),
+                covariance_to_matrix(msg.pose.covariance),
+            )
+            graph.add_vo(m) if kind == "vo" else graph.add_correction(m)
+        return graph.pose()
+
+    learned = offline({"inputs.correction.vo_bias_windows": 30.0})
+    np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), learned, atol=1e-9)
+    truth_z = float(frames)
+    assert abs(learned[2, 3] - truth_z) < 0.5 * abs(offline({})[2, 3] - truth_z)
