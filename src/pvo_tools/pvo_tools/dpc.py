@@ -479,7 +479,7 @@ def choose_fusion(
     say: Any = None,
     harm_tolerance: float = HARM_TOLERANCE,
     consistent_corrections: bool = False,
-    vo_bias_windows: float = VO_BIAS_WINDOWS,
+    vo_bias_windows: float | Sequence[float] = VO_BIAS_WINDOWS,
 ) -> FusionChoice:
     """The VO span and the fused axes (:data:`AXIS_SETS` x ``spans``, each with the corrections as predicted and
     with their validation-split mean error removed, :func:`~pvo_pseudosensors.dpc_net.infer.remove_residual_mean`)
@@ -489,9 +489,10 @@ def choose_fusion(
     ``consistent_corrections``: for every span longer than the card's Δp each weighing is tried again with the
     corrections' covariance made consistent over the same span (:func:`correction_calibration`, learned on the other
     drives too), so the VO chain and the corrected chain are weighed by how far each drifts over that span.
-    ``vo_bias_windows`` > 0: every weighing that fuses the translation is tried again with the VO's translation bias
-    learned from the corrections as the fusion does (``inputs.correction.vo_bias_windows``,
-    :class:`pvo_fusion.VOBiasTracker`), the VO's scales then learned on the VO so debiased."""
+    ``vo_bias_windows`` (one number of corrections or several; 0 = none): every weighing that fuses the translation
+    is tried again, once per number, with the VO's translation bias learned from the corrections over that many as
+    the fusion does (``inputs.correction.vo_bias_windows``, :class:`pvo_fusion.VOBiasTracker`), the VO's scales then
+    learned on the VO so debiased."""
     from pvo_core.trajectory import read_kitti_poses
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
     from pvo_pseudosensors.dpc_net.infer import (
@@ -510,6 +511,11 @@ def choose_fusion(
     if not drives:
         raise ValueError("choosing the fusion needs at least one validation drive")
     fusion_accepted([], harm_tolerance)  # a wrong tolerance fails here, before any drive is run
+    windows_tried = sorted(
+        {float(w) for w in ([vo_bias_windows] if np.isscalar(vo_bias_windows) else vo_bias_windows) if float(w) > 0.0}
+    )
+    if any(not np.isfinite(w) for w in windows_tried):
+        raise ValueError(f"the VO bias's numbers of corrections must be finite, got {vo_bias_windows}")
     if not spans or min(spans) < 1:
         raise ValueError(f"VO spans must be positive frame counts, got {list(spans)}")
     variant_axes = {"pose": AXES, "rotation": AXES[3:], "yaw": ("ry",)}[DPCNetConfig.from_card(card).variant]
@@ -563,16 +569,16 @@ def choose_fusion(
             candidate.calibration["vo_bias_windows"] = bias
         return candidate
 
-    debiased: dict[tuple[str, bool], Any] = {}
+    debiased: dict[tuple[str, bool, float], Any] = {}
 
-    def debiased_sequence(name: str, remove_mean: bool) -> Any:
+    def debiased_sequence(name: str, remove_mean: bool, windows: float) -> Any:
         # the VO as the fusion takes it once the corrections (as weighed: the mean removed or not) taught its bias
-        if (name, remove_mean) not in debiased:
+        if (name, remove_mean, windows) not in debiased:
             _, _, truth, _, sequence, predicted = prepared[name]
             weighed = remove_residual_mean(predicted.transforms, {**card.calibration, "remove_mean": remove_mean})
-            motions = debiased_motions(sequence.motions, predicted.first, predicted.last, weighed, vo_bias_windows)
-            debiased[(name, remove_mean)] = CalibrationSequence(name, truth, motions, sequence.covariances)
-        return debiased[(name, remove_mean)]
+            motions = debiased_motions(sequence.motions, predicted.first, predicted.last, weighed, windows)
+            debiased[(name, remove_mean, windows)] = CalibrationSequence(name, truth, motions, sequence.covariances)
+        return debiased[(name, remove_mean, windows)]
 
     def translation_fused(axes_label: str) -> bool:
         return {"x", "y", "z"} <= set(axis_sets[axes_label])
@@ -604,14 +610,15 @@ def choose_fusion(
         tried = [(label, mean, False, 0.0) for label, mean in labels]
         if consistent_corrections and span > delta:
             tried += [(label, mean, True, 0.0) for label, mean in labels]
-        if vo_bias_windows:
-            tried += [(label, mean, False, vo_bias_windows) for label, mean in labels if translation_fused(label)]
+        for windows in windows_tried:
+            tried += [(label, mean, False, windows) for label, mean in labels if translation_fused(label)]
         for axes_label, remove_mean, consistent, bias in tried:
             candidate = weighing(axes_label, remove_mean, bias)
             if bias:
                 drive_scales = {
                     name: calibrate_vo(
-                        [debiased_sequence(o, remove_mean) for o in names if o != name] or [debiased_sequence(name, remove_mean)],
+                        [debiased_sequence(o, remove_mean, bias) for o in names if o != name]
+                        or [debiased_sequence(name, remove_mean, bias)],
                         span,
                     )
                     for name in names
@@ -669,7 +676,7 @@ def choose_fusion(
         return FusionChoice(None, [], candidates, names)
     span, axes_label, remove_mean, consistent, bias = best
     if bias:
-        calibration = calibrate_vo([debiased_sequence(n, remove_mean) for n in names], span)
+        calibration = calibrate_vo([debiased_sequence(n, remove_mean, bias) for n in names], span)
     else:
         calibration = calibrate_vo([prepared[n][4] for n in names], span)
     correction_scale = None

@@ -110,7 +110,7 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     drove = tmp_path / "drove"
     shutil.copytree(model, drove)
     calibrate = ["dpc-net", "calibrate", "--model", str(drove), "--corpus", str(corpus), "--vo-spans", "3,6"]
-    assert main([*calibrate, "--drives", str(corpus / "0001"), str(corpus / "0002")]) == 0
+    assert main([*calibrate, "--drives", str(corpus / "0001"), str(corpus / "0002"), "--vo-bias-windows", "10,30"]) == 0
     drive_card = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
     candidates = drive_card["drive_calibration"]["candidates"]
     assert {c["span"] for c in candidates.values()} == {3, 6} and all(len(c["per_drive"]) == 2 for c in candidates.values())
@@ -132,16 +132,14 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         assert drive_card["remove_mean"] == candidates[chosen]["remove_mean"]
         assert drive_card.get("vo_bias_windows", 0.0) == candidates[chosen].get("vo_bias_windows", 0.0)
         assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
-    # by default every weighing that fuses the translation is tried again with the VO's translation bias learned from
-    # the corrections (30 of them), named so; a weighing without the translation is not
-    debiased = {label: c for label, c in candidates.items() if c.get("vo_bias_windows")}
+    # every weighing that fuses the translation is tried again with the VO's translation bias learned from the
+    # corrections, once per number of them asked for (10 and 30; 30 by default), named so; one without the translation not
     plain = {label: c for label, c in candidates.items() if not c.get("vo_bias_windows")}
-    assert debiased and all(
-        label.endswith(", VO debiased over 30") and c["vo_bias_windows"] == 30.0 for label, c in debiased.items()
-    )
-    assert {label.removesuffix(", VO debiased over 30") for label in debiased} == {
-        label for label, c in plain.items() if {"x", "y", "z"} <= set(c["axes"])
-    }
+    translating = {label for label, c in plain.items() if {"x", "y", "z"} <= set(c["axes"])}
+    for windows in (10, 30):
+        debiased = {label: c for label, c in candidates.items() if c.get("vo_bias_windows") == windows}
+        assert translating and {label.removesuffix(f", VO debiased over {windows}") for label in debiased} == translating
+    assert len(candidates) == len(plain) + 2 * len(translating)
     # the corrections made consistent over the span too: tried for the spans longer than Δp, each named so
     consistent = tmp_path / "consistent"
     shutil.copytree(model, consistent)

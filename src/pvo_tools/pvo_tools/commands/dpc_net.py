@@ -86,11 +86,12 @@ def register_actions(actions: Any, entry: Any) -> None:
     )
     calibrate.add_argument(
         "--vo-bias-windows",
-        type=non_negative,
-        metavar="N",
+        type=window_list,
+        metavar="N[,N...]",
         help="with --drives: also try each weighing that fuses the translation with the VO's translation bias learned "
-        "from the corrections over about N of them, as the fusion does (inputs.correction.vo_bias_windows; default "
-        f"{VO_BIAS_WINDOWS:g}; 0: no such candidate); the card then keeps N (calibration.vo_bias_windows)",
+        "from the corrections over about N of them, as the fusion does (inputs.correction.vo_bias_windows), once per N "
+        f"(default {VO_BIAS_WINDOWS:g}; 0: no such candidate); the card then keeps the chosen N "
+        "(calibration.vo_bias_windows)",
     )
     drives = actions.add_parser(
         "drives", help="render the long drives a fusion is chosen on (KITTI 03, 04, 10) or tested on (05, 06, 07), each rig"
@@ -148,9 +149,9 @@ def percent(text: str) -> float:
     return finite_non_negative(text, "5", "a percentage")
 
 
-def non_negative(text: str) -> float:
-    """``--vo-bias-windows 30``: a finite number of corrections >= 0."""
-    return finite_non_negative(text, "30", "a number of corrections")
+def window_list(text: str) -> list[float]:
+    """``--vo-bias-windows 10,30,100``: finite numbers of corrections >= 0, comma-separated."""
+    return [finite_non_negative(item, "30", "a number of corrections") for item in text.split(",")]
 
 
 def span_list(text: str) -> list[int]:
@@ -238,7 +239,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if args.harm_tolerance is None:
         args.harm_tolerance = 100 * HARM_TOLERANCE
     if args.vo_bias_windows is None:
-        args.vo_bias_windows = VO_BIAS_WINDOWS
+        args.vo_bias_windows = [VO_BIAS_WINDOWS]
     model, card = load_dpc_net(args.model)
     config = DPCNetConfig.from_card(card)
     manifests = [read_corpus_manifest(corpus) for corpus in args.corpus]
