@@ -379,9 +379,10 @@ AXIS_SETS: dict[str, tuple[str, ...] | None] = {
     "translation": ("x", "y", "z"),
     "rotation": ("rx", "ry", "rz"),
 }
-#: the corrections over which a drive calibration's debiased candidates learn the VO's translation bias (stop 64's
-#: rule 18, fixed before any figure of it: about 30 s of driving at Δp 3 and 10 Hz)
-VO_BIAS_WINDOWS = 30.0
+#: the numbers of corrections over which a drive calibration's debiased candidates learn the VO's translation bias
+#: (stop 64: rule 18 fixed 30, about 9 s of driving at Δp 3 and 10 Hz, before any figure of it; rule 21 a 3x grid
+#: around it; both lens and focal cards chose 10 on their sixteen drives)
+VO_BIAS_WINDOWS = (10.0, 30.0, 100.0)
 #: the VO spans a drive calibration tries by default (frames)
 DRIVE_SPANS = (3, 30, 100, 250)
 Candidate = TypeVar("Candidate")

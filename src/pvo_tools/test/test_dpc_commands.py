@@ -133,7 +133,8 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         assert drive_card.get("vo_bias_windows", 0.0) == candidates[chosen].get("vo_bias_windows", 0.0)
         assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
     # every weighing that fuses the translation is tried again with the VO's translation bias learned from the
-    # corrections, once per number of them asked for (10 and 30; 30 by default), named so; one without the translation not
+    # corrections, once per number of them asked for (10 and 30; 10, 30 and 100 by default), named so; one without the
+    # translation not
     plain = {label: c for label, c in candidates.items() if not c.get("vo_bias_windows")}
     translating = {label for label, c in plain.items() if {"x", "y", "z"} <= set(c["axes"])}
     for windows in (10, 30):

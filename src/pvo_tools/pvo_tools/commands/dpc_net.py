@@ -90,7 +90,7 @@ def register_actions(actions: Any, entry: Any) -> None:
         metavar="N[,N...]",
         help="with --drives: also try each weighing that fuses the translation with the VO's translation bias learned "
         "from the corrections over about N of them, as the fusion does (inputs.correction.vo_bias_windows), once per N "
-        f"(default {VO_BIAS_WINDOWS:g}; 0: no such candidate); the card then keeps the chosen N "
+        f"(default {','.join(f'{w:g}' for w in VO_BIAS_WINDOWS)}; 0: no such candidate); the card then keeps the chosen N "
         "(calibration.vo_bias_windows)",
     )
     drives = actions.add_parser(
@@ -239,7 +239,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if args.harm_tolerance is None:
         args.harm_tolerance = 100 * HARM_TOLERANCE
     if args.vo_bias_windows is None:
-        args.vo_bias_windows = [VO_BIAS_WINDOWS]
+        args.vo_bias_windows = list(VO_BIAS_WINDOWS)
     model, card = load_dpc_net(args.model)
     config = DPCNetConfig.from_card(card)
     manifests = [read_corpus_manifest(corpus) for corpus in args.corpus]
