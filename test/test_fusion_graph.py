@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -46,6 +47,16 @@ def sun_msg(stamp: int, direction: np.ndarray, covariance: np.ndarray) -> SunDir
     msg.direction.x, msg.direction.y, msg.direction.z = (float(v) for v in direction)
     msg.covariance = [float(v) for v in np.asarray(covariance).reshape(-1)]
     return msg
+
+
+def fusion_io(ros_context) -> tuple[Node, list[Odometry], list[DiagnosticArray], Any]:
+    """A test node listening to the fusion's odometry and status; ``publisher(topic, type)`` makes its publishers."""
+    io = Node("io", context=ros_context)
+    odometry: list[Odometry] = []
+    statuses: list[DiagnosticArray] = []
+    io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
+    io.create_subscription(DiagnosticArray, "/pvo/fusion/status", statuses.append, RELIABLE)
+    return io, odometry, statuses, lambda topic, kind=RelativePose: io.create_publisher(kind, topic, RELIABLE)
 
 
 def test_sun_sim_sequence_through_the_fusion_node_equals_the_ros_free_run(pvo_data: Path, tmp_path: Path, domain_id: int) -> None:
@@ -115,14 +126,10 @@ def test_simulated_sun_node_publishes_every_nth_seeded_measurement(ros_context) 
 
 def test_fusion_node_reports_bad_input_and_keeps_going(ros_context) -> None:
     fusion = FusionNode(context=ros_context, parameter_overrides=[Parameter("publish_path", value=False)])
-    io = Node("io", context=ros_context)
-    odometry: list[Odometry] = []
-    statuses: list[DiagnosticArray] = []
-    io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
-    io.create_subscription(DiagnosticArray, "/pvo/fusion/status", statuses.append, RELIABLE)
-    vo_pub = io.create_publisher(RelativePose, "/pvo/vo/relative", RELIABLE)
-    sun_pub = io.create_publisher(SunDirection, "/pvo/sun/direction", RELIABLE)
-    gps_pub = io.create_publisher(NavSatFix, "/gps/fix", RELIABLE)
+    io, odometry, statuses, publisher = fusion_io(ros_context)
+    vo_pub = publisher("/pvo/vo/relative")
+    sun_pub = publisher("/pvo/sun/direction", SunDirection)
+    gps_pub = publisher("/gps/fix", NavSatFix)
     step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.01, 0.0])))  # T_k,k-1
     cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
     t0 = 1_317_640_000_000_000_000
@@ -329,13 +336,9 @@ def test_the_fusion_node_learns_the_vo_bias_from_corrections_over_dds(ros_contex
         context=ros_context,
         parameter_overrides=[Parameter("publish_path", value=False), Parameter("inputs.correction.vo_bias_windows", value=30.0)],
     )
-    io = Node("io", context=ros_context)
-    odometry: list[Odometry] = []
-    statuses: list[DiagnosticArray] = []
-    io.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
-    io.create_subscription(DiagnosticArray, "/pvo/fusion/status", statuses.append, RELIABLE)
-    vo_pub = io.create_publisher(RelativePose, "/pvo/vo/relative", RELIABLE)
-    correction_pub = io.create_publisher(RelativePose, "/pvo/dpc/correction", RELIABLE)
+    io, odometry, statuses, publisher = fusion_io(ros_context)
+    vo_pub = publisher("/pvo/vo/relative")
+    correction_pub = publisher("/pvo/dpc/correction")
     step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))  # T_k,k-1: 1 m forward
     bias = np.array([0.0, 0.0, 0.03, 0.0, 0.0, 0.0])
     read = se3_exp(-bias) @ step  # the VO reads 1.03 m
