@@ -257,8 +257,10 @@ class FusionGraph:
         transform = np.asarray(m.transform, dtype=float)
         if self.vo_biases and float(np.max(np.diag(m.covariance))) < self.config.inputs.vo.lost_variance:
             raw = transform
+            # keyed by the states' own stamps, so a measurement stamped within the tolerance finds the chain
+            reference = self._find_stamp(m.reference_stamp) or m.reference_stamp
             for tracker in self.vo_biases.values():
-                tracker.observe(m.reference_stamp, m.stamp, raw)
+                tracker.observe(reference, m.stamp, raw)
                 transform = tracker.debias(transform)
         motion_covariance = self._vo_covariance(transform, np.asarray(m.covariance, dtype=float))
         covariance = motion_covariance
@@ -434,7 +436,8 @@ class FusionGraph:
         # only a measurement the gate let in teaches the VO's bias: an outlier would move it for ~windows readings
         tracker = self.vo_biases.get(kind)
         if tracker is not None:
-            learned = tracker.update(m.reference_stamp, m.stamp, m.transform)
+            reference, stamp = self._find_stamp(m.reference_stamp), self._find_stamp(m.stamp)
+            learned = reference is not None and stamp is not None and tracker.update(reference, stamp, m.transform)
             self.counts[f"vo_bias.{kind}." + ("learned" if learned else "no_vo_chain")] += 1
 
     def _make_rotation(self, reference_key: int, key: int, m: RelativeMeasurement, batch: _Batch) -> str:

@@ -110,9 +110,9 @@ def test_bad_fusion_parameters_are_named(name: str, value: object, message: str)
         from_flat(both | {"inputs.correction.vo_bias_axes": [1.0, 1.0, 1.0, 0.0, 1.0, 0.0]})
 
 
-def fused_end_error(vo_bias_windows: float, rng: np.random.Generator) -> tuple[float, FusionGraph]:
+def fused_end_error(vo_bias_windows: float, rng: np.random.Generator, jitter_ns: int = 0) -> tuple[float, FusionGraph]:
     """The fused online end-position error (m) of a 300-frame drive whose VO reads 3 % long, corrected every 3 frames by
-    corrections with 2 cm noise (and their covariance)."""
+    corrections with 2 cm noise (and their covariance), stamped ``jitter_ns`` late (within the fusion's tolerance)."""
     n = 300
     truth_motions = straight_motions(n)
     vo_cov = np.diag([4e-4, 4e-4, 1e-3, 1e-8, 1e-8, 1e-8])  # turns read well: a heading walk would hide the translation
@@ -128,7 +128,8 @@ def fused_end_error(vo_bias_windows: float, rng: np.random.Generator) -> tuple[f
         graph.add_vo(RelativeMeasurement(T0 + k * STEP_NS, T0 + (k - 1) * STEP_NS, read[k - 1], vo_cov.copy()))
         if k in ends:
             a, c = ends[k]
-            graph.add_correction(RelativeMeasurement(T0 + k * STEP_NS, T0 + a * STEP_NS, c, correction_cov.copy()))
+            stamps = (T0 + k * STEP_NS + jitter_ns, T0 + a * STEP_NS + jitter_ns)
+            graph.add_correction(RelativeMeasurement(*stamps, c, correction_cov.copy()))
         pose = graph.pose()
     true_end = np.eye(4)
     for t in truth_motions:
@@ -146,6 +147,9 @@ def test_the_fusion_learns_the_vo_bias_from_the_corrections_and_stops_its_drift(
     assert graph.counts["vo_bias.correction.learned"] == 100 and list(graph.vo_biases) == ["correction"]
     np.testing.assert_allclose(graph.vo_biases["correction"].bias[:3], BIAS[:3], atol=0.004)
     assert graph.vo_biases["correction"].bias[3:].tolist() == [0.0, 0.0, 0.0]
+    # corrections stamped 0.5 ms off the VO's frames (the fusion's tolerance is 1 ms) teach the same
+    jittered, graph = fused_end_error(30.0, np.random.default_rng(7), jitter_ns=500_000)
+    assert graph.counts["vo_bias.correction.learned"] == 100 and jittered == pytest.approx(learned, abs=1e-9)
 
 
 def test_relative_rotations_teach_the_vo_its_rotation_bias() -> None:
