@@ -581,6 +581,22 @@ def choose_fusion(
             debiased[(name, remove_mean, windows)] = CalibrationSequence(name, truth, motions, sequence.covariances)
         return debiased[(name, remove_mean, windows)]
 
+    debiased_scale_sets: dict[tuple[int, bool, float], dict[str, Any]] = {}
+
+    def debiased_scales(span: int, remove_mean: bool, windows: float) -> dict[str, Any]:
+        # per drive, the debiased VO's scales learned on the other drives: the same for every axis set
+        key = (span, remove_mean, windows)
+        if key not in debiased_scale_sets:
+            debiased_scale_sets[key] = {
+                name: calibrate_vo(
+                    [debiased_sequence(o, remove_mean, windows) for o in names if o != name]
+                    or [debiased_sequence(name, remove_mean, windows)],
+                    span,
+                )
+                for name in names
+            }
+        return debiased_scale_sets[key]
+
     def translation_fused(axes_label: str) -> bool:
         return {"x", "y", "z"} <= set(axis_sets[axes_label])
 
@@ -615,17 +631,7 @@ def choose_fusion(
             tried += [(label, mean, False, windows) for label, mean in labels if translation_fused(label)]
         for axes_label, remove_mean, consistent, bias in tried:
             candidate = weighing(axes_label, remove_mean, bias)
-            if bias:
-                drive_scales = {
-                    name: calibrate_vo(
-                        [debiased_sequence(o, remove_mean, bias) for o in names if o != name]
-                        or [debiased_sequence(name, remove_mean, bias)],
-                        span,
-                    )
-                    for name in names
-                }
-            else:
-                drive_scales = scales
+            drive_scales = debiased_scales(span, remove_mean, bias) if bias else scales
             covariance = measurement_covariance(DPCNetConfig.from_card(candidate), candidate.calibration)
             rows = []
             for name in names:
