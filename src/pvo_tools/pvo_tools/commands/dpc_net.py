@@ -208,8 +208,9 @@ def run_correct(args: argparse.Namespace) -> int:
         if vo_calibration is not None and args.method == "fusion"
         else ""
     )
-    if args.method == "fusion" and card_vo_bias(card):
-        weighed += f"; the VO's translation bias learned from the corrections (over ~{card_vo_bias(card):g})"
+    bias = card_vo_bias(card)
+    if args.method == "fusion" and bias:
+        weighed += f"; the VO's translation bias learned from the corrections (over ~{bias:g})"
     print(f"{args.out}: {len(result.vo)} poses, {how}{weighed}; the VO alone in {vo_file}")
     if args.method == "fusion" and card.calibration.get("fused_axes") == []:
         _warn(["its calibration on validation drives fuses no axis (no weighing was acceptable there): the VO alone"], args.model)
