@@ -395,3 +395,67 @@ def test_the_fusion_node_learns_the_vo_bias_from_corrections_over_dds(ros_contex
     np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), learned, atol=1e-9)
     truth_z = float(frames)
     assert abs(learned[2, 3] - truth_z) < 0.5 * abs(offline({})[2, 3] - truth_z)
+
+
+def test_the_fusion_node_rescales_the_vo_turns_from_corrections_over_dds(ros_context) -> None:
+    """`inputs.correction.vo_rotation_scale_windows` set as a node parameter: a VO that reads every turn 8 % long (a
+    lens processed as if undistorted), exact corrections every 3 frames; the status reports the scale learned (each turn
+    taken 1/1.08 - 1 longer) and the odometry equals the ROS-free graph's with the same parameter and messages."""
+    from pvo_core.lie import so3_exp, so3_log
+
+    settings = {"inputs.correction.vo_rotation_scale_windows": 1000.0}
+    fusion = FusionNode(
+        context=ros_context,
+        parameter_overrides=[Parameter("publish_path", value=False)] + [Parameter(k, value=v) for k, v in settings.items()],
+    )
+    io, odometry, statuses, publisher = fusion_io(ros_context)
+    vo_pub = publisher("/pvo/vo/relative")
+    correction_pub = publisher("/pvo/dpc/correction")
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, np.radians(2.0), 0.0])))  # 1 m forward, 2 deg left
+    read = step.copy()
+    read[:3, :3] = so3_exp(1.08 * so3_log(step[:3, :3]))
+    vo_cov = np.diag([4e-4, 4e-4, 1e-3, 1e-6, 1e-6, 1e-6])
+    correction_cov = np.diag([4e-4, 4e-4, 4e-4, 3e-6, 3e-6, 3e-6])
+    exact = step @ step @ step
+    t0 = 1_317_640_000_000_000_000
+    dt = 100_000_000
+    frames = 30
+    messages: list[tuple[str, RelativePose]] = []
+    for k in range(1, frames + 1):
+        messages.append(("vo", relative_msg(t0 + k * dt, t0 + (k - 1) * dt, read, vo_cov)))
+        if k % 3 == 0 and k < frames:  # the last VO frame's odometry is what the graph says after all of them
+            messages.append(("correction", relative_msg(t0 + k * dt, t0 + (k - 3) * dt, exact, correction_cov)))
+    try:
+        with Spinner(ros_context, fusion), Spinner(ros_context, io):
+            wait_for(lambda: vo_pub.get_subscription_count() > 0 and correction_pub.get_subscription_count() > 0, 10.0)
+            wait_for(lambda: fusion.pub_status.get_subscription_count() > 0, 10.0)
+            published = 0
+            for kind, msg in messages:
+                (vo_pub if kind == "vo" else correction_pub).publish(msg)
+                if kind == "correction":
+                    published += 1
+                    assert wait_for(lambda n=published: fusion.graph.counts["vo_bias.correction.learned"] >= n, 10.0)
+                else:
+                    expected = len(odometry) + 1
+                    assert wait_for(lambda n=expected: len(odometry) >= n, 10.0)
+            assert wait_for(lambda: len(statuses) >= frames)
+    finally:
+        fusion.destroy_node()
+        io.destroy_node()
+    keys = {kv.key: kv.value for kv in statuses[-1].status[0].values}
+    # nine corrections of 6 deg turns: the prior (~1 deg of turning) shrinks the scale by under half a per cent
+    assert float(keys["vo_rotation_scale.correction"]) == pytest.approx(1.0 / 1.08 - 1.0, rel=5e-3)
+    assert keys["vo_bias.correction"].split() == ["0"] * 6  # no additive bias asked for
+
+    from pvo_fusion import RelativeMeasurement
+
+    graph = FusionGraph(from_flat(settings))
+    for kind, msg in messages:
+        m = RelativeMeasurement(
+            stamp_to_nanoseconds(msg.header.stamp),
+            stamp_to_nanoseconds(msg.reference_stamp),
+            pose_to_matrix(msg.pose.pose),
+            covariance_to_matrix(msg.pose.covariance),
+        )
+        graph.add_vo(m) if kind == "vo" else graph.add_correction(m)
+    np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), graph.pose(), atol=1e-9)

@@ -26,6 +26,8 @@ class FusionCheckpoint:
     covariance: Array
     velocity: tuple[Array, Array, float] | None
     vo_biases: dict[str, tuple[Array, int]] = field(default_factory=dict)
+    #: per input that teaches it, the VO rotation scale's sums (2,) (:attr:`VOBiasTracker.rotation_scale_sums`)
+    vo_rotation_scales: dict[str, Array] = field(default_factory=dict)
 
     def write(self, path: str | Path) -> None:
         path = Path(path)
@@ -44,6 +46,7 @@ class FusionCheckpoint:
                 kind: {"bias": np.asarray(bias, dtype=float).tolist(), "updates": int(updates)}
                 for kind, (bias, updates) in self.vo_biases.items()
             },
+            "vo_rotation_scale": {kind: np.asarray(sums, dtype=float).tolist() for kind, sums in self.vo_rotation_scales.items()},
         }
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         tmp.write_text(json.dumps(data))
@@ -68,11 +71,17 @@ class FusionCheckpoint:
                 str(kind): (np.asarray(entry["bias"], dtype=float).reshape(6), int(entry["updates"]))
                 for kind, entry in (data.get("vo_bias") or {}).items()
             }
-            checkpoint = cls(int(data["stamp"]), pose, covariance, velocity, vo_biases)
+            scales = {  # absent in a checkpoint from before stop 65: none learned
+                str(kind): np.asarray(sums, dtype=float).reshape(2)
+                for kind, sums in (data.get("vo_rotation_scale") or {}).items()
+            }
+            checkpoint = cls(int(data["stamp"]), pose, covariance, velocity, vo_biases, scales)
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"fusion checkpoint {path}: {type(exc).__name__}: {exc}") from None
         if not (np.all(np.isfinite(pose)) and np.all(np.isfinite(covariance))):
             raise ValueError(f"fusion checkpoint {path}: non-finite pose or covariance")
         if not all(np.all(np.isfinite(bias)) and updates >= 0 for bias, updates in vo_biases.values()):
             raise ValueError(f"fusion checkpoint {path}: non-finite VO bias or a negative count")
+        if not all(np.all(np.isfinite(sums)) and sums[1] >= 0.0 for sums in scales.values()):
+            raise ValueError(f"fusion checkpoint {path}: non-finite VO rotation scale sums or a negative turn sum")
         return checkpoint

@@ -126,12 +126,19 @@ class CorrectionInputConfig:
     the running mean of their disagreement with the VO's chain under them, per frame, over about this many
     corrections, is removed from each later VO motion on the ``vo_bias_axes`` (ROS order, 1 = tracked). A
     systematic VO error (a miscalibrated rig) that the VO's per-frame covariance does not carry then stops
-    accumulating between the corrections. 0: the VO's motions as it reads them."""
+    accumulating between the corrections. 0: the VO's motions as it reads them.
+
+    ``vo_rotation_scale_windows`` > 0: the corrections also teach how much too long or short the VO reads its turns
+    (the rotation vector's scale, least squares over about this many corrections; ``inf``: all alike), and each later
+    VO rotation is stretched by ``vo_rotation_scale_gain`` (0 < gain ≤ 1) of that — a lens or focal-length error
+    scales every turn, which the additive bias cannot carry. 0: none."""
 
     enabled: bool = True
     gate_probability: float = 0.9999
     vo_bias_windows: float = 0.0
     vo_bias_axes: tuple[float, ...] = (1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
+    vo_rotation_scale_windows: float = 0.0
+    vo_rotation_scale_gain: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -277,6 +284,15 @@ def validate(config: FusionConfig) -> None:
         (
             len(config.inputs.correction.vo_bias_axes) == 6 and set(config.inputs.correction.vo_bias_axes) <= {0.0, 1.0},
             "inputs.correction.vo_bias_axes needs 6 values of 0 or 1 (x y z rotX rotY rotZ; 1 = tracked)",
+        ),
+        (
+            config.inputs.correction.vo_rotation_scale_windows >= 0.0,  # NaN fails too
+            "inputs.correction.vo_rotation_scale_windows must be >= 0 (corrections; inf = all alike; 0 = none)",
+        ),
+        (
+            math.isfinite(config.inputs.correction.vo_rotation_scale_gain)
+            and 0.0 < config.inputs.correction.vo_rotation_scale_gain <= 1.0,
+            "inputs.correction.vo_rotation_scale_gain must be in (0, 1] (the part of the learned scale applied)",
         ),
         (
             math.isfinite(config.inputs.rotation.vo_bias_windows) and config.inputs.rotation.vo_bias_windows >= 0.0,

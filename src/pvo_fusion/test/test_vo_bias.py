@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pvo_core.lie import se3_exp, se3_inverse, so3_log
+from pvo_core.lie import se3_exp, se3_inverse, so3_exp, so3_log
 
 from pvo_fusion import FusionGraph, RelativeMeasurement, VOBiasTracker, debiased_motions
 from pvo_fusion.config import from_flat
@@ -78,17 +78,77 @@ def test_only_the_tracked_axes_learn_and_a_gap_or_lost_history_teaches_nothing()
 
 
 @pytest.mark.parametrize(
-    ("windows", "axes", "message"),
+    ("windows", "axes", "scale", "message"),
     [
-        (0.0, (1, 1, 1, 0, 0, 0), "time constant must be a positive number of corrections, got 0.0"),
-        (float("nan"), (1, 1, 1, 0, 0, 0), "time constant must be a positive number"),
-        (10.0, (1, 1, 1), "axes must be 6 weights of 0 or 1"),
-        (10.0, (0.5, 1, 1, 0, 0, 0), "axes must be 6 weights of 0 or 1"),
+        (0.0, (1, 1, 1, 0, 0, 0), (0.0, 1.0), "needs a time constant > 0 for the bias or for the rotation scale"),
+        (-1.0, (1, 1, 1, 0, 0, 0), (0.0, 1.0), "time constant must be a number of corrections >= 0, got -1.0"),
+        (float("nan"), (1, 1, 1, 0, 0, 0), (0.0, 1.0), "time constant must be a number of corrections >= 0"),
+        (10.0, (1, 1, 1), (0.0, 1.0), "axes must be 6 weights of 0 or 1"),
+        (10.0, (0.5, 1, 1, 0, 0, 0), (0.0, 1.0), "axes must be 6 weights of 0 or 1"),
+        (10.0, (1, 1, 1, 0, 0, 0), (float("nan"), 1.0), "rotation scale's time constant must be a number of corrections"),
+        (10.0, (1, 1, 1, 0, 0, 0), (100.0, 0.0), "rotation scale's gain must be in \\(0, 1\\], got 0.0"),
+        (10.0, (1, 1, 1, 0, 0, 0), (100.0, 1.5), "rotation scale's gain must be in \\(0, 1\\], got 1.5"),
     ],
 )
-def test_bad_tracker_settings_are_named(windows: float, axes: tuple, message: str) -> None:
+def test_bad_tracker_settings_are_named(windows: float, axes: tuple, scale: tuple, message: str) -> None:
     with pytest.raises(ValueError, match=message):
-        VOBiasTracker(windows, axes)
+        VOBiasTracker(windows, axes, rotation_scale_windows=scale[0], rotation_scale_gain=scale[1])
+
+
+def turning_motions(n: int, seed: int = 3) -> np.ndarray:
+    """True motions T_k,k-1 (n, 4, 4): 1 m forward per frame, turning left and right about the camera's y axis (up to
+    ~2 deg per frame, a sine with its sign changing every ~40 frames), with a little pitch."""
+    rng = np.random.default_rng(seed)
+    yaw = np.radians(2.0) * np.sin(np.arange(n) * 2 * np.pi / 80.0)
+    pitch = np.radians(0.05) * rng.normal(size=n)
+    return np.array([se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, p, y, 0.0]))) for y, p in zip(yaw, pitch, strict=True)])
+
+
+def read_turns_long(motions: np.ndarray, factor: float) -> np.ndarray:
+    """The motions as a VO reads them whose every rotation vector is ``factor`` times too long (a lens error)."""
+    out = motions.copy()
+    for k, t in enumerate(motions):
+        out[k, :3, :3] = so3_exp(factor * so3_log(t[:3, :3]))
+    return out
+
+
+def test_a_vo_that_reads_every_turn_8_percent_long_is_rescaled_by_the_corrections() -> None:
+    """Turns of both signs: the additive bias learns nothing (its mean is zero), the rotation scale learns 1/1.08 - 1
+    and the debiased VO's heading follows the truth; a gain of one half applies half the scale."""
+    truth = turning_motions(240)
+    read = read_turns_long(truth, 1.08)
+    first, last = windows(240, 3)
+    exact = chained(truth, first, last)
+    tracker = VOBiasTracker(0.0, rotation_scale_windows=1000.0)
+    assert not tracker.axes.any() and tracker.rotation_scale == 0.0
+    for k in range(1, 241):
+        tracker.observe(k - 1, k, read[k - 1])
+        if k % 3 == 0:
+            assert tracker.update(k - 3, k, exact[k // 3 - 1])
+    # least squares of d ~ k phi with the small-angle log: exact to well under a per mille of the turn
+    assert tracker.rotation_scale == pytest.approx(1.0 / 1.08 - 1.0, abs=2e-3)
+    assert not tracker.bias.any()
+    np.testing.assert_allclose(tracker.debias(read[100]), truth[100], atol=2e-5)
+    motions = debiased_motions(read, first, last, exact, 0.0, rotation_scale_windows=1000.0)
+    heading = {}  # the largest heading error along the drive (the turns' signs alternate: the end's cancels)
+    for name, chain in (("read", read), ("debiased", motions)):
+        estimated, true, worst = np.eye(4), np.eye(4), 0.0
+        for t, u in zip(chain, truth, strict=True):
+            estimated, true = estimated @ se3_inverse(t), true @ se3_inverse(u)
+            worst = max(worst, float(np.linalg.norm(so3_log(estimated[:3, :3] @ true[:3, :3].T))))
+        heading[name] = worst
+    assert heading["read"] > np.radians(3.0)  # 8 % of a ~50 deg turn
+    assert heading["debiased"] < 0.1 * heading["read"]
+    halved = VOBiasTracker(0.0, rotation_scale_windows=1000.0, rotation_scale_gain=0.5)
+    halved.restore(np.zeros(6), tracker.updates, tracker.rotation_scale_sums)
+    assert halved.rotation_scale == pytest.approx(0.5 * tracker.rotation_scale, rel=1e-12)
+    # straight driving teaches no scale: its turns are below the prior's ~1 deg
+    straight = VOBiasTracker(0.0, rotation_scale_windows=1000.0)
+    line = straight_motions(6)
+    for k in range(1, 7):
+        straight.observe(k - 1, k, line[k - 1])
+    assert straight.update(0, 6, se3_exp(np.array([0, 0, 0, 0, 1e-4, 0])) @ chained(line, [0], [6])[0])
+    assert straight.rotation_scale == 0.0
 
 
 @pytest.mark.parametrize(
@@ -98,6 +158,9 @@ def test_bad_tracker_settings_are_named(windows: float, axes: tuple, message: st
         ("inputs.correction.vo_bias_axes", [1.0, 1.0, 1.0], "inputs.correction.vo_bias_axes needs 6 values of 0 or 1"),
         ("inputs.correction.vo_bias_axes", [2.0, 0, 0, 0, 0, 0], "inputs.correction.vo_bias_axes needs 6 values of 0 or 1"),
         ("inputs.rotation.vo_bias_windows", float("inf"), "inputs.rotation.vo_bias_windows must be >= 0"),
+        ("inputs.correction.vo_rotation_scale_windows", -5.0, "inputs.correction.vo_rotation_scale_windows must be >= 0"),
+        ("inputs.correction.vo_rotation_scale_windows", float("nan"), "vo_rotation_scale_windows must be >= 0"),
+        ("inputs.correction.vo_rotation_scale_gain", 0.0, "inputs.correction.vo_rotation_scale_gain must be in \\(0, 1\\]"),
         ("inputs.rotation.vo_bias_axes", [1.0, 0, 0, 1, 1, 1], "the first three \\(translation\\) 0: a rotation measures none"),
     ],
 )
@@ -215,3 +278,42 @@ def test_a_resumed_fusion_goes_on_from_the_vo_bias_it_had_learned(tmp_path) -> N
     path.write_text(json.dumps(data))
     with pytest.raises(ValueError, match="fusion checkpoint .*state.json: non-finite VO bias"):
         FusionCheckpoint.read(path)
+
+
+def test_the_fusion_rescales_the_vo_turns_and_a_resumed_graph_goes_on_from_the_scale(tmp_path) -> None:
+    """A VO reading every turn 8 % long, fused with exact corrections every 3 frames at a covariance near the VO's:
+    fused as read, the heading error keeps part of the VO's; with the rotation scale learned (time constant 1000, as
+    the DPC-Net cards use) it nearly vanishes. The checkpoint carries the scale's sums to a restarted graph."""
+    from pvo_fusion.checkpoint import FusionCheckpoint
+
+    n = 240
+    truth = turning_motions(n)
+    read = read_turns_long(truth, 1.08)
+    vo_cov = np.diag([4e-4, 4e-4, 1e-3, 1e-6, 1e-6, 1e-6])
+    correction_cov = np.diag([4e-4, 4e-4, 4e-4, 3e-6, 3e-6, 3e-6])
+    first, last = windows(n + 1, 3)
+    exact = chained(truth, first, last)
+    worst = {}
+    for settings in ({}, {"inputs.correction.vo_rotation_scale_windows": 1000.0}):
+        graph = FusionGraph(from_flat(settings))
+        true = np.eye(4)
+        worst[bool(settings)] = 0.0
+        for k in range(1, n + 1):
+            graph.add_vo(RelativeMeasurement(T0 + k * STEP_NS, T0 + (k - 1) * STEP_NS, read[k - 1], vo_cov.copy()))
+            if k % 3 == 0:
+                j = k // 3 - 1
+                graph.add_correction(
+                    RelativeMeasurement(T0 + k * STEP_NS, T0 + first[j] * STEP_NS, exact[j], correction_cov.copy())
+                )
+            true = true @ se3_inverse(truth[k - 1])
+            heading = so3_log(graph.pose()[:3, :3] @ true[:3, :3].T)
+            worst[bool(settings)] = max(worst[bool(settings)], float(np.linalg.norm(heading)))
+    assert worst[False] > np.radians(0.5)
+    assert worst[True] < 0.5 * worst[False]
+    tracker = graph.vo_biases["correction"]
+    assert not tracker.bias.any() and tracker.rotation_scale == pytest.approx(1.0 / 1.08 - 1.0, abs=3e-3)
+    path = tmp_path / "state.json"
+    graph.checkpoint().write(path)
+    resumed = FusionGraph(from_flat({"inputs.correction.vo_rotation_scale_windows": 1000.0}))
+    resumed.resume(FusionCheckpoint.read(path))
+    assert resumed.vo_biases["correction"].rotation_scale == pytest.approx(tracker.rotation_scale, rel=1e-12)

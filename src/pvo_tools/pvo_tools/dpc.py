@@ -278,8 +278,7 @@ def correct_sequence(
         ("correction", RelativeMeasurement(int(stamps[b]), int(stamps[a]), t, c))
         for a, b, t, c in zip(corrections.first, corrections.last, corrections.transforms, corrections.covariances, strict=True)
     ]
-    bias = card_vo_bias(card)
-    graph = FusionGraph(from_flat({"prior.source": "given"} | ({"inputs.correction.vo_bias_windows": bias} if bias else {})))
+    graph = FusionGraph(from_flat({"prior.source": "given"} | card_vo_fusion(card)))
     graph.set_initial_pose(np.eye(4))
     fused = run_offline(graph, stamps, ordered_events(vo, others))
     accepted = int(fused.counts.get("correction.accepted", 0))
@@ -371,6 +370,40 @@ def card_vo_bias(card: Any) -> float:
     return windows if calibration.get("fused_axes") else 0.0
 
 
+def card_vo_fusion(card: Any) -> dict[str, float]:
+    """The fusion parameters (flat, ``inputs.correction.*``) with which the VO learns its bias from the card's
+    corrections, as `pvo dpc-net calibrate --drives` chose: the translation bias (``vo_bias_windows``) and the turns'
+    scale (``calibration.vo_rotation_scale``: windows and gain); {} for none, and when the card fuses nothing."""
+    calibration = card.calibration or {}
+    parameters: dict[str, float] = {}
+    bias = card_vo_bias(card)
+    if bias:
+        parameters["inputs.correction.vo_bias_windows"] = bias
+    scale = calibration.get("vo_rotation_scale") or {}
+    if scale and calibration.get("fused_axes"):
+        windows, gain = float(scale.get("windows", 0.0)), float(scale.get("gain", 0.0))
+        if not (windows > 0.0 and np.isfinite(gain) and 0.0 < gain <= 1.0):
+            raise ValueError(f"the model card's vo_rotation_scale needs windows > 0 and a gain in (0, 1], got {dict(scale)}")
+        parameters["inputs.correction.vo_rotation_scale_windows"] = windows
+        parameters["inputs.correction.vo_rotation_scale_gain"] = gain
+    return parameters
+
+
+def describe_vo_fusion(parameters: Mapping[str, float]) -> str:
+    """How the fusion debiases the VO with :func:`card_vo_fusion`'s parameters, in words ('' for not at all)."""
+    parts = []
+    if parameters.get("inputs.correction.vo_bias_windows"):
+        parts.append(
+            f"the VO's translation bias learned from the corrections (over ~{parameters['inputs.correction.vo_bias_windows']:g})"
+        )
+    if parameters.get("inputs.correction.vo_rotation_scale_windows"):
+        parts.append(
+            f"its turns rescaled by {parameters['inputs.correction.vo_rotation_scale_gain']:g} of the scale they teach "
+            f"(over ~{parameters['inputs.correction.vo_rotation_scale_windows']:g})"
+        )
+    return "; ".join(parts)
+
+
 #: the fused-axis sets a drive calibration tries, within the model variant's axes; "validated": those the
 #: correction improved on the validation windows (``residual.corrected_*``)
 AXIS_SETS: dict[str, tuple[str, ...] | None] = {
@@ -383,6 +416,11 @@ AXIS_SETS: dict[str, tuple[str, ...] | None] = {
 #: (stop 64: rule 18 fixed 30, about 9 s of driving at Δp 3 and 10 Hz, before any figure of it; rule 21 a 3x grid
 #: around it; both lens and focal cards chose 10 on their sixteen drives)
 VO_BIAS_WINDOWS = (10.0, 30.0, 100.0)
+#: the gains of the VO's turn scale a drive calibration tries (each a twin of every translation-debiased weighing that
+#: fuses rotation), and the scale's time constant (corrections; the validation drives of stop 65 read 100, 1000 and
+#: all alike within a point)
+VO_ROTATION_SCALE_GAINS = (0.5, 0.75, 1.0)
+VO_ROTATION_SCALE_WINDOWS = 1000.0
 #: the VO spans a drive calibration tries by default (frames)
 DRIVE_SPANS = (3, 30, 100, 250)
 Candidate = TypeVar("Candidate")
@@ -470,6 +508,7 @@ class FusionChoice:
     remove_mean: bool = False
     correction_scale: list[float] | None = None
     vo_bias_windows: float = 0.0
+    vo_rotation_scale_gain: float = 0.0
 
 
 def choose_fusion(
@@ -481,6 +520,7 @@ def choose_fusion(
     harm_tolerance: float = HARM_TOLERANCE,
     consistent_corrections: bool = False,
     vo_bias_windows: float | Sequence[float] = VO_BIAS_WINDOWS,
+    vo_rotation_scale_gains: float | Sequence[float] = VO_ROTATION_SCALE_GAINS,
 ) -> FusionChoice:
     """The VO span and the fused axes (:data:`AXIS_SETS` x ``spans``, each with the corrections as predicted and
     with their validation-split mean error removed, :func:`~pvo_pseudosensors.dpc_net.infer.remove_residual_mean`)
@@ -493,7 +533,9 @@ def choose_fusion(
     ``vo_bias_windows`` (one number of corrections or several; 0 = none): every weighing that fuses the translation
     is tried again, once per number, with the VO's translation bias learned from the corrections over that many as
     the fusion does (``inputs.correction.vo_bias_windows``, :class:`pvo_fusion.VOBiasTracker`), the VO's scales then
-    learned on the VO so debiased."""
+    learned on the VO so debiased. ``vo_rotation_scale_gains`` (0 = none): each such weighing that fuses rotation is
+    tried again once per gain with the VO's turns rescaled too (``inputs.correction.vo_rotation_scale_*``, time
+    constant :data:`VO_ROTATION_SCALE_WINDOWS`)."""
     from pvo_core.trajectory import read_kitti_poses
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
     from pvo_pseudosensors.dpc_net.infer import (
@@ -517,6 +559,10 @@ def choose_fusion(
     )
     if any(not np.isfinite(w) for w in windows_tried):
         raise ValueError(f"the VO bias's numbers of corrections must be finite, got {vo_bias_windows}")
+    gains_given = [vo_rotation_scale_gains] if np.isscalar(vo_rotation_scale_gains) else list(vo_rotation_scale_gains)
+    gains_tried = sorted({float(g) for g in gains_given if float(g) != 0.0})
+    if any(not (0.0 < g <= 1.0) for g in gains_tried):
+        raise ValueError(f"the VO turn scale's gains must be in (0, 1] (0: none), got {vo_rotation_scale_gains}")
     if not spans or min(spans) < 1:
         raise ValueError(f"VO spans must be positive frame counts, got {list(spans)}")
     variant_axes = {"pose": AXES, "rotation": AXES[3:], "yaw": ("ry",)}[DPCNetConfig.from_card(card).variant]
@@ -549,48 +595,61 @@ def choose_fusion(
     means = (False, True) if (card.calibration or {}).get("residual") else (False,)
     delta = DPCNetConfig.from_card(card).test_delta
     labels = [(label, mean) for mean in means for label in axis_sets]
-    # (span, axis set, mean removed, corrections consistent over the span, VO bias windows) -> per-drive changes
-    changes: dict[tuple[int, str, bool, bool, float], Array] = {}
+    # (span, axis set, mean removed, corrections consistent over the span, VO bias windows, VO turn scale gain)
+    # -> per-drive changes
+    changes: dict[tuple[int, str, bool, bool, float, float], Array] = {}
 
-    def named(axes_label: str, remove_mean: bool, consistent: bool = False, bias: float = 0.0) -> str:
+    def named(axes_label: str, remove_mean: bool, consistent: bool = False, bias: float = 0.0, gain: float = 0.0) -> str:
         return (
             axes_label
             + (", mean removed" if remove_mean else "")
             + (", corrections over the span" if consistent else "")
             + (f", VO debiased over {bias:g}" if bias else "")
+            + (f", turns rescaled x{gain:g}" if gain else "")
         )
 
-    def weighing(axes_label: str, remove_mean: bool, bias: float = 0.0) -> Any:
+    def weighing(axes_label: str, remove_mean: bool, bias: float = 0.0, gain: float = 0.0) -> Any:
         candidate = copy.deepcopy(card)
         candidate.calibration["fused_axes"] = list(axis_sets[axes_label])
         candidate.calibration["remove_mean"] = remove_mean
         candidate.calibration.pop("correction_scale", None)
         candidate.calibration.pop("vo_bias_windows", None)
+        candidate.calibration.pop("vo_rotation_scale", None)
         if bias:
             candidate.calibration["vo_bias_windows"] = bias
+        if gain:
+            candidate.calibration["vo_rotation_scale"] = {"windows": VO_ROTATION_SCALE_WINDOWS, "gain": gain}
         return candidate
 
-    debiased: dict[tuple[str, bool, float], Any] = {}
+    debiased: dict[tuple[str, bool, float, float], Any] = {}
 
-    def debiased_sequence(name: str, remove_mean: bool, windows: float) -> Any:
+    def debiased_sequence(name: str, remove_mean: bool, windows: float, gain: float = 0.0) -> Any:
         # the VO as the fusion takes it once the corrections (as weighed: the mean removed or not) taught its bias
-        if (name, remove_mean, windows) not in debiased:
+        if (name, remove_mean, windows, gain) not in debiased:
             _, _, truth, _, sequence, predicted = prepared[name]
             weighed = remove_residual_mean(predicted.transforms, {**card.calibration, "remove_mean": remove_mean})
-            motions = debiased_motions(sequence.motions, predicted.first, predicted.last, weighed, windows)
-            debiased[(name, remove_mean, windows)] = CalibrationSequence(name, truth, motions, sequence.covariances)
-        return debiased[(name, remove_mean, windows)]
+            motions = debiased_motions(
+                sequence.motions,
+                predicted.first,
+                predicted.last,
+                weighed,
+                windows,
+                rotation_scale_windows=VO_ROTATION_SCALE_WINDOWS if gain else 0.0,
+                rotation_scale_gain=gain or 1.0,
+            )
+            debiased[(name, remove_mean, windows, gain)] = CalibrationSequence(name, truth, motions, sequence.covariances)
+        return debiased[(name, remove_mean, windows, gain)]
 
-    debiased_scale_sets: dict[tuple[int, bool, float], dict[str, Any]] = {}
+    debiased_scale_sets: dict[tuple[int, bool, float, float], dict[str, Any]] = {}
 
-    def debiased_scales(span: int, remove_mean: bool, windows: float) -> dict[str, Any]:
+    def debiased_scales(span: int, remove_mean: bool, windows: float, gain: float = 0.0) -> dict[str, Any]:
         # per drive, the debiased VO's scales learned on the other drives: the same for every axis set
-        key = (span, remove_mean, windows)
+        key = (span, remove_mean, windows, gain)
         if key not in debiased_scale_sets:
             debiased_scale_sets[key] = {
                 name: calibrate_vo(
-                    [debiased_sequence(o, remove_mean, windows) for o in names if o != name]
-                    or [debiased_sequence(name, remove_mean, windows)],
+                    [debiased_sequence(o, remove_mean, windows, gain) for o in names if o != name]
+                    or [debiased_sequence(name, remove_mean, windows, gain)],
                     span,
                 )
                 for name in names
@@ -599,6 +658,9 @@ def choose_fusion(
 
     def translation_fused(axes_label: str) -> bool:
         return {"x", "y", "z"} <= set(axis_sets[axes_label])
+
+    def rotation_fused(axes_label: str) -> bool:
+        return bool({"rx", "ry", "rz"} & set(axis_sets[axes_label]))
 
     chains: dict[tuple[str, bool], Any] = {}
     correction_scales: dict[tuple[int, bool, str], list[float]] = {}
@@ -624,14 +686,20 @@ def choose_fusion(
 
     for span in spans:
         scales = {name: calibrate_vo([prepared[o][4] for o in names if o != name] or [prepared[name][4]], span) for name in names}
-        tried = [(label, mean, False, 0.0) for label, mean in labels]
+        tried = [(label, mean, False, 0.0, 0.0) for label, mean in labels]
         if consistent_corrections and span > delta:
-            tried += [(label, mean, True, 0.0) for label, mean in labels]
+            tried += [(label, mean, True, 0.0, 0.0) for label, mean in labels]
         for windows in windows_tried:
-            tried += [(label, mean, False, windows) for label, mean in labels if translation_fused(label)]
-        for axes_label, remove_mean, consistent, bias in tried:
-            candidate = weighing(axes_label, remove_mean, bias)
-            drive_scales = debiased_scales(span, remove_mean, bias) if bias else scales
+            tried += [(label, mean, False, windows, 0.0) for label, mean in labels if translation_fused(label)]
+            for gain in gains_tried:
+                tried += [
+                    (label, mean, False, windows, gain)
+                    for label, mean in labels
+                    if translation_fused(label) and rotation_fused(label)
+                ]
+        for axes_label, remove_mean, consistent, bias, gain in tried:
+            candidate = weighing(axes_label, remove_mean, bias, gain)
+            drive_scales = debiased_scales(span, remove_mean, bias, gain) if bias else scales
             covariance = measurement_covariance(DPCNetConfig.from_card(candidate), candidate.calibration)
             rows = []
             for name in names:
@@ -654,43 +722,46 @@ def choose_fusion(
                         figures["m_ate_rot_deg"] / max(alone["m_ate_rot_deg"], 1e-12) - 1.0,
                     ]
                 )
-            changes[(span, axes_label, remove_mean, consistent, bias)] = np.asarray(rows)
+            changes[(span, axes_label, remove_mean, consistent, bias, gain)] = np.asarray(rows)
             if say is not None:
-                drive_changes = changes[(span, axes_label, remove_mean, consistent, bias)]
+                drive_changes = changes[(span, axes_label, remove_mean, consistent, bias, gain)]
                 mean = 100 * drive_changes.mean(axis=0)
                 say(
-                    f"  span {span:4d}, {named(axes_label, remove_mean, consistent, bias):<25} axes: "
+                    f"  span {span:4d}, {named(axes_label, remove_mean, consistent, bias, gain):<25} axes: "
                     f"m-ATE {mean[0]:+6.1f} % translation, "
                     f"{mean[1]:+6.1f} % rotation; {drives_lowered(drive_changes)} of {len(names)} drives lowered, "
                     f"worst {100 * worst_change(drive_changes):+.1f} %"
                 )
     best = select_fusion(changes, harm_tolerance)
     candidates = {
-        f"span {span}, {named(axes_label, remove_mean, consistent, bias)}": {
+        f"span {span}, {named(axes_label, remove_mean, consistent, bias, gain)}": {
             "span": span,
             "axes": list(axis_sets[axes_label]),
             "remove_mean": remove_mean,
             **({"corrections_over_span": True} if consistent else {}),
             **({"vo_bias_windows": bias} if bias else {}),
+            **({"vo_rotation_scale_gain": gain} if gain else {}),
             "per_drive": {name: [round(float(v), 4) for v in row] for name, row in zip(names, c, strict=True)},
             "mean": [round(float(v), 4) for v in c.mean(axis=0)],
             "worst": round(worst_change(c), 4),
             "accepted": fusion_accepted(c, harm_tolerance),
         }
-        for (span, axes_label, remove_mean, consistent, bias), c in changes.items()
+        for (span, axes_label, remove_mean, consistent, bias, gain), c in changes.items()
     }
     if best is None:
         return FusionChoice(None, [], candidates, names)
-    span, axes_label, remove_mean, consistent, bias = best
+    span, axes_label, remove_mean, consistent, bias, gain = best
     if bias:
-        calibration = calibrate_vo([debiased_sequence(n, remove_mean, bias) for n in names], span)
+        calibration = calibrate_vo([debiased_sequence(n, remove_mean, bias, gain) for n in names], span)
     else:
         calibration = calibrate_vo([prepared[n][4] for n in names], span)
     correction_scale = None
     if consistent:
         chosen = weighing(axes_label, remove_mean)
         correction_scale = correction_calibration([corrected_chain(n, chosen) for n in names], span, delta)
-    return FusionChoice(span, list(axis_sets[axes_label]), candidates, names, calibration, remove_mean, correction_scale, bias)
+    return FusionChoice(
+        span, list(axis_sets[axes_label]), candidates, names, calibration, remove_mean, correction_scale, bias, gain
+    )
 
 
 def correction_sequence(name: str, truth: Array, predicted: Any, transforms: Array, covariance: Array) -> Any:

@@ -96,7 +96,12 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         with pytest.raises(SystemExit) as exit_status:
             main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-spans", bad])
         assert exit_status.value.code == 2 and f"argument --vo-spans: {message}" in capsys.readouterr().err
-    for flag in (["--consistent-corrections"], ["--harm-tolerance", "5"], ["--vo-bias-windows", "30"]):
+    for flag in (
+        ["--consistent-corrections"],
+        ["--harm-tolerance", "5"],
+        ["--vo-bias-windows", "30"],
+        ["--vo-rotation-scales", "1"],
+    ):
         assert main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), *flag]) == 2
         assert f"{flag[0]} weighs the corrections on long validation drives: give them with --drives" in (capsys.readouterr().err)
     for bad in ("-1", "x", "inf", "nan"):
@@ -104,13 +109,18 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
             with pytest.raises(SystemExit) as exit_status:
                 main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), option, bad])
             assert exit_status.value.code == 2 and f"argument {option}: " in capsys.readouterr().err
+    for bad in ("1.5", "x", "-1", "nan"):
+        with pytest.raises(SystemExit) as exit_status:
+            main(["dpc-net", "calibrate", "--model", str(model), "--corpus", str(corpus), "--vo-rotation-scales", bad])
+        assert exit_status.value.code == 2 and "argument --vo-rotation-scales: " in capsys.readouterr().err
 
     # the fusion chosen on long drives (here the validation and test clips): every candidate's per-drive figures kept,
     # the choice the one select_fusion makes of them (none: nothing fused, and `correct` says so)
     drove = tmp_path / "drove"
     shutil.copytree(model, drove)
     calibrate = ["dpc-net", "calibrate", "--model", str(drove), "--corpus", str(corpus), "--vo-spans", "3,6"]
-    assert main([*calibrate, "--drives", str(corpus / "0001"), str(corpus / "0002"), "--vo-bias-windows", "10,30"]) == 0
+    drives = ["--drives", str(corpus / "0001"), str(corpus / "0002")]
+    assert main([*calibrate, *drives, "--vo-bias-windows", "10,30", "--vo-rotation-scales", "0.5"]) == 0
     drive_card = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
     candidates = drive_card["drive_calibration"]["candidates"]
     assert {c["span"] for c in candidates.values()} == {3, 6} and all(len(c["per_drive"]) == 2 for c in candidates.values())
@@ -131,16 +141,27 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         assert drive_card["fused_axes"] == candidates[chosen]["axes"] and drive_card["vo_span"] == candidates[chosen]["span"]
         assert drive_card["remove_mean"] == candidates[chosen]["remove_mean"]
         assert drive_card.get("vo_bias_windows", 0.0) == candidates[chosen].get("vo_bias_windows", 0.0)
+        gain = candidates[chosen].get("vo_rotation_scale_gain")
+        assert drive_card.get("vo_rotation_scale") == ({"windows": 1000.0, "gain": gain} if gain else None)
         assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
     # every weighing that fuses the translation is tried again with the VO's translation bias learned from the
     # corrections, once per number of them asked for (10 and 30; 10, 30 and 100 by default), named so; one without the
     # translation not
+    # and each such weighing that fuses rotation too, with the VO's turns rescaled by the gain asked for (0.5)
     plain = {label: c for label, c in candidates.items() if not c.get("vo_bias_windows")}
     translating = {label for label, c in plain.items() if {"x", "y", "z"} <= set(c["axes"])}
+    turning = {label for label in translating if {"rx", "ry", "rz"} & set(plain[label]["axes"])}
     for windows in (10, 30):
         debiased = {label: c for label, c in candidates.items() if c.get("vo_bias_windows") == windows}
-        assert translating and {label.removesuffix(f", VO debiased over {windows}") for label in debiased} == translating
-    assert len(candidates) == len(plain) + 2 * len(translating)
+        rescaled = {label for label, c in debiased.items() if c.get("vo_rotation_scale_gain")}
+        assert translating and {label.removesuffix(f", VO debiased over {windows}") for label in debiased.keys() - rescaled} == (
+            translating
+        )
+        assert turning and {label.removesuffix(f", VO debiased over {windows}, turns rescaled x0.5") for label in rescaled} == (
+            turning
+        )
+        assert all(debiased[label]["vo_rotation_scale_gain"] == 0.5 for label in rescaled)
+    assert len(candidates) == len(plain) + 2 * len(translating) + 2 * len(turning)
     # the corrections made consistent over the span too: tried for the spans longer than Δp, each named so
     consistent = tmp_path / "consistent"
     shutil.copytree(model, consistent)
@@ -180,9 +201,8 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     assert main(["dpc-net", "calibrate", "--model", str(drove), "--corpus", str(corpus)]) == 0
     capsys.readouterr()
     recalibrated = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
-    assert not {"remove_mean", "fused_axes", "drive_calibration", "vo_scale", "correction_scale", "vo_bias_windows"} & set(
-        recalibrated
-    )
+    stale_keys = {"remove_mean", "fused_axes", "drive_calibration", "vo_scale", "correction_scale", "vo_bias_windows"}
+    assert not (stale_keys | {"vo_rotation_scale"}) & set(recalibrated)
     assert recalibrated["mirrored"] is False
     # mirrored inference: calibrated in that mode, and the corrections follow the card
     from pvo_core.trajectory import read_kitti_poses
@@ -338,8 +358,21 @@ def test_the_demo_weighs_the_corrections_as_the_card_does(tmp_path: Path, capsys
     (model / "model.yaml").write_text(yaml.safe_dump(card))
     parameters = dpc_net_fusion(str(model))
     assert parameters == {"inputs.vo.covariance_scale": pytest.approx(scales), "inputs.correction.vo_bias_windows": 30.0}
-    assert "the VO's translation bias learned from them over 30 corrections" in capsys.readouterr().err
+    assert "the VO's translation bias learned from the corrections (over ~30)" in capsys.readouterr().err
     assert fusion_from_flat(parameters).inputs.correction.vo_bias_windows == 30.0
+    # and the scale of its turns
+    card["calibration"]["vo_rotation_scale"] = {"windows": 1000.0, "gain": 0.75}
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    parameters = dpc_net_fusion(str(model))
+    assert parameters["inputs.correction.vo_rotation_scale_windows"] == 1000.0
+    assert parameters["inputs.correction.vo_rotation_scale_gain"] == 0.75
+    assert "its turns rescaled by 0.75 of the scale they teach (over ~1000)" in capsys.readouterr().err
+    assert fusion_from_flat(parameters).inputs.correction.vo_rotation_scale_gain == 0.75
+    card["calibration"]["vo_rotation_scale"] = {"windows": 1000.0, "gain": 2.0}
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    with pytest.raises(PvoError, match="vo_rotation_scale needs windows > 0 and a gain in \\(0, 1\\], got"):
+        dpc_net_fusion(str(model))
+    card["calibration"].pop("vo_rotation_scale")
     card["calibration"]["vo_bias_windows"] = -1.0
     (model / "model.yaml").write_text(yaml.safe_dump(card))
     with pytest.raises(PvoError, match="vo_bias_windows must be a number of corrections >= 0, got -1.0"):
@@ -471,6 +504,10 @@ def test_the_report_says_how_a_card_weighs_its_corrections() -> None:
     )
     assert fusion_summary(SimpleNamespace(calibration=chosen | {"vo_bias_windows": 30.0})).endswith(
         "VO span 250 frames; the VO's translation bias learned from the corrections over ~30 of them"
+    )
+    rescaled = chosen | {"vo_bias_windows": 10.0, "vo_rotation_scale": {"windows": 1000.0, "gain": 0.5}}
+    assert fusion_summary(SimpleNamespace(calibration=rescaled)).endswith(
+        "over ~10 of them; its turns rescaled by 0.5 of the scale the corrections teach (over ~1000)"
     )
     refused = chosen | {"fused_axes": []}
     # a card from before the harm tolerance had every drive lowered; a newer one says its tolerance

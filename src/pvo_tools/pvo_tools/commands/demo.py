@@ -318,17 +318,17 @@ def dpc_net_fusion(model: str) -> dict[str, Any]:
     """The fusion node's parameters that weigh the DPC-Net ``model``'s corrections as its card's calibration does
     (`pvo dpc-net calibrate --drives`): the VO's covariance scales (``inputs.vo.covariance_scale``, ROS order) when the
     card fuses some axis and carries them, and the corrections over which the VO's translation bias is learned from
-    them when the card chose that (``inputs.correction.vo_bias_windows``), announced on stderr; else none (the VO's
-    own covariances, as read)."""
+    them and the scale of its turns when the card chose that (``inputs.correction.vo_bias_windows``,
+    ``inputs.correction.vo_rotation_scale_*``), announced on stderr; else none (the VO's own covariances, as read)."""
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
 
-    from ..dpc import card_vo_bias, card_vo_calibration
+    from ..dpc import card_vo_calibration, card_vo_fusion, describe_vo_fusion
 
     try:
         card = read_card(resolve_model(model))
         calibration = card_vo_calibration(card)
-        bias = card_vo_bias(card)
+        debias = card_vo_fusion(card)
     except (ModelFileError, ValueError) as exc:
         raise PvoError(f"{model}: {exc}") from None
     if calibration is None or not (card.calibration or {}).get("fused_axes"):
@@ -337,11 +337,11 @@ def dpc_net_fusion(model: str) -> dict[str, Any]:
     listed = " ".join(f"{v:.3g}" for v in scale)
     print(
         f"pvo demo: fusion weighs {model}'s corrections against the VO's covariances scaled by its card ({listed})"
-        + (f", the VO's translation bias learned from them over {bias:g} corrections" if bias else ""),
+        + (f", {describe_vo_fusion(debias)}" if debias else ""),
         file=sys.stderr,
         flush=True,
     )
-    return {"inputs.vo.covariance_scale": scale} | ({"inputs.correction.vo_bias_windows": bias} if bias else {})
+    return {"inputs.vo.covariance_scale": scale} | debias
 
 
 def run_graph(

@@ -11,7 +11,7 @@ from typing import Any
 
 
 def register_actions(actions: Any, entry: Any) -> None:
-    from ..dpc import HARM_TOLERANCE, VO_BIAS_WINDOWS
+    from ..dpc import HARM_TOLERANCE, VO_BIAS_WINDOWS, VO_ROTATION_SCALE_GAINS, VO_ROTATION_SCALE_WINDOWS
 
     predict = actions.add_parser("predict", help="corrections of a VO trajectory over windows of the model's span")
     predict.set_defaults(handler=run_predict)
@@ -93,6 +93,16 @@ def register_actions(actions: Any, entry: Any) -> None:
         f"(default {','.join(f'{w:g}' for w in VO_BIAS_WINDOWS)}; 0: no such candidate); the card then keeps the chosen N "
         "(calibration.vo_bias_windows)",
     )
+    calibrate.add_argument(
+        "--vo-rotation-scales",
+        type=gain_list,
+        metavar="G[,G...]",
+        help="with --drives: also try each VO-debiased weighing that fuses rotation with the VO's turns rescaled by G "
+        "of the scale the corrections teach (inputs.correction.vo_rotation_scale_gain; the scale learned over "
+        f"~{VO_ROTATION_SCALE_WINDOWS:g} corrections), once per G (default "
+        f"{','.join(f'{g:g}' for g in VO_ROTATION_SCALE_GAINS)}; 0: no such candidate); the card then keeps the chosen "
+        "one (calibration.vo_rotation_scale)",
+    )
     drives = actions.add_parser(
         "drives", help="render the long drives a fusion is chosen on (KITTI 03, 04, 10) or tested on (05, 06, 07), each rig"
     )
@@ -154,6 +164,14 @@ def window_list(text: str) -> list[float]:
     return [finite_non_negative(item, "30", "a number of corrections") for item in text.split(",")]
 
 
+def gain_list(text: str) -> list[float]:
+    """``--vo-rotation-scales 0.5,1``: gains in (0, 1] (0: none), comma-separated."""
+    gains = [finite_non_negative(item, "0.5", "a gain") for item in text.split(",")]
+    if any(g > 1.0 for g in gains):
+        raise argparse.ArgumentTypeError(f"gains must be in (0, 1] (0: none), got {text!r}")
+    return gains
+
+
 def span_list(text: str) -> list[int]:
     """``--vo-spans 3,9,15``: positive frame counts, comma-separated."""
     try:
@@ -189,7 +207,7 @@ def run_correct(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net
 
-    from ..dpc import card_vo_bias, card_vo_calibration, correct_sequence
+    from ..dpc import card_vo_calibration, card_vo_fusion, correct_sequence, describe_vo_fusion
 
     model, card = load_dpc_net(resolve_model(str(args.model)))  # a directory or a shipped name
     vo_calibration = card_vo_calibration(card)
@@ -208,9 +226,9 @@ def run_correct(args: argparse.Namespace) -> int:
         if vo_calibration is not None and args.method == "fusion"
         else ""
     )
-    bias = card_vo_bias(card)
-    if args.method == "fusion" and bias:
-        weighed += f"; the VO's translation bias learned from the corrections (over ~{bias:g})"
+    debias = describe_vo_fusion(card_vo_fusion(card))
+    if args.method == "fusion" and debias:
+        weighed += f"; {debias}"
     print(f"{args.out}: {len(result.vo)} poses, {how}{weighed}; the VO alone in {vo_file}")
     if args.method == "fusion" and card.calibration.get("fused_axes") == []:
         _warn(["its calibration on validation drives fuses no axis (no weighing was acceptable there): the VO alone"], args.model)
@@ -226,21 +244,23 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.learning.checkpoint import write_card
     from pvo_pseudosensors.learning.data import Source
 
-    from ..dpc import HARM_TOLERANCE, VO_BIAS_WINDOWS, rig_sequences
+    from ..dpc import HARM_TOLERANCE, VO_BIAS_WINDOWS, VO_ROTATION_SCALE_GAINS, rig_sequences
 
-    if not args.drives and (args.consistent_corrections or args.harm_tolerance is not None or args.vo_bias_windows is not None):
-        given = (
-            "--consistent-corrections"
-            if args.consistent_corrections
-            else "--harm-tolerance"
-            if args.harm_tolerance is not None
-            else "--vo-bias-windows"
-        )
+    drive_options = {
+        "--consistent-corrections": args.consistent_corrections,
+        "--harm-tolerance": args.harm_tolerance is not None,
+        "--vo-bias-windows": args.vo_bias_windows is not None,
+        "--vo-rotation-scales": args.vo_rotation_scales is not None,
+    }
+    if not args.drives and any(drive_options.values()):
+        given = next(name for name, on in drive_options.items() if on)
         raise ValueError(f"{given} weighs the corrections on long validation drives: give them with --drives")
     if args.harm_tolerance is None:
         args.harm_tolerance = 100 * HARM_TOLERANCE
     if args.vo_bias_windows is None:
         args.vo_bias_windows = list(VO_BIAS_WINDOWS)
+    if args.vo_rotation_scales is None:
+        args.vo_rotation_scales = list(VO_ROTATION_SCALE_GAINS)
     model, card = load_dpc_net(args.model)
     config = DPCNetConfig.from_card(card)
     manifests = [read_corpus_manifest(corpus) for corpus in args.corpus]
@@ -267,6 +287,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         "vo_span_changes",
         "correction_scale",
         "vo_bias_windows",
+        "vo_rotation_scale",
     ):
         card.calibration.pop(stale, None)  # a new residual: what was chosen with the old one goes
     card.calibration["residual_covariance"] = covariance.tolist()
@@ -323,7 +344,7 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
     import numpy as np
     from pvo_pseudosensors.learning.checkpoint import write_card
 
-    from ..dpc import DRIVE_SPANS, choose_fusion, describe_nearest
+    from ..dpc import DRIVE_SPANS, VO_ROTATION_SCALE_WINDOWS, choose_fusion, describe_nearest
 
     roots = drive_folders(args.drives)
     spans = args.vo_spans or list(DRIVE_SPANS)
@@ -343,6 +364,7 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
         harm_tolerance=tolerance,
         consistent_corrections=args.consistent_corrections,
         vo_bias_windows=args.vo_bias_windows,
+        vo_rotation_scale_gains=args.vo_rotation_scales,
     )
     over_span = choice.correction_scale is not None
     chosen = (
@@ -350,6 +372,7 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
         + (", mean removed" if choice.remove_mean else "")
         + (", corrections over the span" if over_span else "")
         + (f", VO debiased over {choice.vo_bias_windows:g}" if choice.vo_bias_windows else "")
+        + (f", turns rescaled x{choice.vo_rotation_scale_gain:g}" if choice.vo_rotation_scale_gain else "")
         if choice.axes
         else None
     )
@@ -361,6 +384,9 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
     card.calibration.pop("vo_bias_windows", None)
     if choice.vo_bias_windows:
         card.calibration["vo_bias_windows"] = choice.vo_bias_windows
+    card.calibration.pop("vo_rotation_scale", None)
+    if choice.vo_rotation_scale_gain:
+        card.calibration["vo_rotation_scale"] = {"windows": VO_ROTATION_SCALE_WINDOWS, "gain": choice.vo_rotation_scale_gain}
     card.calibration["drive_calibration"] = {
         "drives": [str(r) for r in roots],
         "rule": (
@@ -392,6 +418,7 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
                 and c["remove_mean"] == choice.remove_mean
                 and c.get("corrections_over_span", False) == over_span
                 and c.get("vo_bias_windows", 0.0) == choice.vo_bias_windows
+                and c.get("vo_rotation_scale_gain", 0.0) == choice.vo_rotation_scale_gain
             )
         )
         print(
@@ -401,6 +428,11 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
             + (
                 f", the VO's translation bias learned from about {choice.vo_bias_windows:g} corrections"
                 if choice.vo_bias_windows
+                else ""
+            )
+            + (
+                f", its turns rescaled by {choice.vo_rotation_scale_gain:g} of the scale they teach"
+                if choice.vo_rotation_scale_gain
                 else ""
             )
             + f", VO span {choice.span} frames ({len(roots)} validation "

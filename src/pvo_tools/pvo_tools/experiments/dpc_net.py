@@ -96,6 +96,12 @@ def fusion_summary(card: Any) -> str:
                 if calibration.get("vo_bias_windows")
                 else ""
             )
+            + (
+                f"; its turns rescaled by {calibration['vo_rotation_scale']['gain']:g} of the scale the corrections teach "
+                f"(over ~{calibration['vo_rotation_scale']['windows']:g})"
+                if calibration.get("vo_rotation_scale")
+                else ""
+            )
         )
     residual = calibration.get("residual") or {}
     axes = " ".join(a for a in ("x", "y", "z", "rx", "ry", "rz") if residual.get(f"corrected_{a}", 1.0))
