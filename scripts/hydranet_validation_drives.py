@@ -44,8 +44,8 @@ from pvo_tools.experiments.hydranet import FIRST_STAMP_NS, rotation_measurements
 from pvo_fusion import CalibrationSequence, FusionGraph, calibrate_vo, ordered_events, run_offline, vo_measurements
 from pvo_fusion.config import from_flat
 
-# gate, huber, span, gain, scale, offset, VO bias windows
-Setting = tuple[float, float, int, tuple[float, ...], float, tuple[float, ...], float]
+# gate, huber, span, gain, scale, offset, VO bias windows, VO turn-scale gain
+Setting = tuple[float, float, int, tuple[float, ...], float, tuple[float, ...], float, float]
 
 
 def main() -> None:
@@ -82,6 +82,12 @@ def main() -> None:
         default="0",
         help="the VO's rotation bias learned from HydraNet's rotations over about this many readings and removed from "
         "its motions (inputs.rotation.vo_bias_windows), comma-separated; 0: none (each with each gate)",
+    )
+    parser.add_argument(
+        "--vo-rotation-scales",
+        default="0",
+        help="the scale of the VO's turns learned from HydraNet's rotations (over ~1000 readings) and applied with this "
+        "gain (inputs.rotation.vo_rotation_scale_gain), comma-separated; 0: none (each with each gate)",
     )
     parser.add_argument(
         "--vo-param",
@@ -146,7 +152,7 @@ def main() -> None:
     except (ValueError, AssertionError):
         parser.error(f"--rotation-biases {args.rotation_biases!r}: give S:W (degrees, both > 0) or 0, comma-separated")
     settings = [
-        (float(g), float(k), span, gain, scale, bias, vo_bias)
+        (float(g), float(k), span, gain, scale, bias, vo_bias, turn)
         for g in args.gates.split(",")
         for k in args.huber.split(",")
         for span in spans
@@ -154,6 +160,7 @@ def main() -> None:
         for scale in (float(v) for v in args.covariance_scales.split(","))
         for bias in biases
         for vo_bias in (float(v) for v in args.vo_bias_windows.split(","))
+        for turn in (float(v) for v in args.vo_rotation_scales.split(","))
     ]
     try:
         models = [(path, *load_hydranet(path)) for path in args.models]
@@ -199,7 +206,7 @@ def main() -> None:
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
             line += f" | {path.name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
             for setting in settings:
-                gate, huber, span, gain, scale, bias, vo_bias = setting
+                gate, huber, span, gain, scale, bias, vo_bias, turn = setting
                 scaled = dataclasses.replace(
                     predictions, epistemic=predictions.epistemic * scale, aleatoric=predictions.aleatoric * scale
                 )
@@ -213,6 +220,8 @@ def main() -> None:
                     "inputs.rotation.bias_sigma": [np.radians(bias[0])] * 3,
                     "inputs.rotation.bias_walk_sigma": [np.radians(bias[1])] * 3,
                     "inputs.rotation.vo_bias_windows": vo_bias,
+                    "inputs.rotation.vo_rotation_scale_windows": 1000.0 if turn else 0.0,
+                    "inputs.rotation.vo_rotation_scale_gain": turn or 1.0,
                 }
                 graph = FusionGraph(from_flat(flat))
                 graph.set_initial_pose(truth[0])
@@ -221,7 +230,8 @@ def main() -> None:
                 changes[(str(path), setting)].append(change)
                 line += f"; gate {gate:g} huber {huber:g} span {span} gain {gain[0]:g}:{gain[1]:g} x{scale:g}"
                 line += f" offset {bias[0]:g}:{bias[1]:g}" if max(bias) > 0 else ""
-                line += f" VO bias over {vo_bias:g}: " if vo_bias else ": "
+                line += f" VO bias over {vo_bias:g}" if vo_bias else ""
+                line += f" turns x{turn:g}: " if turn else ": "
                 line += f"{100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
         print(f"{line} ({time.perf_counter() - started:.0f} s)", flush=True)
     named = {setting_name(path, setting): rows for (path, setting), rows in changes.items()}
@@ -231,11 +241,12 @@ def main() -> None:
 
 
 def setting_name(path: str, setting: Setting) -> str:
-    gate, huber, span, gain, scale, bias, vo_bias = setting
+    gate, huber, span, gain, scale, bias, vo_bias, turn = setting
     vo = f"VO scales over {span} frames on the other drives" if span else "VO scales from the corpus"
     covariance = "" if scale == 1.0 else f" HydraNet covariance x{scale:g}"
     offset = f" offset state {bias[0]:g} deg, walk {bias[1]:g} deg/sqrt(s)" if max(bias) > 0 else ""
     learned = f" VO rotation bias learned over {vo_bias:g}" if vo_bias else ""
+    learned += f" VO turns rescaled x{turn:g} (scale learned over 1000)" if turn else ""
     return f"{path} gate {gate:g} huber {huber:g} VO gain {gain[0]:g}:{gain[1]:g}{covariance}{offset}{learned}, {vo}"
 
 

@@ -165,7 +165,9 @@ class RotationInputConfig:
     ``vo_bias_windows`` > 0: the other way round — the rotations teach the *VO's* rotation bias, as the corrections
     can its translation (``CorrectionInputConfig``; :class:`pvo_fusion.vo_bias.VOBiasTracker`): the running mean of
     their disagreement with the VO's motions under them, over about this many readings, removed from each later VO
-    motion on the ``vo_bias_axes`` (rotation axes only). 0: none."""
+    motion on the ``vo_bias_axes`` (rotation axes only). 0: none. ``vo_rotation_scale_windows`` and
+    ``vo_rotation_scale_gain``: the scale of the VO's turns learned from the rotations, as ``CorrectionInputConfig``'s
+    (the two inputs' trackers each apply their own)."""
 
     enabled: bool = True
     gate_probability: float = 0.65
@@ -176,6 +178,8 @@ class RotationInputConfig:
     bias_interval: float = 1.0
     vo_bias_windows: float = 0.0
     vo_bias_axes: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0)
+    vo_rotation_scale_windows: float = 0.0
+    vo_rotation_scale_gain: float = 1.0
 
     @property
     def has_bias(self) -> bool:
@@ -293,6 +297,23 @@ def validate(config: FusionConfig) -> None:
             math.isfinite(config.inputs.correction.vo_rotation_scale_gain)
             and 0.0 < config.inputs.correction.vo_rotation_scale_gain <= 1.0,
             "inputs.correction.vo_rotation_scale_gain must be in (0, 1] (the part of the learned scale applied)",
+        ),
+        (
+            config.inputs.rotation.vo_rotation_scale_windows >= 0.0,
+            "inputs.rotation.vo_rotation_scale_windows must be >= 0 (readings; inf = all alike; 0 = none)",
+        ),
+        (
+            math.isfinite(config.inputs.rotation.vo_rotation_scale_gain)
+            and 0.0 < config.inputs.rotation.vo_rotation_scale_gain <= 1.0,
+            "inputs.rotation.vo_rotation_scale_gain must be in (0, 1] (the part of the learned scale applied)",
+        ),
+        (
+            not (
+                config.inputs.correction.vo_rotation_scale_windows > 0.0
+                and config.inputs.rotation.vo_rotation_scale_windows > 0.0
+            ),
+            "inputs.correction.vo_rotation_scale_windows and inputs.rotation.vo_rotation_scale_windows: one input learns "
+            "the scale of the VO's turns",
         ),
         (
             math.isfinite(config.inputs.rotation.vo_bias_windows) and config.inputs.rotation.vo_bias_windows >= 0.0,

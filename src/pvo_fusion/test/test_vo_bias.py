@@ -169,6 +169,11 @@ def test_bad_fusion_parameters_are_named(name: str, value: object, message: str)
         from_flat({name: value})
     both = {"inputs.correction.vo_bias_windows": 30.0, "inputs.rotation.vo_bias_windows": 100.0}
     FusionGraph(from_flat(both))  # translation from the corrections, rotation from the rotations: fine
+    turns = {"inputs.correction.vo_rotation_scale_windows": 1000.0, "inputs.rotation.vo_rotation_scale_windows": 1000.0}
+    with pytest.raises(ValueError, match="one input learns the scale of the VO's turns"):
+        from_flat(turns)
+    with pytest.raises(ValueError, match="inputs.rotation.vo_rotation_scale_gain must be in"):
+        from_flat({"inputs.rotation.vo_rotation_scale_gain": 1.5})
     with pytest.raises(ValueError, match="vo_bias_axes overlap: one input learns each axis's VO bias"):
         from_flat(both | {"inputs.correction.vo_bias_axes": [1.0, 1.0, 1.0, 0.0, 1.0, 0.0]})
 
