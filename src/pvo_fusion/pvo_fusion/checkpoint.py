@@ -26,8 +26,8 @@ class FusionCheckpoint:
     covariance: Array
     velocity: tuple[Array, Array, float] | None
     vo_biases: dict[str, tuple[Array, int]] = field(default_factory=dict)
-    #: per input that teaches it, the VO rotation scale's sums (2,) (:attr:`VOBiasTracker.rotation_scale_sums`)
-    vo_rotation_scales: dict[str, Array] = field(default_factory=dict)
+    #: per input that teaches them, the VO scales' sums (4,) (:attr:`VOBiasTracker.scale_sums`)
+    vo_scales: dict[str, Array] = field(default_factory=dict)
 
     def write(self, path: str | Path) -> None:
         path = Path(path)
@@ -46,7 +46,7 @@ class FusionCheckpoint:
                 kind: {"bias": np.asarray(bias, dtype=float).tolist(), "updates": int(updates)}
                 for kind, (bias, updates) in self.vo_biases.items()
             },
-            "vo_rotation_scale": {kind: np.asarray(sums, dtype=float).tolist() for kind, sums in self.vo_rotation_scales.items()},
+            "vo_scale_sums": {kind: np.asarray(sums, dtype=float).tolist() for kind, sums in self.vo_scales.items()},
         }
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         tmp.write_text(json.dumps(data))
@@ -72,8 +72,7 @@ class FusionCheckpoint:
                 for kind, entry in (data.get("vo_bias") or {}).items()
             }
             scales = {  # absent in a checkpoint from before stop 65: none learned
-                str(kind): np.asarray(sums, dtype=float).reshape(2)
-                for kind, sums in (data.get("vo_rotation_scale") or {}).items()
+                str(kind): np.asarray(sums, dtype=float).reshape(4) for kind, sums in (data.get("vo_scale_sums") or {}).items()
             }
             checkpoint = cls(int(data["stamp"]), pose, covariance, velocity, vo_biases, scales)
         except (OSError, ValueError, KeyError, TypeError) as exc:
@@ -82,6 +81,6 @@ class FusionCheckpoint:
             raise ValueError(f"fusion checkpoint {path}: non-finite pose or covariance")
         if not all(np.all(np.isfinite(bias)) and updates >= 0 for bias, updates in vo_biases.values()):
             raise ValueError(f"fusion checkpoint {path}: non-finite VO bias or a negative count")
-        if not all(np.all(np.isfinite(sums)) and sums[1] >= 0.0 for sums in scales.values()):
-            raise ValueError(f"fusion checkpoint {path}: non-finite VO rotation scale sums or a negative turn sum")
+        if not all(np.all(np.isfinite(sums)) and sums[1] >= 0.0 and sums[3] >= 0.0 for sums in scales.values()):
+            raise ValueError(f"fusion checkpoint {path}: non-finite VO scale sums or a negative sum of squares")
         return checkpoint

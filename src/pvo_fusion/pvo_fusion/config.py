@@ -131,7 +131,8 @@ class CorrectionInputConfig:
     ``vo_rotation_scale_windows`` > 0: the corrections also teach how much too long or short the VO reads its turns
     (the rotation vector's scale, least squares over about this many corrections; ``inf``: all alike), and each later
     VO rotation is stretched by ``vo_rotation_scale_gain`` (0 < gain ≤ 1) of that — a lens or focal-length error
-    scales every turn, which the additive bias cannot carry. 0: none."""
+    scales every turn, which the additive bias cannot carry. 0: none. ``vo_translation_scale_windows`` > 0: the same
+    for the length of the VO's steps (a focal length off scales the depth it reads, so every step), no gain."""
 
     enabled: bool = True
     gate_probability: float = 0.9999
@@ -139,6 +140,7 @@ class CorrectionInputConfig:
     vo_bias_axes: tuple[float, ...] = (1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
     vo_rotation_scale_windows: float = 0.0
     vo_rotation_scale_gain: float = 1.0
+    vo_translation_scale_windows: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -292,6 +294,10 @@ def validate(config: FusionConfig) -> None:
         (
             config.inputs.correction.vo_rotation_scale_windows >= 0.0,  # NaN fails too
             "inputs.correction.vo_rotation_scale_windows must be >= 0 (corrections; inf = all alike; 0 = none)",
+        ),
+        (
+            config.inputs.correction.vo_translation_scale_windows >= 0.0,
+            "inputs.correction.vo_translation_scale_windows must be >= 0 (corrections; inf = all alike; 0 = none)",
         ),
         (
             math.isfinite(config.inputs.correction.vo_rotation_scale_gain)

@@ -335,6 +335,8 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
             values[f"vo_bias.{kind}"] = " ".join(f"{v:.6g}" for v in tracker.bias)  # per frame: x y z m, rot rad
             if tracker.rotation_scale_windows:
                 values[f"vo_rotation_scale.{kind}"] = f"{tracker.rotation_scale:.6g}"  # each VO turn taken 1 + this long
+            if tracker.translation_scale_windows:
+                values[f"vo_translation_scale.{kind}"] = f"{tracker.translation_scale:.6g}"  # each VO step 1 + this long
         values.update({f"factors.{k}": v for k, v in sorted(self.graph.factor_counts.items())})
         values.update({f"count.{k}": v for k, v in sorted(self.graph.counts.items()) if v})
         values.update({f"handled.{k}": v for k, v in sorted(self.handled.items())})

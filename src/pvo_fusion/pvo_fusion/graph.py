@@ -106,9 +106,12 @@ class FusionGraph:
                 source.vo_bias_axes,
                 rotation_scale_windows=getattr(source, "vo_rotation_scale_windows", 0.0),
                 rotation_scale_gain=getattr(source, "vo_rotation_scale_gain", 1.0),
+                translation_scale_windows=getattr(source, "vo_translation_scale_windows", 0.0),
             )
             for kind, source in (("correction", self.config.inputs.correction), ("rotation", self.config.inputs.rotation))
-            if source.vo_bias_windows > 0.0 or getattr(source, "vo_rotation_scale_windows", 0.0) > 0.0
+            if source.vo_bias_windows > 0.0
+            or getattr(source, "vo_rotation_scale_windows", 0.0) > 0.0
+            or getattr(source, "vo_translation_scale_windows", 0.0) > 0.0
         }
         from scipy.stats import chi2  # 0.5 s to import: only where a graph is built, not on `pvo --help`
 
@@ -178,7 +181,11 @@ class FusionGraph:
             self.covariance() if covariance is None else np.asarray(covariance, dtype=float),
             self._last_velocity,
             {kind: (tracker.bias, tracker.updates) for kind, tracker in self.vo_biases.items()},
-            {kind: tracker.rotation_scale_sums for kind, tracker in self.vo_biases.items() if tracker.rotation_scale_windows},
+            {
+                kind: tracker.scale_sums
+                for kind, tracker in self.vo_biases.items()
+                if tracker.rotation_scale_windows or tracker.translation_scale_windows
+            },
         )
 
     def resume(self, checkpoint: FusionCheckpoint) -> None:
@@ -190,7 +197,7 @@ class FusionGraph:
         self._last_velocity = checkpoint.velocity
         for kind, (bias, updates) in checkpoint.vo_biases.items():
             if kind in self.vo_biases:
-                self.vo_biases[kind].restore(bias, updates, checkpoint.vo_rotation_scales.get(kind))
+                self.vo_biases[kind].restore(bias, updates, checkpoint.vo_scales.get(kind))
 
     # ------------------------------------------------------------------ state look-up
     @property

@@ -19,6 +19,8 @@ vehicle turns left or right, which an additive bias cannot carry (its mean over 
 exponentially weighted over about that many corrections; ε, a turn of about 1°, keeps straight driving from teaching
 it), and each new VO motion's rotation vector is taken ``(1 + gain·k)`` times as long. ``gain`` ≤ 1 shrinks the
 estimate toward none: a scale a drive's turns teach imperfectly, applied in full, can unmask errors it was hiding.
+``translation_scale_windows`` learns the same for the distance the VO reads (a focal length off scales the depth
+and so every step, ``k_t = Σ (t_C − t_W)·t_W / (Σ t_W·t_W + ε_t)``), each VO step then ``1 + k_t`` times as long.
 """
 
 from __future__ import annotations
@@ -35,6 +37,8 @@ Array = NDArray[np.float64]
 TRANSLATION_AXES = (1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
 #: ε of the rotation scale's least squares (rad²): about 1° of turning before a scale is believed
 ROTATION_SCALE_PRIOR = 3e-4
+#: ε of the translation scale's (m²): a metre of travel
+TRANSLATION_SCALE_PRIOR = 1.0
 
 
 class VOBiasTracker:
@@ -44,7 +48,8 @@ class VOBiasTracker:
     ``windows``: the exponential mean's time constant, in corrections (> 0; 0: no additive bias, the rotation scale
     alone); ``axes``: 6 weights, 1 to track an axis, 0 to leave it alone; ``history``: how many raw VO motions are kept
     to chain under a correction (the oldest go); ``rotation_scale_windows``: the rotation scale's time constant, in
-    corrections (0: none; ``inf``: every correction alike), ``rotation_scale_gain`` the part of it applied (0, 1]."""
+    corrections (0: none; ``inf``: every correction alike), ``rotation_scale_gain`` the part of it applied (0, 1];
+    ``translation_scale_windows``: the translation scale's (0: none)."""
 
     def __init__(
         self,
@@ -53,6 +58,7 @@ class VOBiasTracker:
         history: int = 1000,
         rotation_scale_windows: float = 0.0,
         rotation_scale_gain: float = 1.0,
+        translation_scale_windows: float = 0.0,
     ) -> None:
         axes = np.asarray(axes, dtype=float)
         if not (np.isfinite(windows) and windows >= 0.0):
@@ -61,8 +67,12 @@ class VOBiasTracker:
             raise ValueError(
                 f"the VO rotation scale's time constant must be a number of corrections >= 0, got {rotation_scale_windows}"
             )
-        if windows == 0.0 and rotation_scale_windows == 0.0:
-            raise ValueError("a VO bias tracker needs a time constant > 0 for the bias or for the rotation scale")
+        if not (translation_scale_windows >= 0.0 and not np.isnan(translation_scale_windows)):
+            raise ValueError(
+                f"the VO translation scale's time constant must be a number of corrections >= 0, got {translation_scale_windows}"
+            )
+        if windows == 0.0 and rotation_scale_windows == 0.0 and translation_scale_windows == 0.0:
+            raise ValueError("a VO bias tracker needs a time constant > 0 for the bias or for a scale")
         if not (np.isfinite(rotation_scale_gain) and 0.0 < rotation_scale_gain <= 1.0):
             raise ValueError(f"the VO rotation scale's gain must be in (0, 1], got {rotation_scale_gain}")
         if axes.shape != (6,) or not np.all((axes == 0.0) | (axes == 1.0)):
@@ -71,9 +81,10 @@ class VOBiasTracker:
         self.axes = axes if windows > 0.0 else np.zeros(6)
         self.rotation_scale_windows = float(rotation_scale_windows)
         self.rotation_scale_gain = float(rotation_scale_gain)
+        self.translation_scale_windows = float(translation_scale_windows)
         self.updates = 0
         self._bias = np.zeros(6)
-        self._scale_sums = np.zeros(2)  # Σ dᵣ·φ, Σ φ·φ (exponentially weighted)
+        self._scale_sums = np.zeros(4)  # Σ dᵣ·φ, Σ φ·φ, Σ (t_C − t_W)·t_W, Σ t_W·t_W (exponentially weighted)
         self._history = history
         self._motions: OrderedDict[int, tuple[int, Array]] = OrderedDict()
 
@@ -90,32 +101,42 @@ class VOBiasTracker:
         return self.rotation_scale_gain * float(self._scale_sums[0] / (self._scale_sums[1] + ROTATION_SCALE_PRIOR))
 
     @property
-    def rotation_scale_sums(self) -> Array:
-        """(2,): the rotation scale's weighted sums Σ dᵣ·φ, Σ φ·φ (rad²) — what a checkpoint keeps."""
+    def translation_scale(self) -> float:
+        """``k_t``: the VO's steps are taken ``1 + translation_scale`` times as long (0 without one)."""
+        if self.translation_scale_windows == 0.0:
+            return 0.0
+        return float(self._scale_sums[2] / (self._scale_sums[3] + TRANSLATION_SCALE_PRIOR))
+
+    @property
+    def scale_sums(self) -> Array:
+        """(4,): the scales' weighted sums Σ dᵣ·φ, Σ φ·φ (rad²), Σ (t_C − t_W)·t_W, Σ t_W·t_W (m²) — what a
+        checkpoint keeps."""
         return self._scale_sums.copy()
 
-    def restore(self, bias: ArrayLike, updates: int, rotation_scale_sums: ArrayLike | None = None) -> None:
+    def restore(self, bias: ArrayLike, updates: int, scale_sums: ArrayLike | None = None) -> None:
         """Go on from a bias learned before (a checkpoint): β (6,), ROS order, masked to this tracker's axes, the
-        number of corrections it was learned from (the exponential mean's weight goes on from there) and the rotation
-        scale's sums (:attr:`rotation_scale_sums`; None: none learned)."""
+        number of corrections it was learned from (the exponential mean's weight goes on from there) and the
+        scales' sums (:attr:`scale_sums`; None: none learned)."""
         bias = np.asarray(bias, dtype=float)
         if bias.shape != (6,) or not np.all(np.isfinite(bias)) or updates < 0:
             raise ValueError(f"a VO bias to restore must be 6 finite numbers and a count >= 0, got {bias.tolist()}, {updates}")
-        sums = np.zeros(2) if rotation_scale_sums is None else np.asarray(rotation_scale_sums, dtype=float)
-        if sums.shape != (2,) or not np.all(np.isfinite(sums)) or sums[1] < 0.0:
-            raise ValueError(f"a VO rotation scale to restore must be 2 finite sums, the second >= 0, got {sums.tolist()}")
+        sums = np.zeros(4) if scale_sums is None else np.asarray(scale_sums, dtype=float)
+        if sums.shape != (4,) or not np.all(np.isfinite(sums)) or sums[1] < 0.0 or sums[3] < 0.0:
+            raise ValueError(f"VO scale sums to restore must be 4 finite numbers, the 2nd and 4th >= 0, got {sums.tolist()}")
         self._bias = self.axes * bias
         self.updates = int(updates)
-        self._scale_sums = sums if self.rotation_scale_windows > 0.0 else np.zeros(2)
+        self._scale_sums = sums * np.repeat([self.rotation_scale_windows > 0.0, self.translation_scale_windows > 0.0], 2)
 
     def debias(self, transform: ArrayLike) -> Array:
         """``Exp(β) T'_k,k-1`` (4, 4): a VO motion with the current bias estimate removed, T' its rotation vector
-        taken ``1 + rotation_scale`` times as long (its translation as read)."""
+        taken ``1 + rotation_scale`` times as long and its translation ``1 + translation_scale``."""
         transform = np.asarray(transform, dtype=float)
-        scale = self.rotation_scale
-        if scale:
+        scale, step = self.rotation_scale, self.translation_scale
+        if scale or step:
             transform = transform.copy()
-            transform[:3, :3] = so3_exp((1.0 + scale) * so3_log(transform[:3, :3]))
+            if scale:
+                transform[:3, :3] = so3_exp((1.0 + scale) * so3_log(transform[:3, :3]))
+            transform[:3, 3] *= 1.0 + step
         if not self._bias.any():
             return transform.copy()
         return se3_exp(self._bias) @ transform
@@ -154,7 +175,12 @@ class VOBiasTracker:
         if self.rotation_scale_windows > 0.0:
             turn = so3_log(chain[:3, :3])  # the chain's rotation vector as the VO read it
             keep = 1.0 - 1.0 / self.rotation_scale_windows  # inf: 1, every correction alike
-            self._scale_sums = keep * self._scale_sums + np.array([disagreement[3:] @ turn, turn @ turn])
+            self._scale_sums[:2] = keep * self._scale_sums[:2] + np.array([disagreement[3:] @ turn, turn @ turn])
+        if self.translation_scale_windows > 0.0:
+            step = chain[:3, 3]  # the chain's translation as the VO read it
+            keep = 1.0 - 1.0 / self.translation_scale_windows
+            offset = np.asarray(corrected, dtype=float)[:3, 3] - step
+            self._scale_sums[2:] = keep * self._scale_sums[2:] + np.array([offset @ step, step @ step])
         return True
 
 
@@ -167,13 +193,16 @@ def debiased_motions(
     axes: ArrayLike = TRANSLATION_AXES,
     rotation_scale_windows: float = 0.0,
     rotation_scale_gain: float = 1.0,
+    translation_scale_windows: float = 0.0,
 ) -> Array:
     """The VO's motions T_k,k-1 (frames k = 1..N; (N, 4, 4)) as a fusion with :class:`VOBiasTracker` takes them, given
     the corrections T_last,first (M, 4, 4) over frames ``first`` → ``last`` (M,): motion k debiased with what the
     corrections ending at frame k-1 or before taught (a correction ending at k is received after motion k). Every
     correction teaches here; the fusion learns only from those its gate lets in (on the validation drives nearly all)."""
     transforms = np.asarray(transforms, dtype=float)
-    tracker = VOBiasTracker(windows, axes, len(transforms) + 1, rotation_scale_windows, rotation_scale_gain)
+    tracker = VOBiasTracker(
+        windows, axes, len(transforms) + 1, rotation_scale_windows, rotation_scale_gain, translation_scale_windows
+    )
     ending: dict[int, list[tuple[int, Array]]] = {}
     for a, b, t in zip(np.asarray(first), np.asarray(last), np.asarray(corrected, dtype=float), strict=True):
         ending.setdefault(int(b), []).append((int(a), t))

@@ -80,7 +80,7 @@ def test_only_the_tracked_axes_learn_and_a_gap_or_lost_history_teaches_nothing()
 @pytest.mark.parametrize(
     ("windows", "axes", "scale", "message"),
     [
-        (0.0, (1, 1, 1, 0, 0, 0), (0.0, 1.0), "needs a time constant > 0 for the bias or for the rotation scale"),
+        (0.0, (1, 1, 1, 0, 0, 0), (0.0, 1.0), "needs a time constant > 0 for the bias or for a scale"),
         (-1.0, (1, 1, 1, 0, 0, 0), (0.0, 1.0), "time constant must be a number of corrections >= 0, got -1.0"),
         (float("nan"), (1, 1, 1, 0, 0, 0), (0.0, 1.0), "time constant must be a number of corrections >= 0"),
         (10.0, (1, 1, 1), (0.0, 1.0), "axes must be 6 weights of 0 or 1"),
@@ -140,7 +140,7 @@ def test_a_vo_that_reads_every_turn_8_percent_long_is_rescaled_by_the_correction
     assert heading["read"] > np.radians(3.0)  # 8 % of a ~50 deg turn
     assert heading["debiased"] < 0.1 * heading["read"]
     halved = VOBiasTracker(0.0, rotation_scale_windows=1000.0, rotation_scale_gain=0.5)
-    halved.restore(np.zeros(6), tracker.updates, tracker.rotation_scale_sums)
+    halved.restore(np.zeros(6), tracker.updates, tracker.scale_sums)
     assert halved.rotation_scale == pytest.approx(0.5 * tracker.rotation_scale, rel=1e-12)
     # straight driving teaches no scale: its turns are below the prior's ~1 deg
     straight = VOBiasTracker(0.0, rotation_scale_windows=1000.0)
@@ -322,3 +322,32 @@ def test_the_fusion_rescales_the_vo_turns_and_a_resumed_graph_goes_on_from_the_s
     resumed = FusionGraph(from_flat({"inputs.correction.vo_rotation_scale_windows": 1000.0}))
     resumed.resume(FusionCheckpoint.read(path))
     assert resumed.vo_biases["correction"].rotation_scale == pytest.approx(tracker.rotation_scale, rel=1e-12)
+
+
+def test_a_vo_that_reads_every_step_3_percent_long_is_rescaled_by_the_corrections() -> None:
+    """A focal length 3 % long: each step read 1.03 times as long, turning or not. The translation scale learned from
+    exact corrections is 1/1.03 - 1 (within the metre of prior over ~80 windows of 3 m), every later step is the
+    truth's, and a restored tracker goes on from the same sums."""
+    truth = turning_motions(240)
+    read = truth.copy()
+    read[:, :3, 3] *= 1.03
+    first, last = windows(240, 3)
+    exact = chained(truth, first, last)
+    tracker = VOBiasTracker(0.0, translation_scale_windows=100.0)
+    for k in range(1, 241):
+        tracker.observe(k - 1, k, read[k - 1])
+        if k % 3 == 0:
+            assert tracker.update(k - 3, k, exact[k // 3 - 1])
+    assert tracker.translation_scale == pytest.approx(1.0 / 1.03 - 1.0, rel=2e-3)
+    assert tracker.rotation_scale == 0.0 and not tracker.bias.any()
+    np.testing.assert_allclose(tracker.debias(read[100]), truth[100], atol=1e-4)  # the prior: 6e-5 m short
+    motions = debiased_motions(read, first, last, exact, 0.0, translation_scale_windows=100.0)
+    np.testing.assert_allclose(motions[:3], read[:3])  # nothing learned before the first correction
+    np.testing.assert_allclose(motions[60:, :3, 3], truth[60:, :3, 3], atol=3e-4)  # 0.3 mm of 1 m, the prior
+    restored = VOBiasTracker(0.0, translation_scale_windows=100.0)
+    restored.restore(np.zeros(6), tracker.updates, tracker.scale_sums)
+    assert restored.translation_scale == pytest.approx(tracker.translation_scale, rel=1e-12)
+    with pytest.raises(ValueError, match="VO scale sums to restore must be 4 finite numbers"):
+        restored.restore(np.zeros(6), 1, [0.0, 1.0, 0.0, -1.0])
+    with pytest.raises(ValueError, match="translation scale's time constant must be a number of corrections >= 0"):
+        VOBiasTracker(0.0, translation_scale_windows=float("nan"))

@@ -386,6 +386,11 @@ def card_vo_fusion(card: Any) -> dict[str, float]:
             raise ValueError(f"the model card's vo_rotation_scale needs windows > 0 and a gain in (0, 1], got {dict(scale)}")
         parameters["inputs.correction.vo_rotation_scale_windows"] = windows
         parameters["inputs.correction.vo_rotation_scale_gain"] = gain
+    steps = float(calibration.get("vo_translation_scale_windows") or 0.0)
+    if steps and calibration.get("fused_axes"):
+        if not (steps > 0.0 and np.isfinite(steps)):
+            raise ValueError(f"the model card's vo_translation_scale_windows must be a number of corrections > 0, got {steps}")
+        parameters["inputs.correction.vo_translation_scale_windows"] = steps
     return parameters
 
 
@@ -401,6 +406,9 @@ def describe_vo_fusion(parameters: Mapping[str, float]) -> str:
             f"its turns rescaled by {parameters['inputs.correction.vo_rotation_scale_gain']:g} of the scale they teach "
             f"(over ~{parameters['inputs.correction.vo_rotation_scale_windows']:g})"
         )
+    steps = parameters.get("inputs.correction.vo_translation_scale_windows")
+    if steps:
+        parts.append(f"the VO's steps rescaled by the scale the corrections teach (over ~{steps:g})")
     return "; ".join(parts)
 
 
@@ -421,6 +429,9 @@ VO_BIAS_WINDOWS = (10.0, 30.0, 100.0)
 #: all alike within a point)
 VO_ROTATION_SCALE_GAINS = (0.5, 0.75, 1.0)
 VO_ROTATION_SCALE_WINDOWS = 1000.0
+#: the time constants (corrections) of the VO's step scale a drive calibration tries, each a twin of every weighing
+#: that fuses the translation, in place of the additive translation bias (stop 65's prototype: 100 on the focal drives)
+VO_TRANSLATION_SCALE_WINDOWS = (100.0,)
 #: the VO spans a drive calibration tries by default (frames)
 DRIVE_SPANS = (3, 30, 100, 250)
 Candidate = TypeVar("Candidate")
@@ -509,6 +520,7 @@ class FusionChoice:
     correction_scale: list[float] | None = None
     vo_bias_windows: float = 0.0
     vo_rotation_scale_gain: float = 0.0
+    vo_translation_scale_windows: float = 0.0
 
 
 def choose_fusion(
@@ -521,6 +533,7 @@ def choose_fusion(
     consistent_corrections: bool = False,
     vo_bias_windows: float | Sequence[float] = VO_BIAS_WINDOWS,
     vo_rotation_scale_gains: float | Sequence[float] = VO_ROTATION_SCALE_GAINS,
+    vo_translation_scale_windows: float | Sequence[float] = VO_TRANSLATION_SCALE_WINDOWS,
 ) -> FusionChoice:
     """The VO span and the fused axes (:data:`AXIS_SETS` x ``spans``, each with the corrections as predicted and
     with their validation-split mean error removed, :func:`~pvo_pseudosensors.dpc_net.infer.remove_residual_mean`)
@@ -535,7 +548,9 @@ def choose_fusion(
     the fusion does (``inputs.correction.vo_bias_windows``, :class:`pvo_fusion.VOBiasTracker`), the VO's scales then
     learned on the VO so debiased. ``vo_rotation_scale_gains`` (0 = none): each such weighing that fuses rotation is
     tried again once per gain with the VO's turns rescaled too (``inputs.correction.vo_rotation_scale_*``, time
-    constant :data:`VO_ROTATION_SCALE_WINDOWS`)."""
+    constant :data:`VO_ROTATION_SCALE_WINDOWS`). ``vo_translation_scale_windows`` (0 = none): each weighing that fuses
+    the translation is tried once per number with the VO's steps rescaled by the scale the corrections teach over about
+    that many of them (``inputs.correction.vo_translation_scale_windows``) instead of its translation bias."""
     from pvo_core.trajectory import read_kitti_poses
     from pvo_pseudosensors.dpc_net.config import DPCNetConfig
     from pvo_pseudosensors.dpc_net.infer import (
@@ -563,6 +578,12 @@ def choose_fusion(
     gains_tried = sorted({float(g) for g in gains_given if float(g) != 0.0})
     if any(not (0.0 < g <= 1.0) for g in gains_tried):
         raise ValueError(f"the VO turn scale's gains must be in (0, 1] (0: none), got {vo_rotation_scale_gains}")
+    steps_given = (
+        [vo_translation_scale_windows] if np.isscalar(vo_translation_scale_windows) else list(vo_translation_scale_windows)
+    )
+    steps_tried = sorted({float(w) for w in steps_given if float(w) != 0.0})
+    if any(not (0.0 < w < np.inf) for w in steps_tried):
+        raise ValueError(f"the VO step scale's numbers of corrections must be finite and > 0, got {vo_translation_scale_windows}")
     if not spans or min(spans) < 1:
         raise ValueError(f"VO spans must be positive frame counts, got {list(spans)}")
     variant_axes = {"pose": AXES, "rotation": AXES[3:], "yaw": ("ry",)}[DPCNetConfig.from_card(card).variant]
@@ -595,37 +616,43 @@ def choose_fusion(
     means = (False, True) if (card.calibration or {}).get("residual") else (False,)
     delta = DPCNetConfig.from_card(card).test_delta
     labels = [(label, mean) for mean in means for label in axis_sets]
-    # (span, axis set, mean removed, corrections consistent over the span, VO bias windows, VO turn scale gain)
-    # -> per-drive changes
-    changes: dict[tuple[int, str, bool, bool, float, float], Array] = {}
+    # (span, axis set, mean removed, corrections consistent over the span, VO bias windows, VO turn scale gain, VO step
+    # scale windows) -> per-drive changes
+    changes: dict[tuple[int, str, bool, bool, float, float, float], Array] = {}
 
-    def named(axes_label: str, remove_mean: bool, consistent: bool = False, bias: float = 0.0, gain: float = 0.0) -> str:
+    def named(
+        axes_label: str, remove_mean: bool, consistent: bool = False, bias: float = 0.0, gain: float = 0.0, steps: float = 0.0
+    ) -> str:
         return (
             axes_label
             + (", mean removed" if remove_mean else "")
             + (", corrections over the span" if consistent else "")
             + (f", VO debiased over {bias:g}" if bias else "")
             + (f", turns rescaled x{gain:g}" if gain else "")
+            + (f", steps rescaled over {steps:g}" if steps else "")
         )
 
-    def weighing(axes_label: str, remove_mean: bool, bias: float = 0.0, gain: float = 0.0) -> Any:
+    def weighing(axes_label: str, remove_mean: bool, bias: float = 0.0, gain: float = 0.0, steps: float = 0.0) -> Any:
         candidate = copy.deepcopy(card)
         candidate.calibration["fused_axes"] = list(axis_sets[axes_label])
         candidate.calibration["remove_mean"] = remove_mean
         candidate.calibration.pop("correction_scale", None)
         candidate.calibration.pop("vo_bias_windows", None)
         candidate.calibration.pop("vo_rotation_scale", None)
+        candidate.calibration.pop("vo_translation_scale_windows", None)
+        if steps:
+            candidate.calibration["vo_translation_scale_windows"] = steps
         if bias:
             candidate.calibration["vo_bias_windows"] = bias
         if gain:
             candidate.calibration["vo_rotation_scale"] = {"windows": VO_ROTATION_SCALE_WINDOWS, "gain": gain}
         return candidate
 
-    debiased: dict[tuple[str, bool, float, float], Any] = {}
+    debiased: dict[tuple[str, bool, float, float, float], Any] = {}
 
-    def debiased_sequence(name: str, remove_mean: bool, windows: float, gain: float = 0.0) -> Any:
+    def debiased_sequence(name: str, remove_mean: bool, windows: float, gain: float = 0.0, steps: float = 0.0) -> Any:
         # the VO as the fusion takes it once the corrections (as weighed: the mean removed or not) taught its bias
-        if (name, remove_mean, windows, gain) not in debiased:
+        if (name, remove_mean, windows, gain, steps) not in debiased:
             _, _, truth, _, sequence, predicted = prepared[name]
             weighed = remove_residual_mean(predicted.transforms, {**card.calibration, "remove_mean": remove_mean})
             motions = debiased_motions(
@@ -636,20 +663,22 @@ def choose_fusion(
                 windows,
                 rotation_scale_windows=VO_ROTATION_SCALE_WINDOWS if gain else 0.0,
                 rotation_scale_gain=gain or 1.0,
+                translation_scale_windows=steps,
             )
-            debiased[(name, remove_mean, windows, gain)] = CalibrationSequence(name, truth, motions, sequence.covariances)
-        return debiased[(name, remove_mean, windows, gain)]
+            key = (name, remove_mean, windows, gain, steps)
+            debiased[key] = CalibrationSequence(name, truth, motions, sequence.covariances)
+        return debiased[(name, remove_mean, windows, gain, steps)]
 
-    debiased_scale_sets: dict[tuple[int, bool, float, float], dict[str, Any]] = {}
+    debiased_scale_sets: dict[tuple[int, bool, float, float, float], dict[str, Any]] = {}
 
-    def debiased_scales(span: int, remove_mean: bool, windows: float, gain: float = 0.0) -> dict[str, Any]:
+    def debiased_scales(span: int, remove_mean: bool, windows: float, gain: float = 0.0, steps: float = 0.0) -> dict[str, Any]:
         # per drive, the debiased VO's scales learned on the other drives: the same for every axis set
-        key = (span, remove_mean, windows, gain)
+        key = (span, remove_mean, windows, gain, steps)
         if key not in debiased_scale_sets:
             debiased_scale_sets[key] = {
                 name: calibrate_vo(
-                    [debiased_sequence(o, remove_mean, windows, gain) for o in names if o != name]
-                    or [debiased_sequence(name, remove_mean, windows, gain)],
+                    [debiased_sequence(o, remove_mean, windows, gain, steps) for o in names if o != name]
+                    or [debiased_sequence(name, remove_mean, windows, gain, steps)],
                     span,
                 )
                 for name in names
@@ -686,20 +715,22 @@ def choose_fusion(
 
     for span in spans:
         scales = {name: calibrate_vo([prepared[o][4] for o in names if o != name] or [prepared[name][4]], span) for name in names}
-        tried = [(label, mean, False, 0.0, 0.0) for label, mean in labels]
+        tried = [(label, mean, False, 0.0, 0.0, 0.0) for label, mean in labels]
         if consistent_corrections and span > delta:
-            tried += [(label, mean, True, 0.0, 0.0) for label, mean in labels]
+            tried += [(label, mean, True, 0.0, 0.0, 0.0) for label, mean in labels]
         for windows in windows_tried:
-            tried += [(label, mean, False, windows, 0.0) for label, mean in labels if translation_fused(label)]
+            tried += [(label, mean, False, windows, 0.0, 0.0) for label, mean in labels if translation_fused(label)]
             for gain in gains_tried:
                 tried += [
-                    (label, mean, False, windows, gain)
+                    (label, mean, False, windows, gain, 0.0)
                     for label, mean in labels
                     if translation_fused(label) and rotation_fused(label)
                 ]
-        for axes_label, remove_mean, consistent, bias, gain in tried:
-            candidate = weighing(axes_label, remove_mean, bias, gain)
-            drive_scales = debiased_scales(span, remove_mean, bias, gain) if bias else scales
+        for steps in steps_tried:
+            tried += [(label, mean, False, 0.0, 0.0, steps) for label, mean in labels if translation_fused(label)]
+        for axes_label, remove_mean, consistent, bias, gain, steps in tried:
+            candidate = weighing(axes_label, remove_mean, bias, gain, steps)
+            drive_scales = debiased_scales(span, remove_mean, bias, gain, steps) if bias or steps else scales
             covariance = measurement_covariance(DPCNetConfig.from_card(candidate), candidate.calibration)
             rows = []
             for name in names:
@@ -722,37 +753,38 @@ def choose_fusion(
                         figures["m_ate_rot_deg"] / max(alone["m_ate_rot_deg"], 1e-12) - 1.0,
                     ]
                 )
-            changes[(span, axes_label, remove_mean, consistent, bias, gain)] = np.asarray(rows)
+            changes[(span, axes_label, remove_mean, consistent, bias, gain, steps)] = np.asarray(rows)
             if say is not None:
-                drive_changes = changes[(span, axes_label, remove_mean, consistent, bias, gain)]
+                drive_changes = changes[(span, axes_label, remove_mean, consistent, bias, gain, steps)]
                 mean = 100 * drive_changes.mean(axis=0)
                 say(
-                    f"  span {span:4d}, {named(axes_label, remove_mean, consistent, bias, gain):<25} axes: "
+                    f"  span {span:4d}, {named(axes_label, remove_mean, consistent, bias, gain, steps):<25} axes: "
                     f"m-ATE {mean[0]:+6.1f} % translation, "
                     f"{mean[1]:+6.1f} % rotation; {drives_lowered(drive_changes)} of {len(names)} drives lowered, "
                     f"worst {100 * worst_change(drive_changes):+.1f} %"
                 )
     best = select_fusion(changes, harm_tolerance)
     candidates = {
-        f"span {span}, {named(axes_label, remove_mean, consistent, bias, gain)}": {
+        f"span {span}, {named(axes_label, remove_mean, consistent, bias, gain, steps)}": {
             "span": span,
             "axes": list(axis_sets[axes_label]),
             "remove_mean": remove_mean,
             **({"corrections_over_span": True} if consistent else {}),
             **({"vo_bias_windows": bias} if bias else {}),
             **({"vo_rotation_scale_gain": gain} if gain else {}),
+            **({"vo_translation_scale_windows": steps} if steps else {}),
             "per_drive": {name: [round(float(v), 4) for v in row] for name, row in zip(names, c, strict=True)},
             "mean": [round(float(v), 4) for v in c.mean(axis=0)],
             "worst": round(worst_change(c), 4),
             "accepted": fusion_accepted(c, harm_tolerance),
         }
-        for (span, axes_label, remove_mean, consistent, bias, gain), c in changes.items()
+        for (span, axes_label, remove_mean, consistent, bias, gain, steps), c in changes.items()
     }
     if best is None:
         return FusionChoice(None, [], candidates, names)
-    span, axes_label, remove_mean, consistent, bias, gain = best
-    if bias:
-        calibration = calibrate_vo([debiased_sequence(n, remove_mean, bias, gain) for n in names], span)
+    span, axes_label, remove_mean, consistent, bias, gain, steps = best
+    if bias or steps:
+        calibration = calibrate_vo([debiased_sequence(n, remove_mean, bias, gain, steps) for n in names], span)
     else:
         calibration = calibrate_vo([prepared[n][4] for n in names], span)
     correction_scale = None
@@ -760,7 +792,7 @@ def choose_fusion(
         chosen = weighing(axes_label, remove_mean)
         correction_scale = correction_calibration([corrected_chain(n, chosen) for n in names], span, delta)
     return FusionChoice(
-        span, list(axis_sets[axes_label]), candidates, names, calibration, remove_mean, correction_scale, bias, gain
+        span, list(axis_sets[axes_label]), candidates, names, calibration, remove_mean, correction_scale, bias, gain, steps
     )
 
 

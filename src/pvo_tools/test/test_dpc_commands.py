@@ -120,7 +120,8 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     shutil.copytree(model, drove)
     calibrate = ["dpc-net", "calibrate", "--model", str(drove), "--corpus", str(corpus), "--vo-spans", "3,6"]
     drives = ["--drives", str(corpus / "0001"), str(corpus / "0002")]
-    assert main([*calibrate, *drives, "--vo-bias-windows", "10,30", "--vo-rotation-scales", "0.5"]) == 0
+    scales = ["--vo-rotation-scales", "0.5", "--vo-translation-scales", "50"]
+    assert main([*calibrate, *drives, "--vo-bias-windows", "10,30", *scales]) == 0
     drive_card = yaml.safe_load((drove / "model.yaml").read_text())["calibration"]
     candidates = drive_card["drive_calibration"]["candidates"]
     assert {c["span"] for c in candidates.values()} == {3, 6} and all(len(c["per_drive"]) == 2 for c in candidates.values())
@@ -143,12 +144,16 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
         assert drive_card.get("vo_bias_windows", 0.0) == candidates[chosen].get("vo_bias_windows", 0.0)
         gain = candidates[chosen].get("vo_rotation_scale_gain")
         assert drive_card.get("vo_rotation_scale") == ({"windows": 1000.0, "gain": gain} if gain else None)
+        steps = candidates[chosen].get("vo_translation_scale_windows")
+        assert drive_card.get("vo_translation_scale_windows") == steps
         assert f"VO span {drive_card['vo_span']} frames (2 validation drives" in capsys.readouterr().out
     # every weighing that fuses the translation is tried again with the VO's translation bias learned from the
     # corrections, once per number of them asked for (10 and 30; 10, 30 and 100 by default), named so; one without the
     # translation not
     # and each such weighing that fuses rotation too, with the VO's turns rescaled by the gain asked for (0.5)
-    plain = {label: c for label, c in candidates.items() if not c.get("vo_bias_windows")}
+    plain = {
+        label: c for label, c in candidates.items() if not c.get("vo_bias_windows") and not c.get("vo_translation_scale_windows")
+    }
     translating = {label for label, c in plain.items() if {"x", "y", "z"} <= set(c["axes"])}
     turning = {label for label in translating if {"rx", "ry", "rz"} & set(plain[label]["axes"])}
     for windows in (10, 30):
@@ -161,7 +166,10 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
             turning
         )
         assert all(debiased[label]["vo_rotation_scale_gain"] == 0.5 for label in rescaled)
-    assert len(candidates) == len(plain) + 2 * len(translating) + 2 * len(turning)
+    # and each weighing that fuses the translation with the VO's steps rescaled instead (over 50 corrections)
+    stepped = {label for label, c in candidates.items() if c.get("vo_translation_scale_windows") == 50}
+    assert {label.removesuffix(", steps rescaled over 50") for label in stepped} == translating
+    assert len(candidates) == len(plain) + 2 * len(translating) + 2 * len(turning) + len(translating)
     # the corrections made consistent over the span too: tried for the spans longer than Δp, each named so
     consistent = tmp_path / "consistent"
     shutil.copytree(model, consistent)
@@ -176,6 +184,8 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
                 "--consistent-corrections",
                 "--vo-bias-windows",
                 "0",
+                "--vo-translation-scales",
+                "0",
             ]
         )
         == 0
@@ -187,7 +197,7 @@ def test_train_predict_correct_eval(corpus: Path, tmp_path: Path, capsys) -> Non
     over = {label: c for label, c in tried.items() if c.get("corrections_over_span")}
     assert {c["span"] for c in over.values()} == {s for s in (3, 6) if s > delta}
     assert all(label.endswith(", corrections over the span") for label in over)
-    assert len(tried) == len(plain) + len(over)  # the others as without the flags (--vo-bias-windows 0: no debiased ones)
+    assert len(tried) == len(plain) + len(over)  # the others as without the flags (0: no debiased nor rescaled ones)
     assert not any(c.get("vo_bias_windows") for c in tried.values())
     chosen = select_fusion({label: list(c["per_drive"].values()) for label, c in tried.items()}, harm_tolerance=0.05)
     if chosen is not None and tried[chosen].get("corrections_over_span"):
@@ -373,6 +383,16 @@ def test_the_demo_weighs_the_corrections_as_the_card_does(tmp_path: Path, capsys
     with pytest.raises(PvoError, match="vo_rotation_scale needs windows > 0 and a gain in \\(0, 1\\], got"):
         dpc_net_fusion(str(model))
     card["calibration"].pop("vo_rotation_scale")
+    card["calibration"]["vo_translation_scale_windows"] = 100.0  # and the length of its steps
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    parameters = dpc_net_fusion(str(model))
+    assert parameters["inputs.correction.vo_translation_scale_windows"] == 100.0
+    assert "the VO's steps rescaled by the scale the corrections teach (over ~100)" in capsys.readouterr().err
+    card["calibration"]["vo_translation_scale_windows"] = float("nan")
+    (model / "model.yaml").write_text(yaml.safe_dump(card))
+    with pytest.raises(PvoError, match="vo_translation_scale_windows must be a number of corrections > 0, got nan"):
+        dpc_net_fusion(str(model))
+    card["calibration"].pop("vo_translation_scale_windows")
     card["calibration"]["vo_bias_windows"] = -1.0
     (model / "model.yaml").write_text(yaml.safe_dump(card))
     with pytest.raises(PvoError, match="vo_bias_windows must be a number of corrections >= 0, got -1.0"):
@@ -504,6 +524,10 @@ def test_the_report_says_how_a_card_weighs_its_corrections() -> None:
     )
     assert fusion_summary(SimpleNamespace(calibration=chosen | {"vo_bias_windows": 30.0})).endswith(
         "VO span 250 frames; the VO's translation bias learned from the corrections over ~30 of them"
+    )
+    stepped = chosen | {"vo_translation_scale_windows": 100.0}
+    assert fusion_summary(SimpleNamespace(calibration=stepped)).endswith(
+        "VO span 250 frames; its steps rescaled by the scale the corrections teach (over ~100)"
     )
     rescaled = chosen | {"vo_bias_windows": 10.0, "vo_rotation_scale": {"windows": 1000.0, "gain": 0.5}}
     assert fusion_summary(SimpleNamespace(calibration=rescaled)).endswith(

@@ -11,7 +11,13 @@ from typing import Any
 
 
 def register_actions(actions: Any, entry: Any) -> None:
-    from ..dpc import HARM_TOLERANCE, VO_BIAS_WINDOWS, VO_ROTATION_SCALE_GAINS, VO_ROTATION_SCALE_WINDOWS
+    from ..dpc import (
+        HARM_TOLERANCE,
+        VO_BIAS_WINDOWS,
+        VO_ROTATION_SCALE_GAINS,
+        VO_ROTATION_SCALE_WINDOWS,
+        VO_TRANSLATION_SCALE_WINDOWS,
+    )
 
     predict = actions.add_parser("predict", help="corrections of a VO trajectory over windows of the model's span")
     predict.set_defaults(handler=run_predict)
@@ -102,6 +108,15 @@ def register_actions(actions: Any, entry: Any) -> None:
         f"~{VO_ROTATION_SCALE_WINDOWS:g} corrections), once per G (default "
         f"{','.join(f'{g:g}' for g in VO_ROTATION_SCALE_GAINS)}; 0: no such candidate); the card then keeps the chosen "
         "one (calibration.vo_rotation_scale)",
+    )
+    calibrate.add_argument(
+        "--vo-translation-scales",
+        type=window_list,
+        metavar="N[,N...]",
+        help="with --drives: also try each weighing that fuses the translation with the VO's steps rescaled by the scale "
+        "the corrections teach over about N of them (inputs.correction.vo_translation_scale_windows) instead of its "
+        f"translation bias, once per N (default {','.join(f'{w:g}' for w in VO_TRANSLATION_SCALE_WINDOWS)}; 0: no such "
+        "candidate); the card then keeps the chosen N (calibration.vo_translation_scale_windows)",
     )
     drives = actions.add_parser(
         "drives", help="render the long drives a fusion is chosen on (KITTI 03, 04, 10) or tested on (05, 06, 07), each rig"
@@ -244,13 +259,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.learning.checkpoint import write_card
     from pvo_pseudosensors.learning.data import Source
 
-    from ..dpc import HARM_TOLERANCE, VO_BIAS_WINDOWS, VO_ROTATION_SCALE_GAINS, rig_sequences
+    from ..dpc import HARM_TOLERANCE, VO_BIAS_WINDOWS, VO_ROTATION_SCALE_GAINS, VO_TRANSLATION_SCALE_WINDOWS, rig_sequences
 
     drive_options = {
         "--consistent-corrections": args.consistent_corrections,
         "--harm-tolerance": args.harm_tolerance is not None,
         "--vo-bias-windows": args.vo_bias_windows is not None,
         "--vo-rotation-scales": args.vo_rotation_scales is not None,
+        "--vo-translation-scales": args.vo_translation_scales is not None,
     }
     if not args.drives and any(drive_options.values()):
         given = next(name for name, on in drive_options.items() if on)
@@ -261,6 +277,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         args.vo_bias_windows = list(VO_BIAS_WINDOWS)
     if args.vo_rotation_scales is None:
         args.vo_rotation_scales = list(VO_ROTATION_SCALE_GAINS)
+    if args.vo_translation_scales is None:
+        args.vo_translation_scales = list(VO_TRANSLATION_SCALE_WINDOWS)
     model, card = load_dpc_net(args.model)
     config = DPCNetConfig.from_card(card)
     manifests = [read_corpus_manifest(corpus) for corpus in args.corpus]
@@ -288,6 +306,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         "correction_scale",
         "vo_bias_windows",
         "vo_rotation_scale",
+        "vo_translation_scale_windows",
     ):
         card.calibration.pop(stale, None)  # a new residual: what was chosen with the old one goes
     card.calibration["residual_covariance"] = covariance.tolist()
@@ -365,6 +384,7 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
         consistent_corrections=args.consistent_corrections,
         vo_bias_windows=args.vo_bias_windows,
         vo_rotation_scale_gains=args.vo_rotation_scales,
+        vo_translation_scale_windows=args.vo_translation_scales,
     )
     over_span = choice.correction_scale is not None
     chosen = (
@@ -373,6 +393,7 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
         + (", corrections over the span" if over_span else "")
         + (f", VO debiased over {choice.vo_bias_windows:g}" if choice.vo_bias_windows else "")
         + (f", turns rescaled x{choice.vo_rotation_scale_gain:g}" if choice.vo_rotation_scale_gain else "")
+        + (f", steps rescaled over {choice.vo_translation_scale_windows:g}" if choice.vo_translation_scale_windows else "")
         if choice.axes
         else None
     )
@@ -387,6 +408,9 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
     card.calibration.pop("vo_rotation_scale", None)
     if choice.vo_rotation_scale_gain:
         card.calibration["vo_rotation_scale"] = {"windows": VO_ROTATION_SCALE_WINDOWS, "gain": choice.vo_rotation_scale_gain}
+    card.calibration.pop("vo_translation_scale_windows", None)
+    if choice.vo_translation_scale_windows:
+        card.calibration["vo_translation_scale_windows"] = choice.vo_translation_scale_windows
     card.calibration["drive_calibration"] = {
         "drives": [str(r) for r in roots],
         "rule": (
@@ -419,6 +443,7 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
                 and c.get("corrections_over_span", False) == over_span
                 and c.get("vo_bias_windows", 0.0) == choice.vo_bias_windows
                 and c.get("vo_rotation_scale_gain", 0.0) == choice.vo_rotation_scale_gain
+                and c.get("vo_translation_scale_windows", 0.0) == choice.vo_translation_scale_windows
             )
         )
         print(
@@ -433,6 +458,11 @@ def calibrate_on_drives(args: argparse.Namespace, model: Any, card: Any) -> int:
             + (
                 f", its turns rescaled by {choice.vo_rotation_scale_gain:g} of the scale they teach"
                 if choice.vo_rotation_scale_gain
+                else ""
+            )
+            + (
+                f", its steps rescaled by the scale about {choice.vo_translation_scale_windows:g} corrections teach"
+                if choice.vo_translation_scale_windows
                 else ""
             )
             + f", VO span {choice.span} frames ({len(roots)} validation "

@@ -102,6 +102,11 @@ def fusion_summary(card: Any) -> str:
                 if calibration.get("vo_rotation_scale")
                 else ""
             )
+            + (
+                f"; its steps rescaled by the scale the corrections teach (over ~{calibration['vo_translation_scale_windows']:g})"
+                if calibration.get("vo_translation_scale_windows")
+                else ""
+            )
         )
     residual = calibration.get("residual") or {}
     axes = " ".join(a for a in ("x", "y", "z", "rx", "ry", "rz") if residual.get(f"corrected_{a}", 1.0))
