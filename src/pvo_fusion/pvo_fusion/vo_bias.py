@@ -45,7 +45,7 @@ class VOBiasTracker:
     """The running per-frame bias β (6,) of a VO's relative motions T_k,k-1 (ROS-order tangent, left perturbation:
     m and rad per frame), learned from corrections spanning several of its motions.
 
-    ``windows``: the exponential mean's time constant, in corrections (> 0; 0: no additive bias, the rotation scale
+    ``windows``: the exponential mean's time constant, in corrections (> 0; 0: no additive bias, a scale
     alone); ``axes``: 6 weights, 1 to track an axis, 0 to leave it alone; ``history``: how many raw VO motions are kept
     to chain under a correction (the oldest go); ``rotation_scale_windows``: the rotation scale's time constant, in
     corrections (0: none; ``inf``: every correction alike), ``rotation_scale_gain`` the part of it applied (0, 1];
