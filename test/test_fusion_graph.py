@@ -328,82 +328,24 @@ def test_a_restarted_fusion_node_resumes_from_its_state_file(ros_context, tmp_pa
     np.testing.assert_allclose(z[10:], [21.0, 22.0, 23.0, 24.0, 25.0], atol=1e-6)
 
 
-def test_the_fusion_node_learns_the_vo_bias_from_corrections_over_dds(ros_context) -> None:
-    """`inputs.correction.vo_bias_windows` set as a node parameter: a VO that reads 3 % long, exact corrections every 3
-    frames on `/pvo/dpc/correction`; the status reports the learned bias per frame, and the odometry equals the
-    ROS-free graph given the same parameter and messages (which ends far nearer the truth than without it)."""
-    fusion = FusionNode(
-        context=ros_context,
-        parameter_overrides=[Parameter("publish_path", value=False), Parameter("inputs.correction.vo_bias_windows", value=30.0)],
-    )
-    io, odometry, statuses, publisher = fusion_io(ros_context)
-    vo_pub = publisher("/pvo/vo/relative")
-    correction_pub = publisher("/pvo/dpc/correction")
-    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))  # T_k,k-1: 1 m forward
-    bias = np.array([0.0, 0.0, 0.03, 0.0, 0.0, 0.0])
-    read = se3_exp(-bias) @ step  # the VO reads 1.03 m
-    vo_cov = np.diag([4e-4, 4e-4, 1e-3, 1e-8, 1e-8, 1e-8])
-    correction_cov = np.diag([4e-4, 4e-4, 4e-4, 1e-8, 1e-8, 1e-8])
-    exact = step @ step @ step
+def corrected_drive(
+    read: np.ndarray, exact: np.ndarray, vo_cov: np.ndarray, correction_cov: np.ndarray, frames: int, last: bool = True
+) -> list[tuple[str, RelativePose]]:
+    """``frames`` VO messages, each motion ``read``, and after every third one a correction ``exact`` over those three
+    (``last``: also after the last VO frame), in the order they are published."""
     t0 = 1_317_640_000_000_000_000
     dt = 100_000_000
-    frames = 30
     messages: list[tuple[str, RelativePose]] = []
     for k in range(1, frames + 1):
         messages.append(("vo", relative_msg(t0 + k * dt, t0 + (k - 1) * dt, read, vo_cov)))
-        if k % 3 == 0:
+        if k % 3 == 0 and (last or k < frames):
             messages.append(("correction", relative_msg(t0 + k * dt, t0 + (k - 3) * dt, exact, correction_cov)))
-    try:
-        with Spinner(ros_context, fusion), Spinner(ros_context, io):
-            wait_for(lambda: vo_pub.get_subscription_count() > 0 and correction_pub.get_subscription_count() > 0, 10.0)
-            wait_for(lambda: fusion.pub_status.get_subscription_count() > 0, 10.0)
-            published = 0
-            for kind, msg in messages:
-                (vo_pub if kind == "vo" else correction_pub).publish(msg)
-                if kind == "correction":  # each correction taken before the next VO motion, as offline
-                    published += 1
-                    assert wait_for(lambda n=published: fusion.graph.counts["vo_bias.correction.learned"] >= n, 10.0)
-                else:
-                    expected = len(odometry) + 1
-                    assert wait_for(lambda n=expected: len(odometry) >= n, 10.0)
-            assert wait_for(lambda: len(statuses) >= frames)  # one per VO frame
-    finally:
-        fusion.destroy_node()
-        io.destroy_node()
-    # the status of the last VO frame (one per frame): the nine corrections before it learned, the bias per frame the
-    # VO's own (each correction exact)
-    keys = {kv.key: kv.value for kv in statuses[-1].status[0].values}
-    assert keys["count.vo_bias.correction.learned"] == str(frames // 3 - 1)
-    assert fusion.graph.counts["vo_bias.correction.learned"] == frames // 3
-    np.testing.assert_allclose([float(v) for v in keys["vo_bias.correction"].split()], bias, atol=1e-6)
-
-    from pvo_fusion import RelativeMeasurement
-
-    def offline(settings: dict) -> np.ndarray:
-        graph = FusionGraph(from_flat(settings))
-        for kind, msg in messages:
-            m = RelativeMeasurement(
-                stamp_to_nanoseconds(msg.header.stamp),
-                stamp_to_nanoseconds(msg.reference_stamp),
-                pose_to_matrix(msg.pose.pose),
-                covariance_to_matrix(msg.pose.covariance),
-            )
-            graph.add_vo(m) if kind == "vo" else graph.add_correction(m)
-        return graph.pose()
-
-    learned = offline({"inputs.correction.vo_bias_windows": 30.0})
-    np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), learned, atol=1e-9)
-    truth_z = float(frames)
-    assert abs(learned[2, 3] - truth_z) < 0.5 * abs(offline({})[2, 3] - truth_z)
+    return messages
 
 
-def test_the_fusion_node_rescales_the_vo_turns_from_corrections_over_dds(ros_context) -> None:
-    """`inputs.correction.vo_rotation_scale_windows` set as a node parameter: a VO that reads every turn 8 % long (a
-    lens processed as if undistorted), exact corrections every 3 frames; the status reports the scale learned (each turn
-    taken 1/1.08 - 1 longer) and the odometry equals the ROS-free graph's with the same parameter and messages."""
-    from pvo_core.lie import so3_exp, so3_log
-
-    settings = {"inputs.correction.vo_rotation_scale_windows": 1000.0}
+def fuse_over_dds(ros_context, settings: dict, messages: list[tuple[str, RelativePose]]) -> tuple[FusionNode, list, list]:
+    """A fusion node with ``settings`` as parameters fed ``messages`` on `/pvo/vo/relative` and `/pvo/dpc/correction`,
+    each correction taken before the next VO motion (as offline): the node, its odometry and its statuses."""
     fusion = FusionNode(
         context=ros_context,
         parameter_overrides=[Parameter("publish_path", value=False)] + [Parameter(k, value=v) for k, v in settings.items()],
@@ -411,20 +353,7 @@ def test_the_fusion_node_rescales_the_vo_turns_from_corrections_over_dds(ros_con
     io, odometry, statuses, publisher = fusion_io(ros_context)
     vo_pub = publisher("/pvo/vo/relative")
     correction_pub = publisher("/pvo/dpc/correction")
-    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, np.radians(2.0), 0.0])))  # 1 m forward, 2 deg left
-    read = step.copy()
-    read[:3, :3] = so3_exp(1.08 * so3_log(step[:3, :3]))
-    vo_cov = np.diag([4e-4, 4e-4, 1e-3, 1e-6, 1e-6, 1e-6])
-    correction_cov = np.diag([4e-4, 4e-4, 4e-4, 3e-6, 3e-6, 3e-6])
-    exact = step @ step @ step
-    t0 = 1_317_640_000_000_000_000
-    dt = 100_000_000
-    frames = 30
-    messages: list[tuple[str, RelativePose]] = []
-    for k in range(1, frames + 1):
-        messages.append(("vo", relative_msg(t0 + k * dt, t0 + (k - 1) * dt, read, vo_cov)))
-        if k % 3 == 0 and k < frames:  # the last VO frame's odometry is what the graph says after all of them
-            messages.append(("correction", relative_msg(t0 + k * dt, t0 + (k - 3) * dt, exact, correction_cov)))
+    frames = sum(kind == "vo" for kind, _ in messages)
     try:
         with Spinner(ros_context, fusion), Spinner(ros_context, io):
             wait_for(lambda: vo_pub.get_subscription_count() > 0 and correction_pub.get_subscription_count() > 0, 10.0)
@@ -438,15 +367,15 @@ def test_the_fusion_node_rescales_the_vo_turns_from_corrections_over_dds(ros_con
                 else:
                     expected = len(odometry) + 1
                     assert wait_for(lambda n=expected: len(odometry) >= n, 10.0)
-            assert wait_for(lambda: len(statuses) >= frames)
+            assert wait_for(lambda: len(statuses) >= frames)  # one per VO frame
     finally:
         fusion.destroy_node()
         io.destroy_node()
-    keys = {kv.key: kv.value for kv in statuses[-1].status[0].values}
-    # nine corrections of 6 deg turns: the prior (~1 deg of turning) shrinks the scale by under half a per cent
-    assert float(keys["vo_rotation_scale.correction"]) == pytest.approx(1.0 / 1.08 - 1.0, rel=5e-3)
-    assert keys["vo_bias.correction"].split() == ["0"] * 6  # no additive bias asked for
+    return fusion, odometry, statuses
 
+
+def fuse_offline(settings: dict, messages: list[tuple[str, RelativePose]]) -> np.ndarray:
+    """The ROS-free graph's newest pose (4, 4) given ``settings`` and the same messages."""
     from pvo_fusion import RelativeMeasurement
 
     graph = FusionGraph(from_flat(settings))
@@ -458,4 +387,51 @@ def test_the_fusion_node_rescales_the_vo_turns_from_corrections_over_dds(ros_con
             covariance_to_matrix(msg.pose.covariance),
         )
         graph.add_vo(m) if kind == "vo" else graph.add_correction(m)
-    np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), graph.pose(), atol=1e-9)
+    return graph.pose()
+
+
+def test_the_fusion_node_learns_the_vo_bias_from_corrections_over_dds(ros_context) -> None:
+    """`inputs.correction.vo_bias_windows` set as a node parameter: a VO that reads 3 % long, exact corrections every 3
+    frames on `/pvo/dpc/correction`; the status reports the learned bias per frame, and the odometry equals the
+    ROS-free graph given the same parameter and messages (which ends far nearer the truth than without it)."""
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))  # T_k,k-1: 1 m forward
+    bias = np.array([0.0, 0.0, 0.03, 0.0, 0.0, 0.0])
+    read = se3_exp(-bias) @ step  # the VO reads 1.03 m
+    vo_cov = np.diag([4e-4, 4e-4, 1e-3, 1e-8, 1e-8, 1e-8])
+    correction_cov = np.diag([4e-4, 4e-4, 4e-4, 1e-8, 1e-8, 1e-8])
+    frames = 30
+    messages = corrected_drive(read, step @ step @ step, vo_cov, correction_cov, frames)
+    settings = {"inputs.correction.vo_bias_windows": 30.0}
+    fusion, odometry, statuses = fuse_over_dds(ros_context, settings, messages)
+    # the status of the last VO frame (one per frame): the nine corrections before it learned, the bias per frame the
+    # VO's own (each correction exact)
+    keys = {kv.key: kv.value for kv in statuses[-1].status[0].values}
+    assert keys["count.vo_bias.correction.learned"] == str(frames // 3 - 1)
+    assert fusion.graph.counts["vo_bias.correction.learned"] == frames // 3
+    np.testing.assert_allclose([float(v) for v in keys["vo_bias.correction"].split()], bias, atol=1e-6)
+    learned = fuse_offline(settings, messages)
+    np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), learned, atol=1e-9)
+    truth_z = float(frames)
+    assert abs(learned[2, 3] - truth_z) < 0.5 * abs(fuse_offline({}, messages)[2, 3] - truth_z)
+
+
+def test_the_fusion_node_rescales_the_vo_turns_from_corrections_over_dds(ros_context) -> None:
+    """`inputs.correction.vo_rotation_scale_windows` set as a node parameter: a VO that reads every turn 8 % long (a
+    lens processed as if undistorted), exact corrections every 3 frames; the status reports the scale learned (each turn
+    taken 1/1.08 - 1 longer) and the odometry equals the ROS-free graph's with the same parameter and messages."""
+    from pvo_core.lie import so3_exp, so3_log
+
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, np.radians(2.0), 0.0])))  # 1 m forward, 2 deg left
+    read = step.copy()
+    read[:3, :3] = so3_exp(1.08 * so3_log(step[:3, :3]))
+    vo_cov = np.diag([4e-4, 4e-4, 1e-3, 1e-6, 1e-6, 1e-6])
+    correction_cov = np.diag([4e-4, 4e-4, 4e-4, 3e-6, 3e-6, 3e-6])
+    # no correction after the last VO frame: its odometry is what the graph says after all the messages
+    messages = corrected_drive(read, step @ step @ step, vo_cov, correction_cov, 30, last=False)
+    settings = {"inputs.correction.vo_rotation_scale_windows": 1000.0}
+    _, odometry, statuses = fuse_over_dds(ros_context, settings, messages)
+    keys = {kv.key: kv.value for kv in statuses[-1].status[0].values}
+    # nine corrections of 6 deg turns: the prior (~1 deg of turning) shrinks the scale by under half a per cent
+    assert float(keys["vo_rotation_scale.correction"]) == pytest.approx(1.0 / 1.08 - 1.0, rel=5e-3)
+    assert keys["vo_bias.correction"].split() == ["0"] * 6  # no additive bias asked for
+    np.testing.assert_allclose(pose_to_matrix(odometry[-1].pose.pose), fuse_offline(settings, messages), atol=1e-9)
