@@ -372,8 +372,10 @@ def card_vo_bias(card: Any) -> float:
 
 def card_vo_fusion(card: Any) -> dict[str, float]:
     """The fusion parameters (flat, ``inputs.correction.*``) with which the VO learns its bias from the card's
-    corrections, as `pvo dpc-net calibrate --drives` chose: the translation bias (``vo_bias_windows``) and the turns'
-    scale (``calibration.vo_rotation_scale``: windows and gain); {} for none, and when the card fuses nothing."""
+    corrections, as `pvo dpc-net calibrate --drives` chose: the translation bias (``vo_bias_windows``), the turns'
+    scale (``calibration.vo_rotation_scale``: windows and gain) and the steps' scale
+    (``calibration.vo_translation_scale_windows``); {} for none, and when the card fuses nothing. ``ValueError`` naming
+    the entry for a malformed one."""
     calibration = card.calibration or {}
     parameters: dict[str, float] = {}
     bias = card_vo_bias(card)
