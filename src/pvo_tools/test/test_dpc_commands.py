@@ -523,15 +523,15 @@ def test_the_report_says_how_a_card_weighs_its_corrections() -> None:
         "VO span 250 frames; the validation split's mean residual removed from the corrections"
     )
     assert fusion_summary(SimpleNamespace(calibration=chosen | {"vo_bias_windows": 30.0})).endswith(
-        "VO span 250 frames; the VO's translation bias learned from the corrections over ~30 of them"
+        "VO span 250 frames; the VO's translation bias learned from the corrections (over ~30)"
     )
     stepped = chosen | {"vo_translation_scale_windows": 100.0}
     assert fusion_summary(SimpleNamespace(calibration=stepped)).endswith(
-        "VO span 250 frames; its steps rescaled by the scale the corrections teach (over ~100)"
+        "VO span 250 frames; the VO's steps rescaled by the scale the corrections teach (over ~100)"
     )
     rescaled = chosen | {"vo_bias_windows": 10.0, "vo_rotation_scale": {"windows": 1000.0, "gain": 0.5}}
     assert fusion_summary(SimpleNamespace(calibration=rescaled)).endswith(
-        "over ~10 of them; its turns rescaled by 0.5 of the scale the corrections teach (over ~1000)"
+        "(over ~10); its turns rescaled by 0.5 of the scale they teach (over ~1000)"
     )
     refused = chosen | {"fused_axes": []}
     # a card from before the harm tolerance had every drive lowered; a newer one says its tolerance

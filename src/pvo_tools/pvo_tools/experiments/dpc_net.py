@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..dpc import RIGS, TEST_DRIVES, in_world, render_drives
+from ..dpc import RIGS, TEST_DRIVES, card_vo_fusion, describe_vo_fusion, in_world, render_drives
 from ..paths import data_directory
 from .common import TRAJECTORY_METRICS, ExperimentRun, fusion_figures, trajectory_tables
 
@@ -91,22 +91,7 @@ def fusion_summary(card: Any) -> str:
             f"chosen on the validation drives {names}: axes {' '.join(calibration['fused_axes'])}, VO span "
             f"{calibration.get('vo_span')} frames"
             + ("; the validation split's mean residual removed from the corrections" if calibration.get("remove_mean") else "")
-            + (
-                f"; the VO's translation bias learned from the corrections over ~{calibration['vo_bias_windows']:g} of them"
-                if calibration.get("vo_bias_windows")
-                else ""
-            )
-            + (
-                f"; its turns rescaled by {calibration['vo_rotation_scale']['gain']:g} of the scale the corrections teach "
-                f"(over ~{calibration['vo_rotation_scale']['windows']:g})"
-                if calibration.get("vo_rotation_scale")
-                else ""
-            )
-            + (
-                f"; its steps rescaled by the scale the corrections teach (over ~{calibration['vo_translation_scale_windows']:g})"
-                if calibration.get("vo_translation_scale_windows")
-                else ""
-            )
+            + (f"; {debiasing}" if (debiasing := describe_vo_fusion(card_vo_fusion(card))) else "")
         )
     residual = calibration.get("residual") or {}
     axes = " ".join(a for a in ("x", "y", "z", "rx", "ry", "rz") if residual.get(f"corrected_{a}", 1.0))
