@@ -209,19 +209,11 @@ def correction_outputs(
     return 0.5 * (xi + unmirrored)
 
 
-def predict_corrections(
-    model: DPCNet,
-    card: ModelCard,
-    sequence: Path,
-    vo: Array,
-    cache_dir: Path | None = None,
-    stride: int | None = None,
-) -> Corrections:
-    """Corrections of the VO's transforms (camera-to-odom poses ``vo`` (N, 4, 4)) over windows of the card's
-    ``test_delta`` frames starting every ``stride`` frames (default :func:`window_stride`: Δp, consecutive windows
-    0 → Δp, Δp → 2Δp, ...; 1: every frame ends a window, 0 → Δp, 1 → Δp + 1, ...), any variant
-    (:func:`correction_vectors`), with :func:`measurement_covariance`; the validation mean error removed where the
-    card says so (:func:`remove_residual_mean`)."""
+def predict_corrections(model: DPCNet, card: ModelCard, sequence: Path, vo: Array, cache_dir: Path | None = None) -> Corrections:
+    """Corrections of the VO's transforms (camera-to-odom poses ``vo`` (N, 4, 4)) over consecutive windows of
+    the card's ``test_delta`` frames (0 → Δp, Δp → 2Δp, ...), any variant (:func:`correction_vectors`), with
+    :func:`measurement_covariance`; the validation mean error removed where the card says so
+    (:func:`remove_residual_mean`)."""
     config = DPCNetConfig.from_card(card)
     source = Source(Path(sequence), Path(sequence).name)
     size = (config.height, config.width)
@@ -230,10 +222,7 @@ def predict_corrections(
     if len(vo) != len(left):
         raise ValueError(f"the VO has {len(vo)} poses for the {len(left)} images of {sequence}")
     delta = config.test_delta
-    step = window_stride(card) if stride is None else int(stride)
-    if not 1 <= step <= delta:
-        raise ValueError(f"the windows' stride must be 1 to Δp = {delta} frames, got {stride}")
-    last = np.arange(delta, len(left), step)
+    last = np.arange(delta, len(left), delta)
     first = last - delta
 
     def frames(index: NDArray[np.int64]) -> torch.Tensor:
@@ -247,13 +236,6 @@ def predict_corrections(
     transforms = remove_residual_mean(transforms, card.calibration)
     covariance = measurement_covariance(config, card.calibration)
     return Corrections(first, last, transforms, np.broadcast_to(covariance, (len(last), 6, 6)).copy())
-
-
-def window_stride(card: ModelCard) -> int:
-    """Frames between the starts of two windows the card's corrections are made over: its calibration's
-    ``window_stride``, else Δp (consecutive windows, as the thesis)."""
-    delta = DPCNetConfig.from_card(card).test_delta
-    return int((card.calibration or {}).get("window_stride", delta))
 
 
 def overwrite_trajectory(vo: Array, corrections: Corrections) -> Array:
