@@ -282,6 +282,27 @@ def test_density_writes_its_card_entry_and_prints_its_figures(corpus: Path, tmp_
     assert "no desert sequence in the train split" in capsys.readouterr().err
 
 
+def test_widen_writes_its_card_entry_and_prints_its_figures(corpus: Path, tmp_path: Path, capsys) -> None:
+    import torch
+    from pvo_pseudosensors.hydranet.config import HydraNetConfig
+    from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask
+    from pvo_pseudosensors.learning.checkpoint import save_model
+
+    torch.manual_seed(0)
+    small = HydraNetConfig(height=48, width=144, widths=(8, 16), feature=8, heads=4, head_hidden=8)
+    model = save_model(tmp_path / "model", HydraNet(small), HydraTask(small).card())
+    args = ["hydranet", "widen", "--model", str(model), "--corpus", str(corpus), "--shift-corpus", str(corpus)]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    assert "predictions of 1 shift sequences ..." in captured.err  # each stage as it starts
+    assert "Sigma_a widened by 1 + " in captured.out and "r = tr Sigma_e / " in captured.out
+    assert "validation 11 pairs" in captured.out and "shift      11 pairs" in captured.out and "ANEES" in captured.out
+    entry = yaml.safe_load((model / "model.yaml").read_text())["calibration"]["spread_widening"]
+    assert entry["reference"] > 0.0 and entry["gamma"] >= 0.0 and "shift_anees" in entry
+    assert main([*args, "--shift-preset", "desert"]) == 2
+    assert "no desert sequence in the validation split" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("extra", [{}, {"pitch": True, "texture": True}])
 def test_bench_times_a_model_with_extra_input_channels(extra: dict, pvo_data: Path, tmp_path: Path, capsys) -> None:
     """The network stage is fed what the sensor feeds it: a model with the pitch (or texture) input is benched, not

@@ -20,6 +20,7 @@ from .config import ARCHITECTURE, HydraNetConfig
 from .density import QUANTILE, SHRINKAGE, FeatureDensity, fit_density, fit_gamma, normalised_errors
 from .flow import FlowPairs, network_input
 from .model import HydraEnsemble, HydraNet, RotationNetwork, inference_mode, predict_rotations
+from .widening import SpreadWidening, fit_widening
 
 Array = NDArray[np.float64]
 
@@ -44,7 +45,15 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
                 f"{directory / CARD}: the feature density is over {model.density.features} units, the network gives "
                 f"{model.config.feature}"
             )
+    widening_entry = (card.calibration or {}).get("spread_widening")
+    if widening_entry is not None:
+        try:
+            widening = SpreadWidening.from_entry(widening_entry)
+        except ValueError as error:
+            raise ModelFileError(f"{directory / CARD}: {error}") from None
     if not members:
+        if widening_entry is not None:
+            model.widening = widening
         return model, card
     if not isinstance(members, list) or not all(isinstance(m, str) for m in members):
         raise ModelFileError(f"{directory / CARD}: calibration.members must be a list of directories, got {members!r}")
@@ -63,6 +72,8 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
         networks.append(member)
     ensemble = HydraEnsemble(networks)
     ensemble.eval()
+    if widening_entry is not None:
+        ensemble.widening = widening
     return ensemble, card
 
 
@@ -338,6 +349,84 @@ def calibrate_density(
             "quantile": quantile,
             "shrinkage": shrinkage,
             "components": components or density.features,
+            "validation_anees": calibration.validation_after["anees"],
+            "shift_anees_before": calibration.shift_before["anees"],
+            "shift_anees": calibration.shift_after["anees"],
+        },
+    }
+    write_card(directory, card)
+    return calibration
+
+
+@dataclass
+class WideningCalibration:
+    """What :func:`calibrate_widening` fitted and measured: the widening, and the figures
+    (:func:`~.evaluation.evaluate_rotations`' keys) of the in-distribution validation pairs and of the shift's pairs
+    without and with it."""
+
+    widening: SpreadWidening
+    validation_before: dict[str, float]
+    validation_after: dict[str, float]
+    shift_before: dict[str, float]
+    shift_after: dict[str, float]
+
+
+def calibrate_widening(
+    directory: Path,
+    validation: list[CachedSequence],
+    shift: list[CachedSequence],
+    say: Callable[[str], None] = lambda _: None,
+) -> WideningCalibration:
+    """Fit a :class:`~.widening.SpreadWidening` for the model in ``directory``: its reference from the
+    in-distribution ``validation`` sequences' pairs, its γ by maximum likelihood on the ``shift`` sequences' pairs
+    (validation pairs of a shift the model was not trained on); written into the card
+    (``calibration.spread_widening``, the card's other calibration kept). Every sequence needs its poses.txt;
+    ``say`` hears each stage as it starts."""
+    from ..learning.checkpoint import write_card
+    from .evaluation import evaluate_rotations, rotation_errors, true_relative_rotations
+
+    if not (validation and shift):
+        raise ValueError("a spread widening needs validation and shift sequences, each at least one")
+    directory = Path(directory)
+    model, card = load_hydranet(directory)
+    model.widening = None  # figures "before" are the model's own covariances
+    mode = inference_mode(card)
+    config = HydraNetConfig.from_card(card)
+
+    def measured(sequences: list[CachedSequence]) -> tuple[Array, Array, Array, Array]:
+        quaternions, epistemic, aleatoric, truth = [], [], [], []
+        for sequence, cache in sequences:
+            forward, backward = sequence_inputs(config, sequence, mode == "reversed", cache)
+            q, e, a = predict_flows(model, forward, mirrored=mode == "mirrored", reversed_flows=backward)
+            frames = np.arange(1, len(forward) + 1)
+            quaternions.append(q)
+            epistemic.append(e)
+            aleatoric.append(a)
+            truth.append(true_relative_rotations(read_kitti_poses(Path(sequence) / "poses.txt"), frames - 1, frames))
+        return np.vstack(quaternions), np.concatenate(epistemic), np.concatenate(aleatoric), np.concatenate(truth)
+
+    say(f"predictions of {len(validation)} validation sequences")
+    validation_q, validation_e, validation_a, validation_truth = measured(validation)
+    say(f"predictions of {len(shift)} shift sequences")
+    shift_q, shift_e, shift_a, shift_truth = measured(shift)
+    errors = rotation_errors(np.stack([quat_to_matrix(q) for q in shift_q]), shift_truth)
+    widening = fit_widening(validation_e, errors, shift_e, shift_a)
+
+    def figures(quaternions: Array, epistemic: Array, aleatoric: Array, truth: Array, widened: bool) -> dict[str, float]:
+        e = widening.widen(torch.from_numpy(epistemic), torch.from_numpy(aleatoric)).numpy() if widened else epistemic
+        return evaluate_rotations(quaternions, e + aleatoric, truth)
+
+    calibration = WideningCalibration(
+        widening,
+        figures(validation_q, validation_e, validation_a, validation_truth, False),
+        figures(validation_q, validation_e, validation_a, validation_truth, True),
+        figures(shift_q, shift_e, shift_a, shift_truth, False),
+        figures(shift_q, shift_e, shift_a, shift_truth, True),
+    )
+    card.calibration = {
+        **(card.calibration or {}),
+        "spread_widening": {
+            **widening.entry(),
             "validation_anees": calibration.validation_after["anees"],
             "shift_anees_before": calibration.shift_before["anees"],
             "shift_anees": calibration.shift_after["anees"],

@@ -247,7 +247,8 @@ def predict_rotations(
     are pooled the same way, their Sigma_a carried into C_k,k-1's left tangent space (R Sigma R^T, R = C_k,k-1).
     A network with a ``density`` (:class:`~.density.FeatureDensity`, attached by :func:`~.infer.load_hydranet` from
     its card) widens each pair's covariance by the density's factor g of the pair's features (as ``flow`` gives
-    them), the added part counted in Sigma_e."""
+    them), the added part counted in Sigma_e; one with a ``widening`` (:class:`~.widening.SpreadWidening`, from its
+    card too) widens Sigma_a by how far the heads' spread exceeds its usual size, the added part counted in Sigma_e."""
     model.eval()
     density = getattr(model, "density", None)
     with torch.no_grad():
@@ -277,6 +278,9 @@ def predict_rotations(
         rotation = quat.rotation_matrix(mean)
         aleatoric.append(rotation @ inverse @ rotation.transpose(-1, -2))
     epistemic, aleatoric_mean = quat.epistemic_covariance(heads, mean), torch.stack(aleatoric).mean(dim=0)
+    widening = getattr(model, "widening", None)
+    if widening is not None:  # heads disagreeing beyond their usual spread: Sigma_a widened with it, counted in Sigma_e
+        epistemic = widening.widen(epistemic, aleatoric_mean)
     if density is not None:  # pairs unlike the data the model was made for: their covariance widened, as epistemic
         extra = density.inflation(features.double()) - 1.0
         epistemic = epistemic + extra[:, None, None] * (epistemic + aleatoric_mean)

@@ -1,6 +1,7 @@
 """`pvo hydranet ensemble`: independently trained HydraNets made one model directory (the generated train /
 predict / eval / calibrate of :mod:`.models` take it like any other); `pvo hydranet density`: the feature density
-that widens the covariance of pairs unlike the model's data (:mod:`pvo_pseudosensors.hydranet.density`)."""
+that widens the covariance of pairs unlike the model's data (:mod:`pvo_pseudosensors.hydranet.density`); `pvo
+hydranet widen`: Sigma_a widened by the heads' spread (:mod:`pvo_pseudosensors.hydranet.widening`)."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ def register_actions(actions: Any, entry: Any) -> None:
     ensemble.add_argument("models", type=Path, nargs="+", help="model directories (at least two, the same input size)")
     ensemble.add_argument("--out", "-o", type=Path, required=True, help="new model directory (copies of the weights)")
     register_density(actions)
+    register_widening(actions)
 
 
 def register_density(actions: Any) -> None:
@@ -60,16 +62,9 @@ def register_density(actions: Any) -> None:
 
 
 def run_density(args: argparse.Namespace) -> int:
-    from pvo_core.readers import read_corpus_manifest
     from pvo_pseudosensors.hydranet.infer import calibrate_density
 
-    def sequences(corpus: Path, split: str, preset: str | None) -> list[tuple[Path, Path]]:
-        manifest = read_corpus_manifest(corpus)
-        chosen = [(s.root, manifest.path.parent / ".cache") for s in manifest.split(split) if preset in (None, s.preset)]
-        if not chosen:
-            raise ValueError(f"{corpus}: no {preset or ''} sequence in the {split} split".replace("  ", " "))
-        return chosen
-
+    sequences = _corpus_sequences
     calibration = calibrate_density(
         args.model,
         sequences(args.corpus, "train", args.preset),
@@ -92,6 +87,63 @@ def run_density(args: argparse.Namespace) -> int:
         print(
             f"  {label:<10} {int(before['pairs'])} pairs, mean error {before['angle_mean_deg']:.4f} deg: ANEES "
             f"{before['anees']:.3f} -> {after['anees']:.3f}, {100 * after['widened']:.1f} % of the pairs widened"
+        )
+    return 0
+
+
+def register_widening(actions: Any) -> None:
+    widen = actions.add_parser(
+        "widen",
+        help="fit how much Sigma_a widens where the heads disagree beyond their usual spread: the spread's reference "
+        "from a corpus's in-distribution validation pairs, the power so that a shift the model was not trained on "
+        "reads most likely; written into the model's card (calibration.spread_widening)",
+    )
+    widen.set_defaults(handler=run_widening)
+    widen.add_argument("--model", type=Path, required=True, help="model directory (its card is rewritten)")
+    widen.add_argument("--corpus", type=Path, required=True, help="in-distribution corpus: its validation split")
+    widen.add_argument("--preset", default="urban", help="the corpus's in-distribution preset (default urban)")
+    widen.add_argument(
+        "--shift-corpus",
+        type=Path,
+        required=True,
+        help="a corpus holding a shift the model was not trained on: its validation split",
+    )
+    widen.add_argument(
+        "--shift-preset", help="only this preset of the shift corpus (e.g. planetary for an urban model; default all)"
+    )
+
+
+def _corpus_sequences(corpus: Path, split: str, preset: str | None) -> list[tuple[Path, Path]]:
+    from pvo_core.readers import read_corpus_manifest
+
+    manifest = read_corpus_manifest(corpus)
+    chosen = [(s.root, manifest.path.parent / ".cache") for s in manifest.split(split) if preset in (None, s.preset)]
+    if not chosen:
+        raise ValueError(f"{corpus}: no {preset or ''} sequence in the {split} split".replace("  ", " "))
+    return chosen
+
+
+def run_widening(args: argparse.Namespace) -> int:
+    from pvo_pseudosensors.hydranet.infer import calibrate_widening
+
+    calibration = calibrate_widening(
+        args.model,
+        _corpus_sequences(args.corpus, "validation", args.preset),
+        _corpus_sequences(args.shift_corpus, "validation", args.shift_preset),
+        say=lambda stage: print(f"pvo hydranet widen: {stage} ...", file=sys.stderr, flush=True),
+    )
+    widening = calibration.widening
+    print(
+        f"{args.model}: Sigma_a widened by 1 + {widening.gamma:.2f} (r - 1) above r = 1, "
+        f"r = tr Sigma_e / {widening.reference:.4g} rad^2"
+    )
+    for label, before, after in (
+        ("validation", calibration.validation_before, calibration.validation_after),
+        ("shift", calibration.shift_before, calibration.shift_after),
+    ):
+        print(
+            f"  {label:<10} {int(before['pairs'])} pairs, mean error {before['angle_mean_deg']:.4f} deg: ANEES "
+            f"{before['anees']:.3f} -> {after['anees']:.3f}"
         )
     return 0
 
