@@ -202,12 +202,14 @@ def _hydranet() -> ModelEntry:
         figures = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth))
         members = (card.calibration or {}).get("members")  # an ensemble stays one
         density = (card.calibration or {}).get("feature_density")  # `pvo hydranet density`'s, kept
+        widening = (card.calibration or {}).get("spread_widening")  # `pvo hydranet widen`'s, kept
         card.calibration = {
             **figures,
             "sequences": float(len(sequences)),
             "mode": mode,
             **({"members": members} if members else {}),
             **({"feature_density": density} if density else {}),
+            **({"spread_widening": widening} if widening else {}),
         }
         write_card(model_dir, card)
         return figures

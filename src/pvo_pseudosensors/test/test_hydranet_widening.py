@@ -99,6 +99,11 @@ def test_the_widening_goes_into_the_card_and_prediction_reads_it(tmp_path: Path)
     factor = result.widening.factor(torch.from_numpy(plain.epistemic)).numpy()
     np.testing.assert_allclose(widened.quaternions, plain.quaternions, atol=1e-12)
     np.testing.assert_allclose(widened.covariance, plain.epistemic + plain.aleatoric * factor[:, None, None], rtol=1e-9)
+    # choosing the inference mode keeps the widening
+    from pvo_pseudosensors.registry import models
+
+    models()["hydranet"].calibrate(directory, [tmp_path / "validation"], mode="plain")
+    assert read_card(directory).calibration["spread_widening"] == entry
     # a broken entry is one line naming the card
     card.calibration["spread_widening"] = {"reference": -1.0, "gamma": 0.5}
     write_card(directory, card)
