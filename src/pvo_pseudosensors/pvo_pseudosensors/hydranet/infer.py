@@ -254,17 +254,23 @@ CachedSequence = tuple[Path, "Path | None"]
 
 
 @dataclass
-class DensityCalibration:
-    """What :func:`calibrate_density` fitted and measured: the density (gamma fitted), the pairs it was fitted on,
-    and the figures (:func:`~.evaluation.evaluate_rotations`' keys, plus ``widened``: the share of pairs whose
-    covariance grows) of the in-distribution validation pairs and of the shift's pairs, without and with it."""
+class ShiftFigures:
+    """The figures (:func:`~.evaluation.evaluate_rotations`' keys) of the in-distribution validation pairs and of a
+    shift's pairs, without and with a covariance widening."""
 
-    density: FeatureDensity
-    fitting_pairs: int
     validation_before: dict[str, float]
     validation_after: dict[str, float]
     shift_before: dict[str, float]
     shift_after: dict[str, float]
+
+
+@dataclass
+class DensityCalibration(ShiftFigures):
+    """What :func:`calibrate_density` fitted and measured: the density (gamma fitted), the pairs it was fitted on,
+    and the figures (plus ``widened``: the share of pairs whose covariance grows)."""
+
+    density: FeatureDensity
+    fitting_pairs: int
 
 
 def calibrate_density(
@@ -333,12 +339,12 @@ def calibrate_density(
         return {**evaluate_rotations(quaternions, widened, truth), "widened": float((inflation > 1.0).double().mean())}
 
     calibration = DensityCalibration(
-        density,
-        len(fitted_on),
-        figures(validation_q, validation_covariances, validation_truth, None),
-        figures(validation_q, validation_covariances, validation_truth, density.inflation(validation_features)),
-        figures(shift_q, shift_covariances, shift_truth, None),
-        figures(shift_q, shift_covariances, shift_truth, density.inflation(shift_features)),
+        validation_before=figures(validation_q, validation_covariances, validation_truth, None),
+        validation_after=figures(validation_q, validation_covariances, validation_truth, density.inflation(validation_features)),
+        shift_before=figures(shift_q, shift_covariances, shift_truth, None),
+        shift_after=figures(shift_q, shift_covariances, shift_truth, density.inflation(shift_features)),
+        density=density,
+        fitting_pairs=len(fitted_on),
     )
     entry = density.save(directory)
     card.calibration = {
@@ -359,16 +365,10 @@ def calibrate_density(
 
 
 @dataclass
-class WideningCalibration:
-    """What :func:`calibrate_widening` fitted and measured: the widening, and the figures
-    (:func:`~.evaluation.evaluate_rotations`' keys) of the in-distribution validation pairs and of the shift's pairs
-    without and with it."""
+class WideningCalibration(ShiftFigures):
+    """What :func:`calibrate_widening` fitted and measured: the widening, and the figures."""
 
     widening: SpreadWidening
-    validation_before: dict[str, float]
-    validation_after: dict[str, float]
-    shift_before: dict[str, float]
-    shift_after: dict[str, float]
 
 
 def calibrate_widening(
@@ -417,11 +417,11 @@ def calibrate_widening(
         return evaluate_rotations(quaternions, e + aleatoric, truth)
 
     calibration = WideningCalibration(
-        widening,
-        figures(validation_q, validation_e, validation_a, validation_truth, False),
-        figures(validation_q, validation_e, validation_a, validation_truth, True),
-        figures(shift_q, shift_e, shift_a, shift_truth, False),
-        figures(shift_q, shift_e, shift_a, shift_truth, True),
+        validation_before=figures(validation_q, validation_e, validation_a, validation_truth, False),
+        validation_after=figures(validation_q, validation_e, validation_a, validation_truth, True),
+        shift_before=figures(shift_q, shift_e, shift_a, shift_truth, False),
+        shift_after=figures(shift_q, shift_e, shift_a, shift_truth, True),
+        widening=widening,
     )
     card.calibration = {
         **(card.calibration or {}),

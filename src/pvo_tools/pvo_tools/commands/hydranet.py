@@ -25,6 +25,14 @@ def register_actions(actions: Any, entry: Any) -> None:
     register_widening(actions)
 
 
+def _shift_arguments(parser: Any, corpus_help: str, shift_help: str) -> None:
+    """The model, in-distribution corpus and preset, and shift corpus a covariance widening is fitted with."""
+    parser.add_argument("--model", type=Path, required=True, help="model directory (its card is rewritten)")
+    parser.add_argument("--corpus", type=Path, required=True, help=corpus_help)
+    parser.add_argument("--preset", default="urban", help="the corpus's in-distribution preset (default urban)")
+    parser.add_argument("--shift-corpus", type=Path, required=True, help=shift_help)
+
+
 def register_density(actions: Any) -> None:
     density = actions.add_parser(
         "density",
@@ -33,14 +41,10 @@ def register_density(actions: Any) -> None:
         "reads consistent; written into the model's card",
     )
     density.set_defaults(handler=run_density)
-    density.add_argument("--model", type=Path, required=True, help="model directory (its card is rewritten)")
-    density.add_argument("--corpus", type=Path, required=True, help="in-distribution corpus: its train and validation splits")
-    density.add_argument("--preset", default="urban", help="the corpus's preset to take (default urban)")
-    density.add_argument(
-        "--shift-corpus",
-        type=Path,
-        required=True,
-        help="a corpus of a shift the model was not trained on (e.g. faster drives): its validation split",
+    _shift_arguments(
+        density,
+        "in-distribution corpus: its train and validation splits",
+        "a corpus of a shift the model was not trained on (e.g. faster drives): its validation split",
     )
     density.add_argument(
         "--quantile",
@@ -80,14 +84,7 @@ def run_density(args: argparse.Namespace) -> int:
         f"{args.model}: feature density over {density.features} units fitted on {calibration.fitting_pairs} pairs; "
         f"widening above r = {density.threshold:.3f} with power {density.gamma:.4f}"
     )
-    for label, before, after in (
-        ("validation", calibration.validation_before, calibration.validation_after),
-        ("shift", calibration.shift_before, calibration.shift_after),
-    ):
-        print(
-            f"  {label:<10} {int(before['pairs'])} pairs, mean error {before['angle_mean_deg']:.4f} deg: ANEES "
-            f"{before['anees']:.3f} -> {after['anees']:.3f}, {100 * after['widened']:.1f} % of the pairs widened"
-        )
+    _print_shift_figures(calibration, lambda after: f", {100 * after['widened']:.1f} % of the pairs widened")
     return 0
 
 
@@ -99,14 +96,10 @@ def register_widening(actions: Any) -> None:
         "reads most likely; written into the model's card (calibration.spread_widening)",
     )
     widen.set_defaults(handler=run_widening)
-    widen.add_argument("--model", type=Path, required=True, help="model directory (its card is rewritten)")
-    widen.add_argument("--corpus", type=Path, required=True, help="in-distribution corpus: its validation split")
-    widen.add_argument("--preset", default="urban", help="the corpus's in-distribution preset (default urban)")
-    widen.add_argument(
-        "--shift-corpus",
-        type=Path,
-        required=True,
-        help="a corpus holding a shift the model was not trained on: its validation split",
+    _shift_arguments(
+        widen,
+        "in-distribution corpus: its validation split",
+        "a corpus holding a shift the model was not trained on: its validation split",
     )
     widen.add_argument(
         "--shift-preset", help="only this preset of the shift corpus (e.g. planetary for an urban model; default all)"
@@ -137,15 +130,20 @@ def run_widening(args: argparse.Namespace) -> int:
         f"{args.model}: Sigma_a widened by 1 + {widening.gamma:.2f} (r - 1) above r = 1, "
         f"r = tr Sigma_e / {widening.reference:.4g} rad^2"
     )
+    _print_shift_figures(calibration)
+    return 0
+
+
+def _print_shift_figures(calibration: Any, extra: Any = lambda after: "") -> None:
+    """One line per pair set (validation, shift) of a widening's figures: pairs, mean error, ANEES before -> after."""
     for label, before, after in (
         ("validation", calibration.validation_before, calibration.validation_after),
         ("shift", calibration.shift_before, calibration.shift_after),
     ):
         print(
             f"  {label:<10} {int(before['pairs'])} pairs, mean error {before['angle_mean_deg']:.4f} deg: ANEES "
-            f"{before['anees']:.3f} -> {after['anees']:.3f}"
+            f"{before['anees']:.3f} -> {after['anees']:.3f}{extra(after)}"
         )
-    return 0
 
 
 def run_ensemble(args: argparse.Namespace) -> int:
