@@ -45,14 +45,14 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
                 f"{directory / CARD}: the feature density is over {model.density.features} units, the network gives "
                 f"{model.config.feature}"
             )
-    widening_entry = (card.calibration or {}).get("spread_widening")
-    if widening_entry is not None:
+    widening = None
+    if (widening_entry := (card.calibration or {}).get("spread_widening")) is not None:
         try:
             widening = SpreadWidening.from_entry(widening_entry)
         except ValueError as error:
             raise ModelFileError(f"{directory / CARD}: {error}") from None
     if not members:
-        if widening_entry is not None:
+        if widening is not None:
             model.widening = widening
         return model, card
     if not isinstance(members, list) or not all(isinstance(m, str) for m in members):
@@ -72,7 +72,7 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
         networks.append(member)
     ensemble = HydraEnsemble(networks)
     ensemble.eval()
-    if widening_entry is not None:
+    if widening is not None:
         ensemble.widening = widening
     return ensemble, card
 

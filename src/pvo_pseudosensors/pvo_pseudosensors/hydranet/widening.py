@@ -21,9 +21,10 @@ from typing import Any
 
 import numpy as np
 import torch
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-Array = NDArray[np.float64]
+from .density import normalised_errors
+
 #: the powers a fit tries (0: no widening)
 GAMMAS = np.linspace(0.0, 3.0, 301)
 
@@ -65,17 +66,6 @@ class SpreadWidening:
         return cls(reference, gamma)
 
 
-def _traces(covariances: ArrayLike) -> Array:
-    return np.trace(np.asarray(covariances, dtype=float), axis1=-2, axis2=-1)
-
-
-def mean_negative_log_likelihood(errors: ArrayLike, covariances: ArrayLike) -> float:
-    """Mean over pairs of ½ eᵀ Σ⁻¹ e + ½ log det Σ (errors (N, 3) rad, Σ (N, 3, 3) rad²)."""
-    errors, covariances = np.asarray(errors, dtype=float), np.asarray(covariances, dtype=float)
-    nees = np.einsum("ni,nij,nj->n", errors, np.linalg.inv(covariances), errors)
-    return float(np.mean(0.5 * nees + 0.5 * np.linalg.slogdet(covariances)[1]))
-
-
 def fit_widening(
     reference_epistemic: ArrayLike,
     shift_errors: ArrayLike,
@@ -86,12 +76,17 @@ def fit_widening(
     """The widening whose reference is the median tr Σ_e of the in-distribution pairs' ``reference_epistemic``
     (M, 3, 3) and whose γ, among ``gammas``, gives the shift's pairs (their rotation errors (N, 3) rad, Σ_e and Σ_a
     (N, 3, 3) rad²) the lowest mean negative log-likelihood."""
-    traces = _traces(reference_epistemic)
+    traces = np.trace(np.asarray(reference_epistemic, dtype=float), axis1=-2, axis2=-1)
     if traces.size == 0 or len(np.asarray(shift_errors)) == 0:
         raise ValueError("fitting a spread widening needs in-distribution and shift pairs, at least one of each")
     reference = float(np.median(traces))
+    errors = torch.as_tensor(np.asarray(shift_errors, dtype=float))
     epistemic = torch.as_tensor(np.asarray(shift_epistemic, dtype=float))
     aleatoric = torch.as_tensor(np.asarray(shift_aleatoric, dtype=float))
+
+    def negative_log_likelihood(candidate: SpreadWidening) -> float:  # eq. 7.17 without its constant, per pair
+        covariances = candidate.widen(epistemic, aleatoric) + aleatoric
+        return float((0.5 * normalised_errors(errors, covariances) + 0.5 * torch.linalg.slogdet(covariances)[1]).mean())
+
     candidates = [SpreadWidening(reference, float(g)) for g in np.asarray(gammas, dtype=float)]
-    scores = [mean_negative_log_likelihood(shift_errors, (c.widen(epistemic, aleatoric) + aleatoric).numpy()) for c in candidates]
-    return candidates[int(np.argmin(scores))]
+    return min(candidates, key=negative_log_likelihood)
