@@ -153,6 +153,27 @@ def test_rotation_factor_matches_eq_7_22_and_uses_the_rotation_block() -> None:
     assert robust.error(values) == pytest.approx(1.0 * (whitened - 0.5), rel=1e-6)
 
 
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 0.04, 1.3, np.pi - 1e-7])
+def test_the_rotation_factor_computes_rotation_error_and_its_jacobians(angle: float) -> None:
+    """The factor runs on GTSAM's Rot3 for speed; its residual and Jacobians are the numpy reference's
+    (``rotation_error``, checked by finite differences above), from the identity to nearly pi."""
+    pose_from, pose_to = random_pose(), random_pose()
+    axis = RNG.normal(size=3)
+    measured = pose_from.rotation().matrix().T @ pose_to.rotation().matrix() @ so3_exp(angle * axis / np.linalg.norm(axis))
+    reading = np.eye(4)
+    reading[:3, :3] = measured.T  # a RelativePose carries C_to,from
+    covariance = np.diag([9.0, 9.0, 9.0, 1e-4, 2e-4, 3e-4])
+    values = gtsam.Values()
+    values.insert(X(0), pose_from)
+    values.insert(X(1), pose_to)
+    e, j_from, j_to = rotation_error(pose_from.rotation().matrix(), pose_to.rotation().matrix(), measured)
+    factor = rotation_factor(X(0), X(1), reading, covariance)
+    np.testing.assert_allclose(factor.unwhitenedError(values), e, atol=1e-9)
+    whitening = np.linalg.cholesky(np.linalg.inv(covariance[3:, 3:])).T
+    jacobian = factor.linearize(values).jacobian()[0]
+    np.testing.assert_allclose(jacobian, whitening @ np.hstack([j_from, j_to]), atol=1e-6 * np.abs(jacobian).max())
+
+
 def test_a_rotation_read_with_an_offset_is_exact_at_that_offset_and_its_jacobian_is_the_identity() -> None:
     pose_from, pose_to = random_pose(), random_pose()
     offset = np.array([0.002, -0.004, 0.001])

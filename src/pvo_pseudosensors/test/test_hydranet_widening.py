@@ -64,6 +64,24 @@ def test_the_fit_recovers_the_power_the_errors_were_drawn_with() -> None:
         fit_widening(np.zeros((0, 3, 3)), errors, epistemic, aleatoric)
 
 
+def test_a_higher_reference_quantile_leaves_more_pairs_unwidened() -> None:
+    """The reference is the quantile asked for: at the 90th percentile nine in ten in-distribution pairs keep their
+    covariance, where the median widens half of them."""
+    traces = np.arange(1, 11, dtype=float) * 1e-8  # tr Sigma_e of ten in-distribution pairs: 1e-8 ... 1e-7
+    in_distribution = traces[:, None, None] * np.eye(3) / 3.0
+    aleatoric = np.broadcast_to(np.eye(3) * 4e-7, (10, 3, 3)).copy()
+    errors = np.full((10, 3), 1e-3)  # far beyond Sigma_a: the fit widens as far as the grid lets it
+    median = fit_widening(in_distribution, errors, in_distribution, aleatoric)
+    upper = fit_widening(in_distribution, errors, in_distribution, aleatoric, reference_quantile=0.9)
+    assert median.reference == pytest.approx(np.quantile(traces, 0.5))
+    assert upper.reference == pytest.approx(np.quantile(traces, 0.9))
+    widened = {w: int((w.factor(torch.from_numpy(in_distribution)) > 1.0).sum()) for w in (median, upper)}
+    assert widened[median] == 5 and widened[upper] == 1
+    for bad in (0.0, 1.0, -0.5):
+        with pytest.raises(ValueError, match=f"reference quantile must lie in \\(0, 1\\), got {bad}"):
+            fit_widening(in_distribution, errors, in_distribution, aleatoric, reference_quantile=bad)
+
+
 def test_prediction_widens_sigma_a_by_the_factor_and_counts_it_as_epistemic() -> None:
     torch.manual_seed(0)
     model = HydraNet(TINY)

@@ -299,6 +299,13 @@ def test_widen_writes_its_card_entry_and_prints_its_figures(corpus: Path, tmp_pa
     assert "validation 11 pairs" in captured.out and "shift      11 pairs" in captured.out and "ANEES" in captured.out
     entry = yaml.safe_load((model / "model.yaml").read_text())["calibration"]["spread_widening"]
     assert entry["reference"] > 0.0 and entry["gamma"] >= 0.0 and "shift_anees" in entry
+    assert entry["reference_quantile"] == 0.9  # the default: only pairs beyond nine in ten of the usual spread widen
+    assert main([*args, "--reference-quantile", "0.5"]) == 0
+    capsys.readouterr()
+    median = yaml.safe_load((model / "model.yaml").read_text())["calibration"]["spread_widening"]
+    assert median["reference_quantile"] == 0.5 and median["reference"] < entry["reference"]
+    assert main([*args, "--reference-quantile", "1.5"]) == 2
+    assert "reference quantile must lie in (0, 1), got 1.5" in capsys.readouterr().err
     assert main([*args, "--shift-preset", "desert"]) == 2
     assert "no desert sequence in the validation split" in capsys.readouterr().err
 

@@ -7,6 +7,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import pytest
 from pvo_core.readers import read_kitti_sun_sequence
 from pvo_tools.experiments.sun_sim import sun_measurements, sun_seed
 
@@ -59,3 +60,26 @@ def test_experiments_are_listed_and_unknown_kinds_are_errors() -> None:
     for command in (["pvo", "experiment", "sun-real"], ["pvo", "bench", "gpu"]):
         bad = subprocess.run(command, capture_output=True, text=True, timeout=60)
         assert bad.returncode == 2 and "invalid choice" in bad.stderr, bad.stderr
+
+
+def test_bench_fusion_reads_noisy_relative_rotations_every_frame(pvo_data: Path, capsys) -> None:
+    """`pvo bench fusion --rotations SIGMA`: one reading per frame pair, C_k,k-1 off the truth by about SIGMA per axis,
+    published with that covariance and fused by the rotation factor."""
+    from pvo_core.lie import so3_log
+    from pvo_tools.cli import main
+    from pvo_tools.commands.bench import noisy_relative_rotations
+
+    seq = read_kitti_sun_sequence(pvo_data, "04")
+    readings = noisy_relative_rotations(seq.stamps, seq.ground_truth, 0.5)
+    assert len(readings) == len(seq.stamps) - 1 and all(r.rotation_only for r in readings)
+    truth = [seq.ground_truth[k][:3, :3].T @ seq.ground_truth[k - 1][:3, :3] for k in range(1, len(seq.stamps))]
+    errors = np.degrees([so3_log(c.T @ r.transform[:3, :3]) for c, r in zip(truth, readings, strict=True)])
+    assert np.std(errors, axis=0) == pytest.approx([0.5, 0.5, 0.5], rel=0.15)
+    np.testing.assert_allclose(readings[0].covariance[3:, 3:], np.eye(3) * np.radians(0.5) ** 2)
+    assert [r.reference_stamp for r in readings[1:]] == [r.stamp for r in readings[:-1]]
+    with pytest.raises(ValueError, match="the noise must be a positive number of degrees, got -1.0"):
+        noisy_relative_rotations(seq.stamps, seq.ground_truth, -1.0)
+    command = ["bench", "fusion", "--data", str(pvo_data), "--sequence", "04", "--repeat", "1", "--rotations", "0.05"]
+    assert main([*command, "-p", "inputs.rotation.gate_probability=0"]) == 0  # no gate: every reading fused
+    out = capsys.readouterr().out
+    assert "270 relative rotations (0.05 deg per axis)" in out and "'rotation': 270" in out

@@ -376,9 +376,10 @@ def calibrate_widening(
     validation: list[CachedSequence],
     shift: list[CachedSequence],
     say: Callable[[str], None] = lambda _: None,
+    reference_quantile: float = 0.5,
 ) -> WideningCalibration:
-    """Fit a :class:`~.widening.SpreadWidening` for the model in ``directory``: its reference from the
-    in-distribution ``validation`` sequences' pairs, its γ by maximum likelihood on the ``shift`` sequences' pairs
+    """Fit a :class:`~.widening.SpreadWidening` for the model in ``directory``: its reference the
+    ``reference_quantile`` of tr Σ_e over the in-distribution ``validation`` sequences' pairs, its γ by maximum likelihood on the ``shift`` sequences' pairs
     (validation pairs of a shift the model was not trained on); written into the card
     (``calibration.spread_widening``, the card's other calibration kept). Every sequence needs its poses.txt;
     ``say`` hears each stage as it starts."""
@@ -410,7 +411,7 @@ def calibrate_widening(
     say(f"predictions of {len(shift)} shift sequences")
     shift_q, shift_e, shift_a, shift_truth = measured(shift)
     errors = rotation_errors(np.stack([quat_to_matrix(q) for q in shift_q]), shift_truth)
-    widening = fit_widening(validation_e, errors, shift_e, shift_a)
+    widening = fit_widening(validation_e, errors, shift_e, shift_a, reference_quantile=reference_quantile)
 
     def figures(quaternions: Array, epistemic: Array, aleatoric: Array, truth: Array, widened: bool) -> dict[str, float]:
         e = widening.widen(torch.from_numpy(epistemic), torch.from_numpy(aleatoric)).numpy() if widened else epistemic
@@ -427,6 +428,7 @@ def calibrate_widening(
         **(card.calibration or {}),
         "spread_widening": {
             **widening.entry(),
+            "reference_quantile": float(reference_quantile),
             "validation_anees": calibration.validation_after["anees"],
             "shift_anees_before": calibration.shift_before["anees"],
             "shift_anees": calibration.shift_after["anees"],

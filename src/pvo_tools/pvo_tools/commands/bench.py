@@ -109,6 +109,13 @@ def register(sub: Any) -> None:
     bf.add_argument("--sequence", default="00", help="KITTI sequence (default 00: 4541 frames)")
     bf.add_argument("--repeat", type=int, default=3, help="runs; the fastest is reported (default 3)")
     bf.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="fusion parameter")
+    bf.add_argument(
+        "--rotations",
+        type=float,
+        metavar="SIGMA_DEG",
+        help="also a relative rotation every frame, as HydraNet's: the true one with this much noise per axis (deg), "
+        "fused by the rotation factor (the sun stays)",
+    )
 
 
 BENCH_VARIANTS: dict[str, dict[str, Any]] = {
@@ -499,14 +506,16 @@ def bench_fusion(args: argparse.Namespace) -> int:
     data = data_directory(args.data)
     seq, vo, sun = prepare_sequence(data, args.sequence, 10.0, seed=0)
     config = experiment_config(parse_overrides(args.param))
+    rotations = [] if args.rotations is None else noisy_relative_rotations(seq.stamps, seq.ground_truth, args.rotations)
     times = []
     for _ in range(max(args.repeat, 1)):
-        result = run_fusion(seq, vo, sun, config)
+        result = run_fusion(seq, vo, sun, config, rotations=rotations)
         times.append(result.seconds)
     frames = len(seq.stamps)
     best = min(times)
+    read = f", {len(rotations)} relative rotations ({args.rotations:g} deg per axis)" if rotations else ""
     print(
-        f"sequence {args.sequence}: {frames} frames, {len(sun)} sun measurements, "
+        f"sequence {args.sequence}: {frames} frames, {len(sun)} sun measurements{read}, "
         f"smoother {config.solver.smoother}/{config.solver.linear_solver}, lag {config.window.lag:g} {config.window.lag_unit}"
     )
     print(
@@ -525,7 +534,7 @@ def bench_fusion(args: argparse.Namespace) -> int:
 
     tracemalloc.start()
     rss_start = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    run_fusion(seq, vo, sun, config, on_vo=sample)
+    run_fusion(seq, vo, sun, config, on_vo=sample, rotations=rotations)
     current, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     rss_end = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -534,6 +543,27 @@ def bench_fusion(args: argparse.Namespace) -> int:
         f"  end: {current / 1e6:.2f} MB live, peak {peak / 1e6:.2f} MB; max RSS {rss_start / 1024:.0f} -> {rss_end / 1024:.0f} MB"
     )
     return 0
+
+
+def noisy_relative_rotations(stamps: Any, ground_truth: Any, sigma_deg: float, seed: int = 0) -> list[Any]:
+    """A rotation reading per frame k >= 1, as HydraNet's: C_k,k-1 of ``ground_truth`` (N, 4, 4, T_map,cam) times
+    Exp(noise), the noise N(0, sigma_deg² I) per axis (deg), published with that covariance (rotation block)."""
+    import numpy as np
+    from pvo_core.lie import so3_exp
+    from pvo_fusion.measurements import RelativeMeasurement
+
+    if not (np.isfinite(sigma_deg) and sigma_deg > 0.0):
+        raise ValueError(f"--rotations: the noise must be a positive number of degrees, got {sigma_deg}")
+    rng = np.random.default_rng(seed)
+    sigma = np.radians(sigma_deg)
+    covariance = np.diag([1e4, 1e4, 1e4] + [sigma**2] * 3)
+    readings = []
+    for k in range(1, len(stamps)):
+        reading = np.eye(4)
+        c_to_from = ground_truth[k][:3, :3].T @ ground_truth[k - 1][:3, :3]
+        reading[:3, :3] = c_to_from @ so3_exp(rng.normal(0.0, sigma, 3))
+        readings.append(RelativeMeasurement(int(stamps[k]), int(stamps[k - 1]), reading, covariance, rotation_only=True))
+    return readings
 
 
 def bench_soak(args: argparse.Namespace) -> int:

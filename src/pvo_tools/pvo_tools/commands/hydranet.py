@@ -104,6 +104,13 @@ def register_widening(actions: Any) -> None:
     widen.add_argument(
         "--shift-preset", help="only this preset of the shift corpus (e.g. planetary for an urban model; default all)"
     )
+    widen.add_argument(
+        "--reference-quantile",
+        type=float,
+        default=0.9,
+        help="the quantile of the validation pairs' tr Sigma_e that is the spread's reference: pairs below it are "
+        "never widened (default 0.9, the shipped card's; 0.5 widens every pair above the median)",
+    )
 
 
 def _corpus_sequences(corpus: Path, split: str, preset: str | None) -> list[tuple[Path, Path]]:
@@ -124,6 +131,7 @@ def run_widening(args: argparse.Namespace) -> int:
         _corpus_sequences(args.corpus, "validation", args.preset),
         _corpus_sequences(args.shift_corpus, "validation", args.shift_preset),
         say=lambda stage: print(f"pvo hydranet widen: {stage} ...", file=sys.stderr, flush=True),
+        reference_quantile=args.reference_quantile,
     )
     widening = calibration.widening
     print(

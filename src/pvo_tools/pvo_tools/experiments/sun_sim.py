@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,11 +101,14 @@ def run_fusion(
     config: FusionConfig,
     covariance_every: int = 0,
     on_vo: Callable[[int, FusionGraph], None] | None = None,
+    rotations: Sequence[RelativeMeasurement] = (),
 ) -> OfflineResult:
-    """Fuse one sequence; ``sun=None`` runs VO alone through the same graph."""
+    """Fuse one sequence; ``sun=None`` runs VO alone through the same graph; ``rotations`` (relative rotations, as
+    HydraNet's) join it, each just before the VO of its frame."""
     graph = FusionGraph(config, TabulatedSunReference(seq.stamps, seq.sun_map()))
     graph.set_initial_pose(seq.ground_truth[0])
-    return run_offline(graph, seq.stamps, ordered_events(vo, sun_events(sun or [])), covariance_every, on_vo)
+    others = sun_events(sun or []) + [("rotation", r) for r in rotations]
+    return run_offline(graph, seq.stamps, ordered_events(vo, others, before=("rotation",)), covariance_every, on_vo)
 
 
 @dataclass
