@@ -379,8 +379,9 @@ def calibrate_widening(
     reference_quantile: float = 0.5,
 ) -> WideningCalibration:
     """Fit a :class:`~.widening.SpreadWidening` for the model in ``directory``: its reference the
-    ``reference_quantile`` of tr Σ_e over the in-distribution ``validation`` sequences' pairs, its γ by maximum likelihood on the ``shift`` sequences' pairs
-    (validation pairs of a shift the model was not trained on); written into the card
+    ``reference_quantile`` of tr Σ_e over the in-distribution ``validation`` sequences' pairs, its γ by maximum
+    likelihood on the ``shift`` sequences' pairs (validation pairs of a shift the model was not trained on); written
+    into the card
     (``calibration.spread_widening``, the card's other calibration kept). Every sequence needs its poses.txt;
     ``say`` hears each stage as it starts."""
     from ..learning.checkpoint import write_card
