@@ -34,6 +34,16 @@ def rotation_message(estimate: RotationEstimate, header: Any) -> RelativePose:
     return out
 
 
+def widening_words(calibration: dict[str, Any]) -> str:
+    """What the start-up line says of a card's covariance widening (the user should know the covariance is not the
+    network's alone)."""
+    spread = calibration.get("spread_widening")
+    if not isinstance(spread, dict):
+        return ""
+    gamma = float(spread.get("gamma", 0.0))
+    return f", Sigma_a widened by 1 + {gamma:g} max(0, r - 1), r the heads' spread over its reference (card: spread_widening)"
+
+
 class HydraNetNode(PvoNode[HydraNetSensorConfig, None]):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("hydranet", HydraNetSensorConfig(), status_topic="/pvo/hydranet/status", **kwargs)
@@ -51,6 +61,7 @@ class HydraNetNode(PvoNode[HydraNetSensorConfig, None]):
                 + f", {card.hyperparameters['heads']} heads, "
                 f"{card.hyperparameters['covariance']} aleatoric covariance"
                 + ("" if self.sensor.pitch_deg is None else f", told the camera's pitch {self.sensor.pitch_deg:g} deg")
+                + widening_words(card.calibration or {})
             )
             if self.sensor.pitch_deg is None and self.config.camera_pitch_deg != 0.0:
                 self.get_logger().warning(

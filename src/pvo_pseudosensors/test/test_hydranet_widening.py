@@ -129,3 +129,11 @@ def test_the_widening_goes_into_the_card_and_prediction_reads_it(tmp_path: Path)
         load_hydranet(directory)
     with pytest.raises(ValueError, match="needs validation and shift sequences"):
         calibrate_widening(directory, [], [(tmp_path / "shift", None)])
+
+
+def test_the_node_says_at_start_up_that_its_covariance_is_widened() -> None:
+    from pvo_pseudosensors.hydranet_node import widening_words
+
+    words = widening_words({"spread_widening": {"reference": 9.2e-8, "gamma": 0.93, "reference_quantile": 0.9}})
+    assert words == ", Sigma_a widened by 1 + 0.93 max(0, r - 1), r the heads' spread over its reference (card: spread_widening)"
+    assert widening_words({}) == "" and widening_words({"spread_widening": "broken"}) == ""
