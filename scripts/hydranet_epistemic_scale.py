@@ -12,32 +12,18 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from hydranet_widening_forms import collect as collect_pairs
 from numpy.typing import NDArray
-from pvo_core.readers import read_corpus_manifest
-from pvo_core.trajectory import read_kitti_poses
-from pvo_pseudosensors.hydranet.evaluation import true_relative_rotations
-from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+from pvo_pseudosensors.hydranet.infer import load_hydranet
 from pvo_pseudosensors.learning.checkpoint import ModelFileError
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
 
 def collect(model, card, corpus: Path, split: str, preset: str) -> tuple[Array, Array, Array]:
     """Left rotation errors log(C_true C_pred^T) (N, 3) rad, Sigma_e and Sigma_a (N, 3, 3) rad² of every pair."""
-    errors, epistemic, aleatoric = [], [], []
-    for item in read_corpus_manifest(corpus).split(split):
-        if item.preset != preset:
-            continue
-        predictions = predict_sequence(model, card, item.root, cache_dir=corpus / ".cache")
-        truth = true_relative_rotations(read_kitti_poses(item.root / "poses.txt"), predictions.earlier, predictions.frames)
-        predicted = Rotation.from_quat(predictions.quaternions[:, [1, 2, 3, 0]]).as_matrix()
-        errors.append(Rotation.from_matrix(truth @ np.transpose(predicted, (0, 2, 1))).as_rotvec())
-        epistemic.append(predictions.epistemic)
-        aleatoric.append(predictions.aleatoric)
-    if not errors:
-        raise SystemExit(f"{corpus}: no {preset} sequence in the {split} split")
-    return np.vstack(errors), np.concatenate(epistemic), np.concatenate(aleatoric)
+    pairs = collect_pairs(model, card, corpus, split, preset)
+    return pairs["errors"], pairs["epistemic"], pairs["aleatoric"]
 
 
 def nees(errors: Array, covariance: Array) -> Array:
