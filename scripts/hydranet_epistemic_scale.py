@@ -11,11 +11,9 @@ import argparse
 from pathlib import Path
 
 import numpy as np
-import torch
 from hydranet_widening_forms import collect as collect_pairs
+from hydranet_widening_forms import load_or_exit
 from numpy.typing import NDArray
-from pvo_pseudosensors.hydranet.infer import load_hydranet
-from pvo_pseudosensors.learning.checkpoint import ModelFileError
 
 Array = NDArray[np.float64]
 
@@ -42,11 +40,7 @@ def main() -> None:
     parser.add_argument("--in-preset", default="urban", help="the preset the model was trained on (lambda is fitted there)")
     parser.add_argument("--out-preset", default="planetary")
     args = parser.parse_args()
-    torch.set_num_threads(2)
-    try:
-        model, card = load_hydranet(args.model)
-    except ModelFileError as error:
-        raise SystemExit(str(error)) from None
+    model, card = load_or_exit(args.model)
     keys = [(split, preset) for split in ("validation", "test") for preset in (args.in_preset, args.out_preset)]
     sets = {key: collect(model, card, args.corpus, *key) for key in keys}
     fit = sets[("validation", args.in_preset)]

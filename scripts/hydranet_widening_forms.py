@@ -56,6 +56,15 @@ def collect(model: torch.nn.Module, card: object, corpus: Path, split: str, pres
     return {k: np.concatenate(v) for k, v in parts.items()}
 
 
+def load_or_exit(directory: Path) -> tuple[torch.nn.Module, object]:
+    """The model and its card, on two threads; a model file it cannot read is one line and exit status 1."""
+    torch.set_num_threads(2)
+    try:
+        return load_hydranet(directory)
+    except ModelFileError as error:
+        raise SystemExit(str(error)) from None
+
+
 def trace(matrices: Array) -> Array:
     return np.trace(matrices, axis1=-2, axis2=-1)
 
@@ -100,11 +109,7 @@ def main() -> None:
     parser.add_argument("--shift-preset", default="planetary", help="the shift gamma is fitted on")
     parser.add_argument("--splits", default="validation", help="splits to read, comma-separated (choose on validation)")
     args = parser.parse_args()
-    torch.set_num_threads(2)
-    try:
-        model, card = load_hydranet(args.model)
-    except ModelFileError as error:
-        raise SystemExit(str(error)) from None
+    model, card = load_or_exit(args.model)
     model.widening = None
     splits = args.splits.split(",")
     sets = {(s, p): collect(model, card, args.corpus, s, p) for s in splits for p in (args.in_preset, args.shift_preset)}
