@@ -191,6 +191,11 @@ def _hydranet() -> ModelEntry:
         if mode not in MODES:
             raise ValueError(f"--mode {mode}: HydraNet runs {', '.join(MODES[:-1])} or {MODES[-1]}")
         model, card = load_hydranet(model_dir)
+        widening = (card.calibration or {}).get("spread_widening")  # `pvo hydranet widen`'s: kept in its own mode
+        dropped = bool(widening) and widening.get("mode", "plain") != mode
+        if dropped:  # its reference is another mode's spread (stop 67: plain's read in mirrored mode gave ANEES 0.33)
+            model.widening = None
+            widening = None
         card.calibration = {**(card.calibration or {}), "mode": mode}
         quaternions, covariances, truth = [], [], []
         for sequence in sequences:
@@ -202,7 +207,6 @@ def _hydranet() -> ModelEntry:
         figures = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth))
         members = (card.calibration or {}).get("members")  # an ensemble stays one
         density = (card.calibration or {}).get("feature_density")  # `pvo hydranet density`'s, kept
-        widening = (card.calibration or {}).get("spread_widening")  # `pvo hydranet widen`'s, kept
         card.calibration = {
             **figures,
             "sequences": float(len(sequences)),
@@ -212,10 +216,11 @@ def _hydranet() -> ModelEntry:
             **({"spread_widening": widening} if widening else {}),
         }
         write_card(model_dir, card)
-        return figures
+        return {**figures, "spread_widening_dropped": 1.0} if dropped else figures
 
     def summary(figures: dict[str, float]) -> list[str]:
-        return [
+        dropped = [f"{'spread widening':<24} dropped: fitted in another inference mode (run pvo hydranet widen again)"]
+        return (dropped if figures.get("spread_widening_dropped") else []) + [
             f"{'frame pairs':<24} {int(figures['pairs'])}",
             f"{'angular error (deg)':<24} mean {figures['angle_mean_deg']:.4f}   median {figures['angle_median_deg']:.4f}"
             f"   rms {figures['angle_rms_deg']:.4f}",

@@ -120,8 +120,15 @@ def test_the_widening_goes_into_the_card_and_prediction_reads_it(tmp_path: Path)
     # choosing the inference mode keeps the widening
     from pvo_pseudosensors.registry import models
 
-    models()["hydranet"].calibrate(directory, [tmp_path / "validation"], mode="plain")
+    hydranet = models()["hydranet"]
+    assert entry["mode"] == "plain"
+    assert "spread_widening_dropped" not in hydranet.calibrate(directory, [tmp_path / "validation"], mode="plain")
     assert read_card(directory).calibration["spread_widening"] == entry
+    # ... in its own mode only: another mode's spread is not the one its reference was taken from
+    figures = hydranet.calibrate(directory, [tmp_path / "validation"], mode="mirrored")
+    assert "spread_widening" not in read_card(directory).calibration and read_card(directory).calibration["mode"] == "mirrored"
+    assert hydranet.summary(figures)[0].endswith("dropped: fitted in another inference mode (run pvo hydranet widen again)")
+    assert getattr(load_hydranet(directory)[0], "widening", None) is None
     # a broken entry is one line naming the card
     card.calibration["spread_widening"] = {"reference": -1.0, "gamma": 0.5}
     write_card(directory, card)

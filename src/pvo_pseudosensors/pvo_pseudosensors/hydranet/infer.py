@@ -430,6 +430,7 @@ def calibrate_widening(
         "spread_widening": {
             **widening.entry(),
             "reference_quantile": float(reference_quantile),
+            "mode": mode,  # the spread is the mode's own: mirrored and reversed inference pool more readings
             "validation_anees": calibration.validation_after["anees"],
             "shift_anees_before": calibration.shift_before["anees"],
             "shift_anees": calibration.shift_after["anees"],
