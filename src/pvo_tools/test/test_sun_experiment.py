@@ -83,3 +83,5 @@ def test_bench_fusion_reads_noisy_relative_rotations_every_frame(pvo_data: Path,
     assert main([*command, "-p", "inputs.rotation.gate_probability=0"]) == 0  # no gate: every reading fused
     out = capsys.readouterr().out
     assert "270 relative rotations (0.05 deg per axis)" in out and "'rotation': 270" in out
+    assert main(["bench", "fusion", "--data", str(pvo_data), "--sequence", "04", "--rotations", "nan"]) == 2
+    assert "--rotations: the noise must be a positive number of degrees, got nan" in capsys.readouterr().err

@@ -501,8 +501,12 @@ def bench_realism(args: argparse.Namespace) -> int:
 
 def bench_fusion(args: argparse.Namespace) -> int:
     """Whole-sequence FusionGraph throughput and memory (VO + GT-Sun-10, no covariance queries)."""
+    import numpy as np
+
     from ..experiments.sun_sim import experiment_config, prepare_sequence, run_fusion
 
+    if args.rotations is not None and not (np.isfinite(args.rotations) and args.rotations > 0.0):  # before the VO runs
+        raise ValueError(f"--rotations: the noise must be a positive number of degrees, got {args.rotations}")
     data = data_directory(args.data)
     seq, vo, sun = prepare_sequence(data, args.sequence, 10.0, seed=0)
     config = experiment_config(parse_overrides(args.param))
