@@ -200,13 +200,38 @@ def test_experiment_reports_every_section(
     figures = json.loads((out / "metrics.json").read_text())["figures"]
     assert figures["test.urban.pairs"] == 11.0 and figures["ms_per_pair_median"] > 0.0
     assert "urban: 1 sequences (in distribution)" in report and "planetary: 1 sequences (out of distribution)" in report
-    assert figures["ood.epistemic_ratio"] > 0.0
+    assert figures["ood.epistemic_ratio"] > 0.0 and "ood.heads_epistemic_ratio" not in figures  # no widening: one spread
     assert 0.0 < figures["kitti06.vo_angle_mean_deg"] < 0.2  # the stereo VO on the real clip, for comparison
     tuned = yaml.safe_load((out / "kitti-finetuned" / "model.yaml").read_text())
     assert "fine-tuned from" in tuned["notes"]
     staged = (out / "kitti06" / "poses.txt").read_text().splitlines()
     assert len(staged) == 51  # the clip's poses, relative to its first frame
     np.testing.assert_allclose(np.array(staged[0].split(), float).reshape(3, 4), np.eye(4)[:3], atol=1e-12)
+
+
+def test_the_heads_own_spread_is_read_without_the_cards_widening(corpus: Path, tmp_path: Path) -> None:
+    """Section 2 reports the heads' own Sigma_e growth beside one that carries a widening's added part."""
+    import torch
+    from pvo_core.readers import read_corpus_manifest
+    from pvo_pseudosensors.hydranet.config import HydraNetConfig
+    from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+    from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask
+    from pvo_pseudosensors.hydranet.widening import SpreadWidening
+    from pvo_pseudosensors.learning.checkpoint import save_model
+    from pvo_tools.experiments.hydranet import heads_spread
+
+    torch.manual_seed(0)
+    small = HydraNetConfig(height=48, width=144, widths=(8, 16), feature=8, heads=4, head_hidden=8)
+    model, card = load_hydranet(save_model(tmp_path / "model", HydraNet(small), HydraTask(small).card()))
+    test = read_corpus_manifest(corpus).split("test")
+    presets = tuple(sorted({s.preset for s in test}))
+    plain = heads_spread(model, card, test, presets, None)
+    widening = SpreadWidening(reference=1e-12, gamma=2.0)  # every pair far beyond: all widened
+    model.widening = widening
+    assert heads_spread(model, card, test, presets, None) == plain and model.widening is widening
+    for preset in presets:
+        widened = [predict_sequence(model, card, s.root).epistemic for s in test if s.preset == preset]
+        assert np.trace(np.concatenate(widened), axis1=1, axis2=2).mean() > 10.0 * plain[preset]
 
 
 def test_a_model_of_several_corpora_was_trained_on_their_presets() -> None:

@@ -94,6 +94,28 @@ def evaluate_sequence(
     return Evaluated(label, figures), (predictions, truth)
 
 
+def heads_spread(model: Any, card: Any, sequences: list[Any], presets: tuple[str, ...], cache: Path | None) -> dict[str, float]:
+    """Mean tr Sigma_e (rad²) of the heads alone — no spread widening — over the pairs of ``sequences`` of each preset."""
+    from pvo_pseudosensors.hydranet.infer import predict_sequence
+
+    widening, model.widening = getattr(model, "widening", None), None
+    try:
+        return {
+            preset: float(
+                np.concatenate(
+                    [
+                        np.trace(predict_sequence(model, card, s.root, cache_dir=cache).epistemic, axis1=1, axis2=2)
+                        for s in sequences
+                        if s.preset == preset
+                    ]
+                ).mean()
+            )
+            for preset in presets
+        }
+    finally:
+        model.widening = widening
+
+
 def pooled(label: str, parts: list[tuple[Any, Array]]) -> Evaluated:
     from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations
 
@@ -346,22 +368,30 @@ def run(args: argparse.Namespace) -> int:
     ]
 
     # 2. out of distribution: the presets the model never saw
-    inside = [g for _, seen, g in groups if seen]
-    outside = [g for _, seen, g in groups if not seen]
+    inside = [(p, g) for p, seen, g in groups if seen]
+    outside = [(p, g) for p, seen, g in groups if not seen]
     if inside and outside:
-        ratio = outside[0].figures["epistemic_trace"] / inside[0].figures["epistemic_trace"]
-        total = outside[0].figures["covariance_trace"] / inside[0].figures["covariance_trace"]
+        (in_preset, inner), (out_preset, outer) = inside[0], outside[0]
+        ratio = outer.figures["epistemic_trace"] / inner.figures["epistemic_trace"]
+        total = outer.figures["covariance_trace"] / inner.figures["covariance_trace"]
         figures["ood.epistemic_ratio"], figures["ood.covariance_ratio"] = ratio, total
-        figures["ood.anees_in"], figures["ood.anees_out"] = inside[0].figures["anees"], outside[0].figures["anees"]
+        figures["ood.anees_in"], figures["ood.anees_out"] = inner.figures["anees"], outer.figures["anees"]
         report += [
             "## 2. Out of distribution (§7.5.1)",
             "",
-            f"{outside[0].label} against {inside[0].label}: mean tr Sigma_e grows **{ratio:.2f}x** out of distribution,",
+            f"{outer.label} against {inner.label}: mean tr Sigma_e grows **{ratio:.2f}x** out of distribution,",
             f"the total covariance {total:.2f}x, while the error grows "
-            f"{outside[0].figures['angle_mean_deg'] / inside[0].figures['angle_mean_deg']:.2f}x; ANEES in "
-            f"{inside[0].figures['anees']:.2f}, out {outside[0].figures['anees']:.2f}.",
-            "",
+            f"{outer.figures['angle_mean_deg'] / inner.figures['angle_mean_deg']:.2f}x; ANEES in "
+            f"{inner.figures['anees']:.2f}, out {outer.figures['anees']:.2f}.",
         ]
+        if getattr(model, "widening", None) is not None:  # its added part rides in Sigma_e: the heads' own spread too
+            heads = heads_spread(model, card, test, (in_preset, out_preset), cache)
+            figures["ood.heads_epistemic_ratio"] = heads[out_preset] / heads[in_preset]
+            report += [
+                f"The card's spread widening counts its added part Sigma_a (f - 1) in Sigma_e; the heads' own spread grows "
+                f"{figures['ood.heads_epistemic_ratio']:.2f}x.",
+            ]
+        report.append("")
 
     # 3. the aleatoric head's form
     if args.other_form:
