@@ -501,12 +501,10 @@ def bench_realism(args: argparse.Namespace) -> int:
 
 def bench_fusion(args: argparse.Namespace) -> int:
     """Whole-sequence FusionGraph throughput and memory (VO + GT-Sun-10, no covariance queries)."""
-    import numpy as np
-
     from ..experiments.sun_sim import experiment_config, prepare_sequence, run_fusion
 
-    if args.rotations is not None and not (np.isfinite(args.rotations) and args.rotations > 0.0):  # before the VO runs
-        raise ValueError(f"--rotations: the noise must be a positive number of degrees, got {args.rotations}")
+    if args.rotations is not None:
+        check_rotation_noise(args.rotations)  # before the VO runs
     data = data_directory(args.data)
     seq, vo, sun = prepare_sequence(data, args.sequence, 10.0, seed=0)
     config = experiment_config(parse_overrides(args.param))
@@ -549,6 +547,12 @@ def bench_fusion(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_rotation_noise(sigma_deg: float) -> None:
+    """ValueError unless ``sigma_deg`` is a finite positive number of degrees."""
+    if not (sigma_deg > 0.0 and sigma_deg != float("inf")):  # NaN fails the first test
+        raise ValueError(f"--rotations: the noise must be a positive number of degrees, got {sigma_deg}")
+
+
 def noisy_relative_rotations(stamps: Any, ground_truth: Any, sigma_deg: float, seed: int = 0) -> list[Any]:
     """A rotation reading per frame k >= 1, as HydraNet's: C_k,k-1 of ``ground_truth`` (N, 4, 4, T_map,cam) times
     Exp(noise), the noise N(0, sigma_deg² I) per axis (deg), published with that covariance (rotation block)."""
@@ -556,8 +560,7 @@ def noisy_relative_rotations(stamps: Any, ground_truth: Any, sigma_deg: float, s
     from pvo_core.lie import so3_exp
     from pvo_fusion.measurements import RelativeMeasurement
 
-    if not (np.isfinite(sigma_deg) and sigma_deg > 0.0):
-        raise ValueError(f"--rotations: the noise must be a positive number of degrees, got {sigma_deg}")
+    check_rotation_noise(sigma_deg)
     rng = np.random.default_rng(seed)
     sigma = np.radians(sigma_deg)
     covariance = np.diag([1e4, 1e4, 1e4] + [sigma**2] * 3)
