@@ -66,7 +66,7 @@ class HydraNetNode(PvoNode[HydraNetSensorConfig, None]):
             if self.sensor.pitch_deg is None and self.config.camera_pitch_deg != 0.0:
                 self.get_logger().warning(
                     f"camera_pitch_deg {self.config.camera_pitch_deg:g} ignored: this model has no pitch input "
-                    "(model: hydranet_pitch has)"
+                    "(the default model, hydranet, has)"
                 )
 
     def _on_image(self, msg: Image) -> None:

@@ -543,23 +543,25 @@ def _flows(source) -> torch.Tensor:
     return torch.from_numpy(np.asarray(pairs.forward, dtype=np.float32))
 
 
-def test_the_shipped_pitch_model_is_found_by_name_and_reads_the_pitch_it_is_told(pvo_data: Path) -> None:
-    """``hydranet_pitch`` is a shipped name like ``hydranet_kitti``; its card has the pitch input, so the camera's
-    pitch reaches the network: the same two KITTI images read as a level and as a 20-degree pitched camera differ.
+def test_the_shipped_default_reads_the_pitch_it_is_told_and_the_level_model_is_found_by_name(pvo_data: Path) -> None:
+    """The default model (since stop 68) has the pitch input, so the camera's pitch reaches the network; the level
+    model it replaced is a shipped name like ``hydranet_kitti`` and has none: the same two KITTI images read as a level
+    and as a 20-degree pitched camera differ.
     (Nothing here asks the weights to be good.)"""
     import cv2
     from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig, resolve_model
     from pvo_pseudosensors.learning.checkpoint import read_card
 
-    directory = resolve_model("hydranet_pitch")
-    assert directory.parts[-2:] == ("models", "hydranet_pitch")
-    assert HydraNetConfig.from_card(read_card(directory)).pitch
-    assert not HydraNetConfig.from_card(read_card(resolve_model(""))).pitch  # the default stays level-only
+    directory = resolve_model("hydranet_level")
+    assert directory.parts[-2:] == ("models", "hydranet_level")
+    assert not HydraNetConfig.from_card(read_card(directory)).pitch
+    assert resolve_model("") == resolve_model("hydranet") and resolve_model("").parts[-2:] == ("models", "hydranet")
+    assert HydraNetConfig.from_card(read_card(resolve_model(""))).pitch
     paths = sorted((pvo_data / "kitti" / "sequences" / "06" / "image_0").glob("*.png"))[:2]
     images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
     readings = []
     for pitch in (0.0, 20.0):
-        sensor = HydraNetSensor(HydraNetSensorConfig(model="hydranet_pitch", camera_pitch_deg=pitch))
+        sensor = HydraNetSensor(HydraNetSensorConfig(camera_pitch_deg=pitch))
         estimates = [sensor.estimate(image, (k + 1) * 100_000_000) for k, image in enumerate(images)]
         assert np.all(np.isfinite(estimates[1].quaternion)) and np.all(np.isfinite(estimates[1].covariance))
         readings.append(estimates[1].quaternion)

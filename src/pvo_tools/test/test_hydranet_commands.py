@@ -151,6 +151,24 @@ def test_presets_only_keeps_those_sequences(corpus: Path, tmp_path: Path, capsys
     assert yaml.safe_load((tmp_path / "m" / "model.yaml").read_text())["corpus"]["presets"] == ["urban"]
 
 
+def test_the_default_model_takes_a_recording_without_sim_yaml_as_level_and_says_so(corpus: Path, tmp_path: Path, capsys) -> None:
+    """The shipped default reads the camera's pitch; a sequence with no sim.yaml (a real recording) is read as a
+    level camera, as the node's camera_pitch_deg default, with one line saying so; --pitch-deg overrides it."""
+    sequence = corpus / "0003"
+    assert not (sequence / "sim.yaml").exists()
+    paths = {name: tmp_path / f"{name}.csv" for name in ("default", "level", "pitched")}
+    assert main(["hydranet", "predict", str(sequence), "--model", "hydranet", "-o", str(paths["default"])]) == 0
+    assert f"{sequence}: no sim.yaml, the camera's pitch taken as 0 deg" in capsys.readouterr().err
+    for name, pitch in (("level", "0"), ("pitched", "20")):
+        assert (
+            main(["hydranet", "predict", str(sequence), "--model", "hydranet", "--pitch-deg", pitch, "-o", str(paths[name])]) == 0
+        )
+        assert "no sim.yaml" not in capsys.readouterr().err
+    rows = {name: np.loadtxt(path, delimiter=",", skiprows=1) for name, path in paths.items()}
+    np.testing.assert_array_equal(rows["default"], rows["level"])
+    assert not np.allclose(rows["default"][:, 2:6], rows["pitched"][:, 2:6], atol=1e-7)
+
+
 def test_bad_inputs_are_one_line(corpus: Path, tmp_path: Path, capsys) -> None:
     out = str(tmp_path / "p.csv")
     assert main(["hydranet", "predict", str(corpus / "0003"), "--model", str(tmp_path / "none"), "-o", out]) == 2

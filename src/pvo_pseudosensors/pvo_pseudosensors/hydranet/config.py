@@ -8,8 +8,9 @@ from typing import Any
 from ..learning.spec import DataSpec
 
 #: Models installed with the package, by name (``model: NAME``).
-#: trained on the synthetic corpus (level cameras) / fine-tuned on KITTI 07 / told the camera's pitch (opt-in)
-SHIPPED = ("hydranet", "hydranet_kitti", "hydranet_pitch")
+#: trained on the synthetic corpus and told the camera's pitch (the default since stop 68) / fine-tuned on KITTI 07 /
+#: the level cameras' model without the pitch input (the default until stop 68; opt-in)
+SHIPPED = ("hydranet", "hydranet_kitti", "hydranet_level")
 
 ARCHITECTURE = "hydranet"
 COVARIANCES = ("cholesky", "diagonal")

@@ -22,17 +22,17 @@ UNMEASURED = 9999.0  # variance of a RelativePose's translation block: HydraNet 
 
 def resolve_model(model: str) -> Path:
     """The ``model`` parameter as a directory: "" is the shipped synthetic model, ``hydranet``,
-    ``hydranet_kitti`` or ``hydranet_pitch`` (when no such local path exists) a shipped one, anything else a path."""
+    ``hydranet_kitti`` or ``hydranet_level`` (when no such local path exists) a shipped one, anything else a path."""
     return resolve_shipped(model, SHIPPED)
 
 
 @dataclass(frozen=True)
 class HydraNetSensorConfig:
-    """model: the model directory ("" = the shipped synthetic model; "hydranet_kitti" = the one fine-tuned on
-    KITTI; "hydranet_pitch" = the one told the camera's pitch, for cameras that look down); max_gap: seconds
-    between two images beyond which they are not paired (a dropped stretch of images: the next one starts
+    """model: the model directory ("" = the shipped synthetic model, told the camera's pitch; "hydranet_kitti" =
+    the one fine-tuned on KITTI; "hydranet_level" = the level cameras' model without the pitch input); max_gap:
+    seconds between two images beyond which they are not paired (a dropped stretch of images: the next one starts
     afresh); threads: torch threads; camera_pitch_deg: the camera's pitch below the horizon (deg, a mount
-    calibration), read only by a model trained with the pitch input."""
+    calibration; 0 = level, as KITTI's), read only by a model trained with the pitch input (the default is)."""
 
     model: str = ""
     max_gap: float = 0.5

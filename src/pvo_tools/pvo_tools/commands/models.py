@@ -112,7 +112,7 @@ def _predict_parser(actions: Any, entry: ModelEntry) -> None:
             "--pitch-deg",
             type=float,
             help="the camera's pitch below the horizon (deg), read by a model trained with --pitch (default: the pitch "
-            "the sequence's sim.yaml records)",
+            "the sequence's sim.yaml records; 0, level, where it has none)",
         )
     if not entry.mc_sampling:
         return
@@ -331,6 +331,17 @@ def run_train(args: argparse.Namespace, entry: ModelEntry) -> int:
     return 0
 
 
+def _reads_pitch(model: Path) -> bool:
+    """Whether the model's card says it was trained with the camera's pitch as an input (False where unreadable:
+    the predict call then names what is wrong with the model)."""
+    from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
+
+    try:
+        return bool(read_card(model).hyperparameters.get("pitch"))
+    except ModelFileError:
+        return False
+
+
 def run_predict(args: argparse.Namespace, entry: ModelEntry) -> int:
     assert entry.predict is not None
     if entry.shipped:
@@ -339,6 +350,13 @@ def run_predict(args: argparse.Namespace, entry: ModelEntry) -> int:
         args.model = resolve_model(str(args.model), entry.shipped)
     if not entry.mc_sampling:
         extra = {"pitch_deg": args.pitch_deg} if getattr(args, "pitch_deg", None) is not None else {}
+        if not extra and hasattr(args, "pitch_deg") and _reads_pitch(args.model) and not (args.sequence / "sim.yaml").is_file():
+            # As the node's camera_pitch_deg default: a recording without the simulator's record is taken as level.
+            extra = {"pitch_deg": 0.0}
+            print(
+                f"{args.sequence}: no sim.yaml, the camera's pitch taken as 0 deg (level; --pitch-deg to say otherwise)",
+                file=sys.stderr,
+            )
         predictions = entry.predict(args.model, args.sequence, cache_dir=args.cache, **extra)
         path = predictions.write_csv(args.out)
         print(f"{path}: {len(predictions.frames)} predictions")
