@@ -11,7 +11,7 @@ import torch
 from pvo_pseudosensors.hydranet.config import HydraNetConfig
 from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask, predict_rotations
 from pvo_pseudosensors.hydranet.synthetic import write_rotation_sequence
-from pvo_pseudosensors.hydranet.widening import SpreadWidening, fit_widening
+from pvo_pseudosensors.hydranet.widening import SpreadWidening, fit_widening, gamma_grid
 from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card, save_model, write_card
 
 TINY = HydraNetConfig(height=48, width=144, widths=(8, 16, 16), feature=16, heads=4, head_hidden=16, head_dropout=0.1)
@@ -62,6 +62,13 @@ def test_the_fit_recovers_the_power_the_errors_were_drawn_with() -> None:
     assert fit_widening(in_distribution, plain, epistemic, aleatoric).gamma == pytest.approx(0.0, abs=0.02)
     with pytest.raises(ValueError, match="needs in-distribution and shift pairs"):
         fit_widening(np.zeros((0, 3, 3)), errors, epistemic, aleatoric)
+    # a grid that stops below the truth stops the fit at its edge; one reaching past it finds the truth again
+    assert fit_widening(in_distribution, errors, epistemic, aleatoric, gamma_grid(0.5)).gamma == pytest.approx(0.5)
+    assert fit_widening(in_distribution, errors, epistemic, aleatoric, gamma_grid(20.0)).gamma == pytest.approx(0.8, abs=0.08)
+    assert len(gamma_grid(3.0)) == 301 and gamma_grid(3.0)[-1] == 3.0
+    for bad in (0.0, -1.0, float("nan"), 2000.0):
+        with pytest.raises(ValueError, match="largest power must lie in"):
+            gamma_grid(bad)
 
 
 def test_a_higher_reference_quantile_leaves_more_pairs_unwidened() -> None:

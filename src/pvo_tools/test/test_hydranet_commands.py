@@ -349,6 +349,13 @@ def test_widen_writes_its_card_entry_and_prints_its_figures(corpus: Path, tmp_pa
     assert median["reference_quantile"] == 0.5 and median["reference"] < entry["reference"]
     assert main([*args, "--reference-quantile", "1.5"]) == 2
     assert "reference quantile must lie in (0, 1), got 1.5" in capsys.readouterr().err
+    assert main([*args, "--max-gamma", "0"]) == 2
+    assert "largest power must lie in (0, 1000], got 0.0" in capsys.readouterr().err
+    assert main([*args, "--max-gamma", "0.01"]) == 0
+    printed = capsys.readouterr().out
+    bounded = yaml.safe_load((model / "model.yaml").read_text())["calibration"]["spread_widening"]
+    assert bounded["gamma"] <= 0.01 and bounded["max_gamma"] == 0.01
+    assert ("(at --max-gamma: the shift's pairs want more)" in printed) == (bounded["gamma"] == 0.01)
     assert main([*args, "--shift-preset", "desert"]) == 2
     assert "no desert sequence in the validation split" in capsys.readouterr().err
 

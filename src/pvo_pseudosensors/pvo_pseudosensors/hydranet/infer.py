@@ -20,7 +20,7 @@ from .config import ARCHITECTURE, HydraNetConfig
 from .density import QUANTILE, SHRINKAGE, FeatureDensity, fit_density, fit_gamma, normalised_errors
 from .flow import FlowPairs, network_input
 from .model import HydraEnsemble, HydraNet, RotationNetwork, inference_mode, predict_rotations
-from .widening import SpreadWidening, fit_widening
+from .widening import SpreadWidening, fit_widening, gamma_grid
 
 Array = NDArray[np.float64]
 
@@ -377,10 +377,12 @@ def calibrate_widening(
     shift: list[CachedSequence],
     say: Callable[[str], None] = lambda _: None,
     reference_quantile: float = 0.5,
+    max_gamma: float = 3.0,
 ) -> WideningCalibration:
     """Fit a :class:`~.widening.SpreadWidening` for the model in ``directory``: its reference the
     ``reference_quantile`` of tr Σ_e over the in-distribution ``validation`` sequences' pairs, its γ by maximum
-    likelihood on the ``shift`` sequences' pairs (validation pairs of a shift the model was not trained on); written
+    likelihood among 0 … ``max_gamma`` on the ``shift`` sequences' pairs (validation pairs of a shift the model was not
+    trained on); written
     into the card
     (``calibration.spread_widening``, the card's other calibration kept). Every sequence needs its poses.txt;
     ``say`` hears each stage as it starts."""
@@ -389,6 +391,7 @@ def calibrate_widening(
 
     if not (validation and shift):
         raise ValueError("a spread widening needs validation and shift sequences, each at least one")
+    gammas = gamma_grid(max_gamma)  # before the predictions: a bad bound is named at once
     directory = Path(directory)
     model, card = load_hydranet(directory)
     model.widening = None  # figures "before" are the model's own covariances
@@ -412,7 +415,7 @@ def calibrate_widening(
     say(f"predictions of {len(shift)} shift sequences")
     shift_q, shift_e, shift_a, shift_truth = measured(shift)
     errors = rotation_errors(np.stack([quat_to_matrix(q) for q in shift_q]), shift_truth)
-    widening = fit_widening(validation_e, errors, shift_e, shift_a, reference_quantile=reference_quantile)
+    widening = fit_widening(validation_e, errors, shift_e, shift_a, gammas, reference_quantile=reference_quantile)
 
     def figures(quaternions: Array, epistemic: Array, aleatoric: Array, truth: Array, widened: bool) -> dict[str, float]:
         e = widening.widen(torch.from_numpy(epistemic), torch.from_numpy(aleatoric)).numpy() if widened else epistemic
@@ -430,6 +433,7 @@ def calibrate_widening(
         "spread_widening": {
             **widening.entry(),
             "reference_quantile": float(reference_quantile),
+            "max_gamma": float(max_gamma),
             "mode": mode,  # the spread is the mode's own: mirrored and reversed inference pool more readings
             "validation_anees": calibration.validation_after["anees"],
             "shift_anees_before": calibration.shift_before["anees"],

@@ -27,8 +27,16 @@ from numpy.typing import ArrayLike
 
 from .density import normalised_errors
 
-#: the powers a fit tries (0: no widening)
-GAMMAS = np.linspace(0.0, 3.0, 301)
+#: the largest power a fit tries by default, and the grid's step (0: no widening)
+MAX_GAMMA = 3.0
+GAMMA_STEP = 0.01
+
+
+def gamma_grid(max_gamma: float = MAX_GAMMA) -> np.ndarray:
+    """The powers a fit tries: 0 to ``max_gamma`` (> 0) in steps of :data:`GAMMA_STEP`."""
+    if not 0.0 < max_gamma <= 1000.0:  # also NaN
+        raise ValueError(f"the spread widening's largest power must lie in (0, 1000], got {max_gamma}")
+    return np.linspace(0.0, max_gamma, round(max_gamma / GAMMA_STEP) + 1)
 
 
 @dataclass(frozen=True)
@@ -73,12 +81,12 @@ def fit_widening(
     shift_errors: ArrayLike,
     shift_epistemic: ArrayLike,
     shift_aleatoric: ArrayLike,
-    gammas: ArrayLike = GAMMAS,
+    gammas: ArrayLike | None = None,
     reference_quantile: float = 0.5,
 ) -> SpreadWidening:
     """The widening whose reference is the ``reference_quantile`` of tr Σ_e over the in-distribution pairs'
-    ``reference_epistemic`` (M, 3, 3) and whose γ, among ``gammas``, gives the shift's pairs (their rotation errors
-    (N, 3) rad, Σ_e and Σ_a (N, 3, 3) rad²) the lowest mean negative log-likelihood."""
+    ``reference_epistemic`` (M, 3, 3) and whose γ, among ``gammas`` (default :func:`gamma_grid`), gives the shift's
+    pairs (their rotation errors (N, 3) rad, Σ_e and Σ_a (N, 3, 3) rad²) the lowest mean negative log-likelihood."""
     if not 0.0 < reference_quantile < 1.0:
         raise ValueError(f"the spread widening's reference quantile must lie in (0, 1), got {reference_quantile}")
     traces = np.trace(np.asarray(reference_epistemic, dtype=float), axis1=-2, axis2=-1)
@@ -93,5 +101,6 @@ def fit_widening(
         covariances = candidate.widen(epistemic, aleatoric) + aleatoric
         return float((0.5 * normalised_errors(errors, covariances) + 0.5 * torch.linalg.slogdet(covariances)[1]).mean())
 
-    candidates = [SpreadWidening(reference, float(g)) for g in np.asarray(gammas, dtype=float)]
+    grid = gamma_grid() if gammas is None else np.asarray(gammas, dtype=float)
+    candidates = [SpreadWidening(reference, float(g)) for g in grid]
     return min(candidates, key=negative_log_likelihood)

@@ -111,6 +111,12 @@ def register_widening(actions: Any) -> None:
         help="the quantile of the validation pairs' tr Sigma_e that is the spread's reference: pairs below it are "
         "never widened (default 0.9, the shipped card's; 0.5 widens every pair above the median)",
     )
+    widen.add_argument(
+        "--max-gamma",
+        type=float,
+        default=3.0,
+        help="the largest power the fit tries (default 3; a fit at this bound says so: the shift wants more)",
+    )
 
 
 def _corpus_sequences(corpus: Path, split: str, preset: str | None) -> list[tuple[Path, Path]]:
@@ -132,11 +138,13 @@ def run_widening(args: argparse.Namespace) -> int:
         _corpus_sequences(args.shift_corpus, "validation", args.shift_preset),
         say=lambda stage: print(f"pvo hydranet widen: {stage} ...", file=sys.stderr, flush=True),
         reference_quantile=args.reference_quantile,
+        max_gamma=args.max_gamma,
     )
     widening = calibration.widening
+    edge = " (at --max-gamma: the shift's pairs want more)" if widening.gamma >= args.max_gamma else ""
     print(
         f"{args.model}: Sigma_a widened by 1 + {widening.gamma:.2f} (r - 1) above r = 1, "
-        f"r = tr Sigma_e / {widening.reference:.4g} rad^2"
+        f"r = tr Sigma_e / {widening.reference:.4g} rad^2{edge}"
     )
     _print_shift_figures(calibration)
     return 0
