@@ -20,7 +20,7 @@ from .config import ARCHITECTURE, HydraNetConfig
 from .density import QUANTILE, SHRINKAGE, FeatureDensity, fit_density, fit_gamma, normalised_errors
 from .flow import FlowPairs, network_input
 from .model import HydraEnsemble, HydraNet, RotationNetwork, inference_mode, predict_rotations
-from .widening import SpreadWidening, fit_widening, gamma_grid
+from .widening import MAX_GAMMA, SpreadWidening, fit_widening, gamma_grid
 
 Array = NDArray[np.float64]
 
@@ -377,15 +377,13 @@ def calibrate_widening(
     shift: list[CachedSequence],
     say: Callable[[str], None] = lambda _: None,
     reference_quantile: float = 0.5,
-    max_gamma: float = 3.0,
+    max_gamma: float = MAX_GAMMA,
 ) -> WideningCalibration:
     """Fit a :class:`~.widening.SpreadWidening` for the model in ``directory``: its reference the
     ``reference_quantile`` of tr Σ_e over the in-distribution ``validation`` sequences' pairs, its γ by maximum
     likelihood among 0 … ``max_gamma`` on the ``shift`` sequences' pairs (validation pairs of a shift the model was not
-    trained on); written
-    into the card
-    (``calibration.spread_widening``, the card's other calibration kept). Every sequence needs its poses.txt;
-    ``say`` hears each stage as it starts."""
+    trained on); written into the card (``calibration.spread_widening``, the card's other calibration kept). Every
+    sequence needs its poses.txt; ``say`` hears each stage as it starts."""
     from ..learning.checkpoint import write_card
     from .evaluation import evaluate_rotations, rotation_errors, true_relative_rotations
 
