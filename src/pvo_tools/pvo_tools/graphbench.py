@@ -1,7 +1,7 @@
 """Long runs of the real node graph for benchmarks: the soak (``pvo bench soak``) — a bag looped through
-stereo_vo + simulated_sun + sun_bcnn + fusion as processes, every node's memory sampled, every frame accounted
-for and the end-to-end latency compared between the start and the end of the run — and the faults
-(``pvo bench faults``)."""
+stereo_vo, the pseudo-sensor nodes (by default the main job's: sun_bcnn, hydranet, dpc_net) and fusion as
+processes, every node's memory and CPU time sampled, every frame and every sensor's output accounted for and the
+end-to-end latency compared between the start and the end of the run — and the faults (``pvo bench faults``)."""
 
 from __future__ import annotations
 
@@ -17,9 +17,12 @@ import yaml
 from .errors import PvoError
 
 NODES = (("pvo_frontend", "stereo_vo"), ("pvo_pseudosensors", "simulated_sun"), ("pvo_fusion", "fusion"))
-# the soak adds every learned pseudo-sensor node that exists; sun_bcnn's estimates join simulated_sun's on
-# /pvo/sun/direction (the fusion takes both against the same reference)
-SOAK_NODES = (*NODES, ("pvo_pseudosensors", "sun_bcnn"))
+# the soak's sensor nodes (package pvo_pseudosensors): each reads the left images but simulated_sun, which reads the
+# ground-truth sun; dpc_net also reads the right images and the VO
+SOAK_SENSORS = ("simulated_sun", "sun_bcnn", "hydranet", "dpc_net")
+SOAK_DEFAULT_SENSORS = ("sun_bcnn", "hydranet", "dpc_net")  # the main job's graph (`pvo demo` on the synthetic sample)
+SENSOR_STATUS = {"sun_bcnn": "/pvo/sun_bcnn/status", "hydranet": "/pvo/hydranet/status", "dpc_net": "/pvo/dpc_net/status"}
+SENSOR_COUNTERS = ("images", "published", "rejected")
 INPUTS = [
     "/stereo/left/image_rect",
     "/stereo/right/image_rect",
@@ -39,12 +42,46 @@ def _start_graph(
         group.start(package, executable, params_file, log_dir, env)
 
 
-def _wait_connected(player_node: Any, group: Any, listeners: int) -> None:
-    """Until the images and the VO each have ``listeners`` subscribers (the nodes, plus the benchmark's own
-    listeners) and the fused odometry one, then the settle time."""
+def soak_nodes(sensors: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
+    """stereo_vo, the ``sensors`` (among `SOAK_SENSORS`) and fusion as (package, executable)."""
+    unknown = [name for name in sensors if name not in SOAK_SENSORS]
+    if unknown or not sensors:
+        raise PvoError(
+            f"--sensors {','.join(sensors)!r}: "
+            + (f"unknown {', '.join(unknown)}; " if unknown else "none given; ")
+            + f"choose among {', '.join(SOAK_SENSORS)}"
+        )
+    return (("pvo_frontend", "stereo_vo"), *(("pvo_pseudosensors", name) for name in sensors), ("pvo_fusion", "fusion"))
+
+
+def soak_edges(sensors: tuple[str, ...], listeners: int) -> dict[str, tuple[int, int]]:
+    """Every edge of the soak's graph as (publishers, subscribers) at least, ``listeners`` of the benchmark's own
+    subscriptions on the left images, the VO and the fused odometry included."""
+    image_readers = 1 + sum(name in sensors for name in ("sun_bcnn", "hydranet", "dpc_net"))
+    edges = {
+        "/stereo/left/image_rect": (0, image_readers + listeners),
+        "/pvo/vo/relative": (1, 1 + ("dpc_net" in sensors) + listeners),
+        "/pvo/sun/direction": (sum(name in sensors for name in ("simulated_sun", "sun_bcnn")), 1),
+        "/pvo/fusion/odometry": (1, 1),
+    }
+    if "hydranet" in sensors:
+        edges["/pvo/hydranet/rotation"] = (1, 1)
+    if "dpc_net" in sensors:
+        edges["/pvo/dpc/correction"] = (1, 1)
+        edges["/stereo/right/image_rect"] = (0, 2)
+    if "simulated_sun" in sensors:
+        edges["/ground_truth/sun_direction"] = (0, 1)
+    return edges
+
+
+def _wait_connected(player_node: Any, group: Any, listeners: int, edges: dict[str, tuple[int, int]] | None = None) -> None:
+    """Until every edge of the graph is connected (``edges``; default: the images and the VO each have
+    ``listeners`` subscribers, the nodes plus the benchmark's own listeners, and the fused odometry one), then
+    the settle time."""
     from .launch import wait_for_graph
 
-    edges = {"/stereo/left/image_rect": (0, listeners), "/pvo/vo/relative": (1, listeners), "/pvo/fusion/odometry": (1, 1)}
+    if edges is None:
+        edges = {"/stereo/left/image_rect": (0, listeners), "/pvo/vo/relative": (1, listeners), "/pvo/fusion/odometry": (1, 1)}
     wait_for_graph(player_node, edges, timeout_s=60.0, check=group.check)
     time.sleep(GRAPH_SETTLE_S)
 
@@ -60,6 +97,21 @@ def rss_mb(pid: int) -> float:
     return math.nan
 
 
+def parse_cpu_seconds(stat: str, ticks_per_second: float) -> float:
+    """User plus system CPU time (s) of a process from its ``/proc/<pid>/stat`` line (fields 14 and 15, counted
+    after the command name, which may itself hold spaces and parentheses)."""
+    fields = stat[stat.rindex(")") + 2 :].split()
+    return (int(fields[11]) + int(fields[12])) / ticks_per_second
+
+
+def cpu_seconds(pid: int) -> float:
+    """User plus system CPU time (s) a process has used so far (its threads included); NaN when it is gone."""
+    try:
+        return parse_cpu_seconds(Path(f"/proc/{pid}/stat").read_text(), float(os.sysconf("SC_CLK_TCK")))
+    except (OSError, ValueError, IndexError):
+        return math.nan
+
+
 @dataclass
 class SoakResult:
     frames_played: int
@@ -69,7 +121,9 @@ class SoakResult:
     rss: dict[str, list[tuple[float, float]]] = field(default_factory=dict)  # node -> (s, MB)
     latencies_ms: list[tuple[int, float]] = field(default_factory=list)  # (frame index, ms)
     exit_codes: dict[str, int] = field(default_factory=dict)
-    sun_bcnn: dict[str, int] = field(default_factory=dict)  # its last status's counters: images, published, rejected
+    sensors: dict[str, dict[str, int]] = field(default_factory=dict)  # sensor node -> its last status's counters
+    cpu: dict[str, list[tuple[float, float]]] = field(default_factory=dict)  # node -> (s, CPU seconds used so far)
+    fusion: dict[str, str] = field(default_factory=dict)  # the fusion's last status: factors.* and count.* values
 
 
 def run_soak(
@@ -78,11 +132,11 @@ def run_soak(
     rate: float,
     work: Path,
     domain_id: int,
-    sun_direction: list[float],
-    overrides: dict[str, dict[str, Any]] | None = None,
+    parameters: dict[str, dict[str, Any]],
+    sensors: tuple[str, ...] = SOAK_DEFAULT_SENSORS,
 ) -> SoakResult:
-    """Loop ``bag`` until ``frames`` stereo frames were played at ``rate`` x real time through the graph;
-    ``overrides``: node name -> parameters."""
+    """Loop ``bag`` until ``frames`` stereo frames were played at ``rate`` x real time through stereo_vo, the
+    ``sensors`` and fusion; ``parameters``: node name -> its parameters (dotted names)."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
@@ -98,6 +152,7 @@ def run_soak(
     from .player import BagPlayer, PlayOptions
     from .testing import Spinner
 
+    nodes = soak_nodes(sensors)
     per_pass = dict((t, n) for t, _, n, _ in bag_info(bag).topics).get("/stereo/left/image_rect", 0)
     if per_pass < 2:
         raise PvoError(f"{bag}: no stereo images to loop")
@@ -105,20 +160,7 @@ def run_soak(
     work.mkdir(parents=True, exist_ok=True)
     params = work / "params.yaml"
     params.write_text(
-        yaml.safe_dump(
-            {
-                "stereo_vo": {"ros__parameters": {**(overrides or {}).get("stereo_vo", {})}},
-                "simulated_sun": {"ros__parameters": {**(overrides or {}).get("simulated_sun", {})}},
-                "sun_bcnn": {"ros__parameters": {**(overrides or {}).get("sun_bcnn", {})}},
-                "fusion": {
-                    "ros__parameters": {
-                        "inputs.sun.reference": "fixed",
-                        "inputs.sun.reference_direction": sun_direction,
-                        **(overrides or {}).get("fusion", {}),
-                    }
-                },
-            }
-        )
+        yaml.safe_dump({name: {"ros__parameters": dict(parameters.get(name, {}))} for _, name in nodes}, sort_keys=False)
     )
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
     group = NodeGroup()
@@ -138,11 +180,21 @@ def run_soak(
     def on_vo(msg: RelativePose) -> None:
         counts["vo"] += 1
 
-    sun_counters: dict[str, int] = {}
+    sensor_counters: dict[str, dict[str, int]] = {}
+    fusion_status: dict[str, str] = {}
 
-    def on_sun_status(msg: DiagnosticArray) -> None:
+    def status_reader(name: str) -> Any:
+        def on_status(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                sensor_counters.setdefault(name, {}).update(
+                    {kv.key: int(kv.value) for kv in status.values if kv.key in SENSOR_COUNTERS}
+                )
+
+        return on_status
+
+    def on_fusion_status(msg: DiagnosticArray) -> None:
         for status in msg.status:
-            sun_counters.update({kv.key: int(kv.value) for kv in status.values if kv.key in ("images", "published", "rejected")})
+            fusion_status.update({kv.key: kv.value for kv in status.values if kv.key.startswith(("factors.", "count."))})
 
     def on_fused(msg: Odometry) -> None:
         counts["fused"] += 1
@@ -152,19 +204,23 @@ def run_soak(
         if seen is not None:
             latencies.append((counts["fused"], 1e3 * (time.perf_counter() - seen)))
 
-    rss: dict[str, list[tuple[float, float]]] = {name: [] for _, name in SOAK_NODES}
+    rss: dict[str, list[tuple[float, float]]] = {name: [] for _, name in nodes}
+    cpu: dict[str, list[tuple[float, float]]] = {name: [] for _, name in nodes}
     start = time.perf_counter()
     try:
-        _start_graph(group, params, work / "logs", env, SOAK_NODES)
+        _start_graph(group, params, work / "logs", env, nodes)
         listener = Node("pvo_soak_listener", context=context)
         player_node = Node("pvo_soak_player", context=context)
         listener.create_subscription(Image, "/stereo/left/image_rect", on_image, every)
         listener.create_subscription(RelativePose, "/pvo/vo/relative", on_vo, every)
         listener.create_subscription(Odometry, "/pvo/fusion/odometry", on_fused, every)
-        listener.create_subscription(DiagnosticArray, "/pvo/sun_bcnn/status", on_sun_status, every)
+        listener.create_subscription(DiagnosticArray, "/pvo/fusion/status", on_fusion_status, every)
+        for name in sensors:
+            if name in SENSOR_STATUS:
+                listener.create_subscription(DiagnosticArray, SENSOR_STATUS[name], status_reader(name), every)
         player = BagPlayer(player_node, bag, PlayOptions(rate=rate, loop=True, passes=passes, topics=INPUTS))
         with Spinner(context, listener):
-            _wait_connected(player_node, group, listeners=2)
+            _wait_connected(player_node, group, 1, soak_edges(sensors, listeners=1))
             import threading
 
             stop = threading.Event()
@@ -172,7 +228,9 @@ def run_soak(
             def sample() -> None:
                 while not stop.is_set():
                     for node in group.nodes:
-                        rss[node.name].append((time.perf_counter() - start, rss_mb(node.process.pid)))
+                        now = time.perf_counter() - start
+                        rss[node.name].append((now, rss_mb(node.process.pid)))
+                        cpu[node.name].append((now, cpu_seconds(node.process.pid)))
                     stop.wait(5.0)
 
             sampler = threading.Thread(target=sample, daemon=True)
@@ -184,6 +242,7 @@ def run_soak(
                 time.sleep(0.1)
             stop.set()
             sampler.join()
+            time.sleep(1.0)  # the sensors' last status messages
         listener.destroy_node()
         player_node.destroy_node()
     finally:
@@ -197,8 +256,19 @@ def run_soak(
         rss,
         latencies,
         codes,
-        dict(sun_counters),
+        {name: dict(values) for name, values in sensor_counters.items()},
+        cpu,
+        dict(fusion_status),
     )
+
+
+def cpu_share(samples: list[tuple[float, float]], after_s: float) -> float:
+    """The share of one core (1.0 = one core busy all the time) a process used between its first sample at or
+    after ``after_s`` and its last; NaN with fewer than two samples there."""
+    kept = [(t, c) for t, c in samples if t >= after_s and not math.isnan(c)]
+    if len(kept) < 2 or kept[-1][0] <= kept[0][0]:
+        return math.nan
+    return (kept[-1][1] - kept[0][1]) / (kept[-1][0] - kept[0][0])
 
 
 # ----------------------------------------------------------------------------------------------- faults

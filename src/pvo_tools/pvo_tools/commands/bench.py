@@ -96,6 +96,18 @@ def register(sub: Any) -> None:
     bsoak.add_argument(
         "--param", "-p", action="append", metavar="NODE:NAME=VALUE", help="node parameter, e.g. -p fusion:path_max_poses=100"
     )
+    bsoak.add_argument(
+        "--sensors",
+        default="sun_bcnn,hydranet,dpc_net",
+        help="pseudo-sensor nodes beside stereo_vo and fusion, comma-separated among simulated_sun, sun_bcnn, hydranet, "
+        "dpc_net (default sun_bcnn,hydranet,dpc_net: the main job's graph, as `pvo demo` runs it on the synthetic sample)",
+    )
+    bsoak.add_argument("--sun-model", default="", help="Sun-BCNN model (default: the shipped one)")
+    bsoak.add_argument("--hydranet-model", default="", help="HydraNet model (default: the shipped one)")
+    bsoak.add_argument("--dpc-net-model", default="dpc_net_clean", help="DPC-Net model (default dpc_net_clean, as pvo demo)")
+    bsoak.add_argument(
+        "--probe-model", default="probe_sim", help="stereo_vo's PROBE model (default probe_sim, as pvo demo; '' for none)"
+    )
 
     bfault = kinds.add_parser("faults", help="nodes killed and restarted, images dropped, a clock jump: what each costs")
     bfault.set_defaults(handler=bench_faults)
@@ -574,7 +586,8 @@ def noisy_relative_rotations(stamps: Any, ground_truth: Any, sigma_deg: float, s
 
 
 def bench_soak(args: argparse.Namespace) -> int:
-    """Issue 18's soak: RSS growth after warm-up per node, frames lost, end-to-end latency p95 start vs end."""
+    """Issue 18's soak, on the main job's graph by default: RSS growth after warm-up and CPU share per node, every
+    frame and every sensor's output accounted for, end-to-end latency p95 start vs end."""
     import os
     import random
 
@@ -583,27 +596,51 @@ def bench_soak(args: argparse.Namespace) -> int:
 
     from pvo_core import metrics
 
-    from ..graphbench import run_soak
+    from ..graphbench import cpu_share, run_soak, soak_nodes
     from ..paths import repository_root
     from ..samples import read_stereo_sample
+    from .demo import DemoSettings, learned_graph
 
+    sensors = tuple(name.strip() for name in args.sensors.split(",") if name.strip())
+    nodes = [name for _, name in soak_nodes(sensors)]
     bag = args.bag or (repository_root() or Path.cwd()) / "bags" / "sim_urban_sample"
     sample = read_stereo_sample(bag)
     first = int(sample.frame_stamps[0])
+    if first not in sample.sun:
+        raise PvoError(f"{bag}: no /ground_truth/sun_direction at the first frame: the fusion's sun reference needs it")
+    # the bag loops (its stamps shifted on each pass), so the fusion's sun reference is the map-frame direction at
+    # the first frame, fixed: a 30 s sample's sun does not move
     sun_map = TabulatedSunReference.from_ground_truth(
         [first], sample.ground_truth_at(sample.frame_stamps[:1]), [sample.sun[first]]
-    )
-    domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
-    print(
-        f"soak: {args.frames} frames of {bag} at {args.rate:g}x through stereo_vo + simulated_sun + sun_bcnn + fusion", flush=True
     )
     overrides: dict[str, dict] = {}
     for item in args.param or []:
         node, sep, assignment = item.partition(":")
         if not sep:
             raise PvoError(f"--param {item!r} must be NODE:NAME=VALUE, e.g. fusion:path_max_poses=100")
+        if node not in nodes:
+            raise PvoError(f"--param {item!r}: no node {node!r} in this soak (its nodes: {', '.join(nodes)})")
         overrides.setdefault(node, {}).update(parse_overrides([assignment]))
-    result = run_soak(bag, args.frames, args.rate, args.out, domain, [float(v) for v in sun_map.directions[0]], overrides)
+    settings = DemoSettings(
+        sun_model=args.sun_model,
+        hydranet_model=args.hydranet_model,
+        dpc_net_model=args.dpc_net_model,
+        probe_model=args.probe_model,
+    )
+    graph = learned_graph(settings, tuple(name for name in sensors if name != "simulated_sun"), who="pvo bench soak")
+    parameters: dict[str, dict] = {
+        "stereo_vo": graph.vo | overrides.get("stereo_vo", {}),
+        **{name: graph.sensors.get(name, {}) | overrides.get(name, {}) for name in sensors},
+        "fusion": {
+            "inputs.sun.reference": "fixed",
+            "inputs.sun.reference_direction": [float(v) for v in sun_map.directions[0]],
+            **graph.fusion,
+            **overrides.get("fusion", {}),
+        },
+    }
+    domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
+    print(f"soak: {args.frames} frames of {bag} at {args.rate:g}x through {' + '.join(nodes)}", flush=True)
+    result = run_soak(bag, args.frames, args.rate, args.out, domain, parameters, sensors)
     print(
         f"  played {result.frames_played} stereo frames in {result.seconds:.0f} s; received {result.vo_messages} VO motions "
         f"and {result.fused_messages} fused poses (every frame after the first: {result.frames_played - 1}); "
@@ -614,19 +651,39 @@ def bench_soak(args: argparse.Namespace) -> int:
         "vo_messages": result.vo_messages,
         "fused": result.fused_messages,
     }
-    if result.sun_bcnn:
-        from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensorConfig
-
-        every_n = int(overrides.get("sun_bcnn", {}).get("every_n", SunBCNNSensorConfig().every_n))
-        due = f", one in {every_n}: {-(-result.sun_bcnn.get('images', 0) // every_n)} due"
+    expected = sensor_outputs_due(result.frames_played, result.vo_messages, parameters)
+    for name in sensors:
+        counters = result.sensors.get(name)
+        if counters is None:
+            continue
+        due = expected.get(name)
         print(
-            f"  sun_bcnn: {result.sun_bcnn.get('published', 0)} directions published from {result.sun_bcnn.get('images', 0)} "
-            f"images received{due} ({result.sun_bcnn.get('rejected', 0)} rejected)"
+            f"  {name:<14} published {counters.get('published', 0)}"
+            + (f" of {counters['images']} images received" if "images" in counters else "")
+            + (f" ({due})" if due else "")
+            + f", {counters.get('rejected', 0)} rejected"
         )
-        figures.update({f"sun_bcnn.{key}": value for key, value in result.sun_bcnn.items()})
+        figures.update({f"{name}.{key}": value for key, value in counters.items()})
+    taken = {key.removeprefix("factors."): value for key, value in result.fusion.items() if key.startswith("factors.")}
+    if taken:
+        print("  fusion factors added: " + ", ".join(f"{kind} {count}" for kind, count in sorted(taken.items())))
+        figures.update({f"fusion.factors.{kind}": float(count) for kind, count in taken.items()})
+    # what the fusion did not take as it came: gated, rejected (with the reason), dropped, gaps in the VO's chain
+    rejected = {
+        key: value
+        for key, value in result.fusion.items()
+        if key.startswith("count.") and not key.endswith((".accepted", ".buffered"))
+    }
+    if rejected:
+        print(
+            "  fusion, not taken as it came: "
+            + ", ".join(f"{key.removeprefix('count.')} {value}" for key, value in sorted(rejected.items()))
+        )
     warm = 0.1 * result.seconds
+    total_cpu = 0.0
     for name, samples in result.rss.items():
         after = [mb for t, mb in samples if t >= warm]
+        share = cpu_share(result.cpu.get(name, []), warm)
         if len(after) >= 2:
             growth = after[-1] - after[0]
             figures[f"{name}.rss_start_mb"], figures[f"{name}.rss_end_mb"], figures[f"{name}.rss_growth_mb"] = (
@@ -634,7 +691,21 @@ def bench_soak(args: argparse.Namespace) -> int:
                 after[-1],
                 growth,
             )
-            print(f"  {name:<14} RSS {after[0]:7.1f} MB after warm-up -> {after[-1]:7.1f} MB at the end ({growth:+.1f} MB)")
+            cpu_text = "" if share != share else f"; CPU {100 * share:5.1f} % of one core"
+            print(
+                f"  {name:<14} RSS {after[0]:7.1f} MB after warm-up -> {after[-1]:7.1f} MB at the end ({growth:+.1f} MB)"
+                + cpu_text
+            )
+        if share == share:
+            figures[f"{name}.cpu_share"] = share
+            total_cpu += share
+    if total_cpu:
+        cores = os.cpu_count() or 1
+        figures["cpu_share_total"] = total_cpu
+        print(
+            f"  the graph's nodes together: {total_cpu:.2f} cores' worth of CPU at {args.rate:g}x real time "
+            f"({100 * total_cpu / cores:.0f} % of this machine's {cores}; the player and listener, this process, not counted)"
+        )
     # the start of the latency comparison is after the same warm-up as the memory's (the first 10 % of the
     # frames: the smoother's window and the bounded paths fill, caches warm)
     latencies = [ms for _, ms in result.latencies_ms]
@@ -652,9 +723,31 @@ def bench_soak(args: argparse.Namespace) -> int:
             f"last {window}: median {end['median_ms']:.1f} ms, p95 {end['p95_ms']:.1f} ms "
             f"(p95 {100 * figures['latency_p95_change']:+.0f} %)"
         )
-    path = RunResult("bench/soak", bag.name, figures=figures, inputs={"bag": str(bag), "rate": str(args.rate)}).write(args.out)
+    inputs = {"bag": str(bag), "rate": str(args.rate), "sensors": ",".join(sensors), "probe_model": args.probe_model}
+    path = RunResult("bench/soak", bag.name, figures=figures, inputs=inputs).write(args.out)
     print(f"  wrote {path}")
     return 0
+
+
+def sensor_outputs_due(frames: int, vo_messages: int, parameters: dict[str, dict[str, Any]]) -> dict[str, str]:
+    """What each sensor node should have published had it kept up, in words: sun_bcnn one direction per
+    ``every_n`` images, hydranet one rotation per image but the first, dpc_net one correction per Δp VO motions
+    (frames are the stereo frames played, ``vo_messages`` the VO motions received)."""
+    from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensorConfig
+
+    every_n = int(parameters.get("sun_bcnn", {}).get("every_n", SunBCNNSensorConfig().every_n))
+    due = {"sun_bcnn": f"one in {every_n}: {-(-frames // every_n)} due", "hydranet": f"one per pair: {frames - 1} due"}
+    if "dpc_net" in parameters:
+        from pvo_pseudosensors.dpc_net.config import DPCNetConfig
+        from pvo_pseudosensors.dpc_net.estimator import resolve_model
+        from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
+
+        try:
+            delta = DPCNetConfig.from_card(read_card(resolve_model(str(parameters["dpc_net"].get("model", ""))))).test_delta
+        except (ModelFileError, ValueError):
+            return due  # the node said why in its log and status; nothing is due from it
+        due["dpc_net"] = f"one per {delta} VO motions: {vo_messages // delta} due"
+    return due
 
 
 FAULT_AT, RESTART_AT, JUMP_AT = 100, 120, 150  # frames of the sample

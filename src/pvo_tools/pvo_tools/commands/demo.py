@@ -227,36 +227,23 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         "inputs.sun.reference": "table",
         "inputs.sun.reference_table": str(reference_table.resolve()),
     }
-    if learned:  # how the fusion weighs the learned sun: its card says (an offset shared by a drive's readings)
-        from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
-        from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
-        from pvo_pseudosensors.sun_bcnn.infer import card_fusion
-
-        try:
-            fusion_overrides.update(card_fusion(read_card(resolve_model(settings.sun_model))))
-            fusion_from_flat(fusion_overrides)  # a bad card entry is one line here, not a fusion node dying later
-        except (ModelFileError, ValueError) as exc:
-            raise PvoError(f"{settings.sun_model}: {exc}") from None
+    graph = learned_graph(settings) if learned else LearnedGraph({}, {}, {})
+    fusion_overrides.update(graph.fusion)
+    vo_parameters = graph.vo
     rotation_config = None
-    if learned and settings.hydranet:
+    if "hydranet" in graph.sensors:
         from pvo_pseudosensors.hydranet.estimator import HydraNetSensorConfig
 
         rotation_config = HydraNetSensorConfig(model=settings.hydranet_model)
     correction_config = None
-    if learned and settings.dpc_net:
+    if "dpc_net" in graph.sensors:
         from pvo_pseudosensors.dpc_net.estimator import DPCNetSensorConfig
 
         correction_config = DPCNetSensorConfig(model=settings.dpc_net_model)
-    vo_parameters = {"probe.model": settings.probe_model} if learned and settings.probe_model else {}
-    if correction_config is not None:  # DPC-Net corrects the VO it learned: the graph runs that one
-        vo_parameters = dpc_net_vo(settings.dpc_net_model) | vo_parameters
-        # ... and weighs its corrections against that VO as the card's validation drives chose (`pvo dpc-net correct`)
-        fusion_overrides.update(dpc_net_fusion(settings.dpc_net_model))
     parameters = {
         "stereo_vo": vo_parameters,
         sun_node: sun_parameters,
-        **({"hydranet": {"model": settings.hydranet_model}} if rotation_config else {}),
-        **({"dpc_net": {"model": settings.dpc_net_model}} if correction_config else {}),
+        **{name: values for name, values in graph.sensors.items() if name != "sun_bcnn"},
         "fusion": {**fusion_overrides, "initial_pose": initial_pose, "path_period": 0.0, "path_max_poses": 0},
     }
     params_file = write_params(out / "params.yaml", parameters)
@@ -296,7 +283,55 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     return result
 
 
-def dpc_net_vo(model: str) -> dict[str, Any]:
+LEARNED_SENSORS = ("sun_bcnn", "hydranet", "dpc_net")
+
+
+@dataclass(frozen=True)
+class LearnedGraph:
+    """The learned pseudo-sensors as the main job runs them, each node's parameters (dotted names) read from the
+    model cards: ``vo`` for stereo_vo (PROBE's model, the VO the DPC-Net model learned to correct), ``fusion`` for
+    how the fusion weighs the learned sun and the corrections, ``sensors`` for each sensor node that runs."""
+
+    vo: dict[str, Any]
+    fusion: dict[str, Any]
+    sensors: dict[str, dict[str, Any]]
+
+
+def learned_graph(settings: DemoSettings, sensors: tuple[str, ...] | None = None, who: str = "pvo demo") -> LearnedGraph:
+    """The node parameters of the learned graph: ``sensors`` among `LEARNED_SENSORS` (default: sun_bcnn, with
+    hydranet and dpc_net as ``settings`` ask); a card the fusion cannot take is one line (`PvoError`)."""
+    from pvo_fusion.config import from_flat as fusion_from_flat
+
+    if sensors is None:
+        sensors = ("sun_bcnn", *(("hydranet",) if settings.hydranet else ()), *(("dpc_net",) if settings.dpc_net else ()))
+    unknown = [name for name in sensors if name not in LEARNED_SENSORS]
+    if unknown:
+        raise PvoError(f"unknown learned sensor(s) {', '.join(unknown)}: choose among {', '.join(LEARNED_SENSORS)}")
+    fusion: dict[str, Any] = {}
+    nodes: dict[str, dict[str, Any]] = {}
+    if "sun_bcnn" in sensors:  # how the fusion weighs the learned sun: its card says (an offset shared by a drive's readings)
+        from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
+        from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
+        from pvo_pseudosensors.sun_bcnn.infer import card_fusion
+
+        try:
+            fusion.update(card_fusion(read_card(resolve_model(settings.sun_model))))
+            fusion_from_flat(fusion)  # a bad card entry is one line here, not a fusion node dying later
+        except (ModelFileError, ValueError) as exc:
+            raise PvoError(f"{settings.sun_model}: {exc}") from None
+        nodes["sun_bcnn"] = {"model": settings.sun_model}
+    if "hydranet" in sensors:
+        nodes["hydranet"] = {"model": settings.hydranet_model}
+    vo: dict[str, Any] = {"probe.model": settings.probe_model} if settings.probe_model else {}
+    if "dpc_net" in sensors:  # DPC-Net corrects the VO it learned: the graph runs that one
+        vo = dpc_net_vo(settings.dpc_net_model, who) | vo
+        # ... and weighs its corrections against that VO as the card's validation drives chose (`pvo dpc-net correct`)
+        fusion.update(dpc_net_fusion(settings.dpc_net_model, who))
+        nodes["dpc_net"] = {"model": settings.dpc_net_model}
+    return LearnedGraph(vo, fusion, nodes)
+
+
+def dpc_net_vo(model: str, who: str = "pvo demo") -> dict[str, Any]:
     """The VO settings (dotted names) that differ from the defaults in the VO the DPC-Net ``model`` learned (its
     card names it), announced on stderr when there are any."""
     from pvo_pseudosensors.dpc_net.config import vo_differences
@@ -310,11 +345,11 @@ def dpc_net_vo(model: str) -> dict[str, Any]:
         raise PvoError(f"{model}: {exc}") from None
     if differences:
         listed = ", ".join(f"{name}={value}" for name, value in differences.items())
-        print(f"pvo demo: stereo_vo runs the VO that {model} learned to correct ({listed})", file=sys.stderr, flush=True)
+        print(f"{who}: stereo_vo runs the VO that {model} learned to correct ({listed})", file=sys.stderr, flush=True)
     return differences
 
 
-def dpc_net_fusion(model: str) -> dict[str, Any]:
+def dpc_net_fusion(model: str, who: str = "pvo demo") -> dict[str, Any]:
     """The fusion node's parameters that weigh the DPC-Net ``model``'s corrections as its card's calibration does
     (`pvo dpc-net calibrate --drives`): the VO's covariance scales (``inputs.vo.covariance_scale``, ROS order) when the
     card fuses some axis and carries them, and the corrections over which the VO's translation bias is learned from
@@ -336,7 +371,7 @@ def dpc_net_fusion(model: str) -> dict[str, Any]:
     scale = [float(v) for v in calibration.scale]
     listed = " ".join(f"{v:.3g}" for v in scale)
     print(
-        f"pvo demo: fusion weighs {model}'s corrections against the VO's covariances scaled by its card ({listed})"
+        f"{who}: fusion weighs {model}'s corrections against the VO's covariances scaled by its card ({listed})"
         + (f", {describe_vo_fusion(debias)}" if debias else ""),
         file=sys.stderr,
         flush=True,
