@@ -14,6 +14,7 @@ says otherwise.
   expressed relative to the ground truth's first pose.
 - :func:`absolute_trajectory_error` (RMSE of positions after optional SE(3)/Sim(3) alignment),
   :func:`relative_pose_errors` (frame-to-frame), :func:`nees` / ANEES.
+- :func:`rotation_drift`: frame-pair rotation errors split into their shared mean (a drift) and the rest.
 """
 
 from __future__ import annotations
@@ -335,6 +336,48 @@ def rotation_errors_axis_angle(gt_rotations: ArrayLike, est_rotations: ArrayLike
     g = np.asarray(gt_rotations, dtype=float)
     e = np.asarray(est_rotations, dtype=float)
     return np.array([so3_log(a.T @ b) for a, b in zip(g, e, strict=True)])
+
+
+@dataclass(frozen=True)
+class RotationDrift:
+    """How an estimator's frame-pair rotation errors split into a slow part every pair shares and the rest.
+
+    The errors are e_k = Log(C_true,k^T C_est,k) of each pair's rotation C_{k-1,k} (rad, about the earlier
+    camera's x y z: for an optical frame pitch, yaw, roll). ``bias`` (3,) is their mean (rad per pair),
+    ``spread`` (3,) their standard deviation about it, ``mean_angle`` the mean of |e_k| (rad). Integrated over
+    the ``pairs`` the bias grows as ``pairs * bias`` and the rest as ``sqrt(pairs) * spread``: the first is the
+    drift a second sensor without that bias removes, the second what averaging two sensors' noise can remove.
+    ``turn_gain`` is the least-squares slope of the yaw error on the true yaw (a sensor reading every turn 2 %
+    short has -0.02)."""
+
+    pairs: int
+    bias: Array
+    spread: Array
+    mean_angle: float
+    turn_gain: float
+
+    @property
+    def integrated_bias(self) -> Array:
+        """pairs * bias (rad): what the shared part adds up to over the pairs, per axis."""
+        return self.pairs * self.bias
+
+    @property
+    def integrated_spread(self) -> Array:
+        """sqrt(pairs) * spread (rad): what independent errors of that spread add up to, per axis."""
+        return np.sqrt(self.pairs) * self.spread
+
+
+def rotation_drift(true_rotations: ArrayLike, estimated_rotations: ArrayLike, yaw_axis: int = 1) -> RotationDrift:
+    """:class:`RotationDrift` of estimated frame-pair rotations (N, 3, 3) against the true ones (N, 3, 3), both
+    C_{k-1,k} (the later frame's axes in the earlier's); ``yaw_axis`` 1 for a camera's optical frame (y down)."""
+    truth = np.asarray(true_rotations, dtype=float)
+    estimate = np.asarray(estimated_rotations, dtype=float)
+    if truth.ndim != 3 or truth.shape[1:] != (3, 3) or estimate.shape != truth.shape or len(truth) < 2:
+        raise ValueError(f"need two or more (N, 3, 3) rotations of each, got {truth.shape} and {estimate.shape}")
+    errors = rotation_errors_axis_angle(truth, estimate)
+    yaw = np.array([so3_log(c)[yaw_axis] for c in truth])
+    gain = float(errors[:, yaw_axis] @ yaw / (yaw @ yaw)) if yaw @ yaw > 0 else 0.0
+    return RotationDrift(len(errors), errors.mean(axis=0), errors.std(axis=0), float(np.linalg.norm(errors, axis=1).mean()), gain)
 
 
 def shared_error_covariance(errors_a: ArrayLike, errors_b: ArrayLike) -> Array:

@@ -156,3 +156,44 @@ def test_relative_change_and_averaging_of_figures() -> None:
     assert metrics.max_position_difference(a, b) == 5.0
     assert metrics.count_finite_poses(b) == 2
     assert metrics.latency_summary([1.0, 2.0, 3.0])["median_ms"] == 2.0
+
+
+def test_rotation_drift_splits_a_shared_bias_from_alternating_noise() -> None:
+    from pvo_core.lie import so3_exp
+
+    rng = np.random.default_rng(0)
+    truth = np.array([so3_exp(np.array([0.0, yaw, 0.0])) for yaw in rng.uniform(-0.05, 0.05, 400)])
+    bias = np.array([1e-4, -2e-4, 5e-5])
+    noise = np.array([3e-4, 0.0, 0.0])
+    # every pair erred by the bias and, alternately, by plus and minus the noise: the mean is the bias exactly
+    estimate = np.array([c @ so3_exp(bias + (1 if k % 2 else -1) * noise) for k, c in enumerate(truth)])
+    drift = metrics.rotation_drift(truth, estimate)
+    assert drift.pairs == 400
+    np.testing.assert_allclose(drift.bias, bias, atol=2e-9)
+    np.testing.assert_allclose(drift.spread, np.abs(noise), atol=2e-9)
+    np.testing.assert_allclose(drift.integrated_bias, 400 * bias, atol=1e-6)
+    np.testing.assert_allclose(drift.integrated_spread, 20 * np.abs(noise), atol=1e-6)
+    assert drift.turn_gain == pytest.approx(0.0, abs=0.02)  # the yaw error does not follow the turns
+
+
+def test_rotation_drift_reads_a_turn_gain() -> None:
+    from pvo_core.lie import so3_exp
+
+    yaws = np.linspace(-0.06, 0.06, 101)
+    truth = np.array([so3_exp(np.array([0.0, y, 0.0])) for y in yaws])
+    short = np.array([so3_exp(np.array([0.0, 0.98 * y, 0.0])) for y in yaws])  # every turn read 2 % short
+    drift = metrics.rotation_drift(truth, short)
+    assert drift.turn_gain == pytest.approx(-0.02, abs=1e-9)
+    np.testing.assert_allclose(drift.bias, [0.0, 0.0, 0.0], atol=1e-15)  # turns both ways: no mean
+    with pytest.raises(ValueError, match=r"\(N, 3, 3\)"):
+        metrics.rotation_drift(truth[:1], short[:1])
+
+
+def test_the_thesis_vo_drifts_in_yaw_more_than_its_pairs_scatter(pvo_data: Path) -> None:
+    # viso2-s on KITTI 05: a yaw bias of ~-5 mdeg per pair, which over the drive's 2760 pairs adds up to several
+    # times what its pairs' scatter would as a random walk
+    ground_truth, vo = viso2s(pvo_data, "2011_09_30_drive_0018")
+    relative = lambda poses: np.einsum("kji,kjl->kil", poses[:-1, :3, :3], poses[1:, :3, :3])  # noqa: E731
+    drift = metrics.rotation_drift(relative(ground_truth), relative(vo))
+    assert np.degrees(drift.bias[1]) == pytest.approx(-0.00514, abs=2e-4)
+    assert abs(drift.integrated_bias[1]) > 3 * drift.integrated_spread[1]
