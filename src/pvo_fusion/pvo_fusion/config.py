@@ -169,10 +169,18 @@ class RotationInputConfig:
     their disagreement with the VO's motions under them, over about this many readings, removed from each later VO
     motion on the ``vo_bias_axes`` (rotation axes only). 0: none. ``vo_rotation_scale_windows`` and
     ``vo_rotation_scale_gain``: the scale of the VO's turns learned from the rotations, as ``CorrectionInputConfig``'s
-    (the two inputs' trackers each apply their own)."""
+    (the two inputs' trackers each apply their own).
+
+    ``bridge_gaps``: a VO gap (frames missing, the VO restarted) is bridged with the rotations received over it where
+    they link its two ends frame pair by frame pair: the heading follows them instead of the last angular velocity,
+    and the position moves at the last velocity along those headings (dead reckoning), the rotation's covariance
+    theirs, composed. A chain that disagrees with the constant-velocity bridge beyond ``bridge_gate_probability``
+    (χ², 3 dof, against both covariances) is not used. False: the constant-velocity bridge alone."""
 
     enabled: bool = True
     gate_probability: float = 0.65
+    bridge_gaps: bool = True
+    bridge_gate_probability: float = 0.9999
     max_covariance_det: float = 1e-4
     huber_k: float = 0.0
     bias_sigma: tuple[float, ...] = (0.0, 0.0, 0.0)

@@ -34,7 +34,7 @@ import numpy as np
 from gtsam.symbol_shorthand import B, O, X
 from numpy.typing import ArrayLike, NDArray
 from pvo_core.covariance import gtsam_to_ros_covariance, is_positive_definite, ros_to_gtsam_covariance
-from pvo_core.lie import se3_exp, se3_inverse, se3_log, so3_log
+from pvo_core.lie import se3_exp, se3_inverse, se3_log, so3_exp, so3_log
 
 from .checkpoint import FusionCheckpoint
 from .config import FusionConfig
@@ -115,6 +115,8 @@ class FusionGraph:
         }
         from scipy.stats import chi2  # 0.5 s to import: only where a graph is built, not on `pvo --help`
 
+        gate = self.config.inputs.rotation.bridge_gate_probability
+        self._bridge_gate = chi2.ppf(gate, 3) if gate > 0.0 else np.inf
         self._gates = {
             name: (chi2.ppf(p, dof) if p > 0.0 else np.inf)
             for name, p, dof in (
@@ -285,6 +287,7 @@ class FusionGraph:
             self._count("vo", "gap")
             reference_key = self._keys[newest]
             transform, covariance = self._bridge(newest, m.stamp)
+            transform, covariance = self._bridge_with_rotations(newest, m.stamp, transform, covariance)
         elif float(np.max(np.diag(covariance))) >= self.config.inputs.vo.lost_variance:
             self._count("vo", "lost")
         elif not self._vo_motion_consistent(m.transform, covariance):
@@ -341,6 +344,80 @@ class FusionGraph:
         n = gap / seconds
         sigma = np.asarray(vo.gap_sigma, dtype=float) * gap
         return se3_exp(n * se3_log(motion)), np.diag(sigma**2) + n * n * motion_cov
+
+    def _rotation_chain(self, start: int, end: int) -> list[_Pending] | None:
+        """The buffered rotations C_k,j that link ``start`` towards ``end`` (ns) pair by pair, in order, as far as
+        they reach (the last pair's reading may not have come yet: the sensor and the VO race for each image); None
+        if none starts at ``start``."""
+        rotations = [item for item in self._pending if item.kind == "rotation"]
+        chain: list[_Pending] = []
+        current = start
+        while abs(current - end) > self._tolerance_ns:
+            following = [
+                item
+                for item in rotations
+                if abs(item.measurement.reference_stamp - current) <= self._tolerance_ns  # type: ignore[union-attr]
+                and current + self._tolerance_ns < item.measurement.stamp <= end + self._tolerance_ns
+            ]
+            if not following:
+                break
+            step = max(following, key=lambda item: item.measurement.stamp)  # the longest link, one per frame pair
+            chain.append(step)
+            current = step.measurement.stamp
+        return chain or None
+
+    def _bridge_with_rotations(self, newest: int, stamp: int, transform: Array, covariance: Array) -> tuple[Array, Array]:
+        """The constant-velocity bridge T_stamp,newest (and its covariance, ROS order) with its rotation replaced by
+        the buffered rotations that link the gap frame pair by frame pair from ``newest`` (``inputs.rotation.bridge_gaps``;
+        what they do not reach, at the end of the gap, turns at the last angular velocity), and its translation
+        dead-reckoned at the last velocity along those headings; the rotations used are taken from the buffer and
+        counted ``rotation.bridged``. Unchanged without such a chain, a velocity, or past the gate."""
+        rotation = self.config.inputs.rotation
+        if not (rotation.enabled and rotation.bridge_gaps) or self._last_velocity is None:
+            return transform, covariance
+        chain = self._rotation_chain(newest, stamp)
+        if chain is None:
+            return transform, covariance
+        motion, _, seconds = self._last_velocity
+        # the last motion's displacement per second, in the frame it started from (x_{k-1} = -C^T t for T_k,k-1)
+        velocity = -np.asarray(motion[:3, :3]).T @ np.asarray(motion[:3, 3]) / seconds
+        orientation = np.eye(3)  # of the current frame of the chain in the newest state's frame
+        position = np.zeros(3)
+        chained = np.eye(3)  # C_current,newest
+        rotation_covariance = np.zeros((3, 3))
+        previous = newest
+        for item in chain:
+            m = item.measurement
+            assert isinstance(m, RelativeMeasurement)
+            step = np.asarray(m.transform, dtype=float)[:3, :3]  # C_k,j
+            position = position + orientation @ velocity * ((m.stamp - previous) * 1e-9)
+            # left perturbations compose as δ_total = δ_k + C_k δ_rest: the chain's covariance carried to its end
+            rotation_covariance = step @ rotation_covariance @ step.T + np.asarray(m.covariance, dtype=float)[3:, 3:]
+            chained = step @ chained
+            orientation = orientation @ step.T
+            previous = m.stamp
+        rest = (stamp - previous) * 1e-9
+        if rest > 0.0:  # the end of the gap no reading reached yet: the last motion's turn rate over it
+            turn = so3_exp(rest / seconds * so3_log(np.asarray(motion[:3, :3], dtype=float)))
+            position = position + orientation @ velocity * rest
+            rotation_covariance = turn @ rotation_covariance @ turn.T + covariance[3:, 3:] * (rest / ((stamp - newest) * 1e-9))
+            chained = turn @ chained
+        innovation = so3_log(chained @ np.asarray(transform, dtype=float)[:3, :3].T)
+        if float(innovation @ np.linalg.solve(rotation_covariance + covariance[3:, 3:], innovation)) > self._bridge_gate:
+            self.counts["rotation.bridge_gated"] += 1
+            return transform, covariance
+        for item in chain:
+            self._pending.remove(item)
+            self.counts[f"rotation.{BUFFERED}"] -= 1
+            self._count("rotation", "bridged")
+        bridged = np.eye(4)
+        bridged[:3, :3] = chained
+        bridged[:3, 3] = -chained @ position  # T_stamp,newest from the pose of the new frame in the newest's
+        bridged_covariance = np.array(covariance, dtype=float)
+        bridged_covariance[3:, 3:] = rotation_covariance
+        bridged_covariance[:3, 3:] = 0.0
+        bridged_covariance[3:, :3] = 0.0
+        return bridged, bridged_covariance
 
     def _motion_plausible(self, m: RelativeMeasurement) -> bool:
         """Speed and angular rate of T_k,k-1 over its interval within what a vehicle can do."""

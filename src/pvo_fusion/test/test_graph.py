@@ -419,6 +419,77 @@ def test_a_restarted_vo_after_a_long_gap_continues_the_estimate_and_its_covarian
     assert np.linalg.norm(graph.pose()[:3, 3] - pose_before[:3, 3]) > 10.0
 
 
+def straight_then_turning(n: int, turn_from: int) -> np.ndarray:
+    """Camera poses T_map,cam: forward 1 m/frame, straight until ``turn_from``, then turning 2 deg per frame."""
+    poses = [np.eye(4)]
+    for k in range(1, n):
+        yaw = np.radians(2.0) if k > turn_from else 0.0
+        poses.append(poses[-1] @ se3_exp(np.array([0.0, 0.0, 1.0, 0.0, yaw, 0.0])))
+    return np.array(poses)
+
+
+def rotation_readings(truth: np.ndarray, first: int, last: int, sigma: float = 1e-3) -> list[RelativeMeasurement]:
+    """Exact C_k,k-1 for the frame pairs first..last, as HydraNet publishes them (rotation block sigma rad)."""
+    readings = []
+    for k in range(first, last + 1):
+        c = (se3_inverse(truth[k]) @ truth[k - 1]).copy()
+        c[:3, 3] = 0.0
+        covariance = np.diag([1e6, 1e6, 1e6, sigma**2, sigma**2, sigma**2])
+        readings.append(RelativeMeasurement(T0 + k * STEP_NS, T0 + (k - 1) * STEP_NS, c, covariance, True))
+    return readings
+
+
+@pytest.mark.parametrize("bridge", [True, False])
+def test_a_vo_outage_in_a_turn_is_bridged_by_the_rotations_received_over_it(bridge: bool) -> None:
+    """The VO stops for 2 s just as the vehicle starts to turn (frames 31..50 never come) while a rotation sensor
+    keeps reading every frame pair: with ``bridge_gaps`` the heading follows its readings through the gap and the
+    position is dead-reckoned along them; the constant-velocity bridge drives on straight, 38 deg off."""
+    truth = straight_then_turning(80, turn_from=31)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph(from_flat({"inputs.rotation.bridge_gaps": bridge}))
+    for m in vo[:30]:  # motions up to frame 30
+        graph.add_vo(m)
+    for reading in rotation_readings(truth, 31, 50):  # they come while the VO is down, and wait in the buffer
+        assert graph.add_rotation(reading) == "buffered"
+    assert graph.add_vo(vo[50]) == "accepted"  # the restarted VO's first motion, 50 -> 51
+    assert graph.counts["vo.gap"] == 1
+    heading_error = np.degrees(np.linalg.norm(so3_log(graph.pose()[:3, :3].T @ truth[51][:3, :3])))
+    position_error = np.linalg.norm(graph.pose()[:3, 3] - truth[51][:3, 3])
+    if bridge:
+        assert graph.counts["rotation.bridged"] == 20 and graph.counts["rotation.buffered"] == 0
+        assert heading_error < 2.5  # the last pair (50 -> 51) at the last angular velocity: 2 deg
+        assert position_error < 0.5  # along the arc, not the chord (the 2 s arc leaves the straight line by 6.6 m)
+    else:
+        assert graph.counts["rotation.bridged"] == 0
+        assert heading_error > 35.0 and position_error > 5.0
+    for m in vo[51:]:
+        graph.add_vo(m)
+    assert np.all(np.isfinite(graph.pose()))
+
+
+def test_a_gap_bridged_part_way_turns_the_rest_at_the_last_rate_and_a_wild_chain_is_not_used() -> None:
+    truth = straight_then_turning(60, turn_from=0)  # turning all the way: the last angular velocity is right
+    vo = vo_stream(truth, None)
+    graph = FusionGraph()
+    for m in vo[:30]:
+        graph.add_vo(m)
+    for reading in rotation_readings(truth, 31, 45):  # the readings for 46..50 have not come yet
+        graph.add_rotation(reading)
+    graph.add_vo(vo[50])
+    assert graph.counts["rotation.bridged"] == 15
+    assert np.degrees(np.linalg.norm(so3_log(graph.pose()[:3, :3].T @ truth[51][:3, :3]))) < 0.5
+    # readings 90 deg off the constant-velocity bridge over 2 s are garbage, not a turn: the bridge ignores them
+    wild = FusionGraph()
+    for m in vo[:30]:
+        wild.add_vo(m)
+    for reading in rotation_readings(truth, 31, 50):
+        wrong = reading.transform.copy()
+        wrong[:3, :3] = so3_exp(np.array([0.0, np.radians(4.5), 0.0])) @ wrong[:3, :3]
+        wild.add_rotation(RelativeMeasurement(reading.stamp, reading.reference_stamp, wrong, reading.covariance, True))
+    wild.add_vo(vo[50])
+    assert wild.counts["rotation.bridged"] == 0 and wild.counts["rotation.bridge_gated"] == 1
+
+
 def test_pose_corrections_and_relative_rotations_pull_towards_the_truth() -> None:
     truth = truth_trajectory(200)
     rng = np.random.default_rng(6)

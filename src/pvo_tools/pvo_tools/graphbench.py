@@ -292,9 +292,10 @@ def run_fault(
     params: dict[str, dict[str, Any]],
     rate: float,
     hook_factory: Any = None,
+    sensors: tuple[str, ...] = ("simulated_sun",),
 ) -> FaultRun:
-    """The sample through the graph once; ``hook_factory(group, params_file, log_dir, env)`` gives the player's
-    fault-injection hook (None: a clean run)."""
+    """The sample through stereo_vo, the ``sensors`` (among `SOAK_SENSORS`) and fusion once; ``hook_factory(group,
+    params_file, log_dir, env)`` gives the player's fault-injection hook (None: a clean run)."""
     import rclpy
     from nav_msgs.msg import Odometry
     from pvo_core.msgconv import covariance_to_matrix, pose_to_matrix
@@ -327,7 +328,7 @@ def run_fault(
 
     start = time.perf_counter()
     try:
-        _start_graph(group, params_file, log_dir, env)
+        _start_graph(group, params_file, log_dir, env, soak_nodes(sensors))
         listener = Node("pvo_faults_listener", context=context)
         player_node = Node("pvo_faults_player", context=context)
         every = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
@@ -335,7 +336,7 @@ def run_fault(
         hook = hook_factory(group, params_file, log_dir, env) if hook_factory else None
         player = BagPlayer(player_node, bag, PlayOptions(rate=rate, topics=INPUTS, hook=hook, wait_for_subscribers=0))
         with Spinner(context, listener):
-            _wait_connected(player_node, group, listeners=1)
+            _wait_connected(player_node, group, 0, soak_edges(sensors, listeners=0))
             stats = player.play()
             time.sleep(3.0)  # the last frames through the graph
         listener.destroy_node()

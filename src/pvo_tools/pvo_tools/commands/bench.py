@@ -114,6 +114,15 @@ def register(sub: Any) -> None:
     bfault.add_argument("--bag", type=Path, help="sample bag (default bags/sim_urban_sample)")
     bfault.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
     bfault.add_argument("--out", "-o", type=Path, default=Path("runs/bench-faults"), help="logs and metrics.json")
+    bfault.add_argument(
+        "--sensors",
+        default="sun_bcnn,hydranet,dpc_net",
+        help="pseudo-sensor nodes beside stereo_vo and fusion, comma-separated among simulated_sun, sun_bcnn, hydranet, "
+        "dpc_net (default sun_bcnn,hydranet,dpc_net: the main job's graph); each node of the graph is killed in turn",
+    )
+    bfault.add_argument(
+        "--probe-model", default="probe_sim", help="stereo_vo's PROBE model (default probe_sim, as pvo demo; '' for none)"
+    )
 
     bf = kinds.add_parser("fusion", help="FusionGraph over a whole KITTI sequence (viso2-s VO + GT-Sun-10): time and memory")
     bf.set_defaults(handler=bench_fusion)
@@ -591,6 +600,7 @@ def bench_soak(args: argparse.Namespace) -> int:
     import os
     import random
 
+    import numpy as np
     from pvo_core.results import RunResult
     from pvo_fusion.sun_reference import TabulatedSunReference
 
@@ -723,6 +733,16 @@ def bench_soak(args: argparse.Namespace) -> int:
             f"last {window}: median {end['median_ms']:.1f} ms, p95 {end['p95_ms']:.1f} ms "
             f"(p95 {100 * figures['latency_p95_change']:+.0f} %)"
         )
+    if len(latencies) >= 20:  # the trend over the run, a tenth at a time: a slow growth shows here, a burst does not
+        tenths = [metrics.latency_summary(part) for part in np.array_split(np.asarray(latencies), 10)]
+        print("  latency by tenth of the run, median: " + " ".join(f"{t['median_ms']:.0f}" for t in tenths) + " ms")
+        print("  latency by tenth of the run, p95:    " + " ".join(f"{t['p95_ms']:.0f}" for t in tenths) + " ms")
+        figures.update({f"latency_tenth{k}.p95_ms": t["p95_ms"] for k, t in enumerate(tenths)})
+        figures.update({f"latency_tenth{k}.median_ms": t["median_ms"] for k, t in enumerate(tenths)})
+    args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / "latency.csv").open("w") as handle:  # every frame's image -> fused pose latency
+        handle.write("fused_index,latency_ms\n")
+        handle.writelines(f"{index},{ms:.3f}\n" for index, ms in result.latencies_ms)
     inputs = {"bag": str(bag), "rate": str(args.rate), "sensors": ",".join(sensors), "probe_model": args.probe_model}
     path = RunResult("bench/soak", bag.name, figures=figures, inputs=inputs).write(args.out)
     print(f"  wrote {path}")
@@ -767,11 +787,17 @@ def bench_faults(args: argparse.Namespace) -> int:
     from pvo_core import metrics
     from pvo_fusion.config import FusionConfig
 
-    from ..graphbench import run_fault
+    from ..graphbench import run_fault, soak_nodes
     from ..paths import repository_root
     from ..recorder import with_header_stamp
     from ..samples import read_stereo_sample
+    from .demo import DemoSettings, learned_graph
 
+    sensors = tuple(name.strip() for name in args.sensors.split(",") if name.strip())
+    nodes = [name for _, name in soak_nodes(sensors)]
+    graph = learned_graph(
+        DemoSettings(probe_model=args.probe_model), tuple(n for n in sensors if n != "simulated_sun"), who="pvo bench faults"
+    )
     bag = args.bag or (repository_root() or Path.cwd()) / "bags" / "sim_urban_sample"
     sample = read_stereo_sample(bag)
     stamps = [int(s) for s in sample.frame_stamps]
@@ -784,13 +810,14 @@ def bench_faults(args: argparse.Namespace) -> int:
     )
     TabulatedSunReference.write(table, sun_stamps, reference.directions)
     params = {
-        "stereo_vo": {},
-        "simulated_sun": {},
+        "stereo_vo": graph.vo,
+        **{name: graph.sensors.get(name, {}) for name in sensors},
         "fusion": {
             "prior.source": "given",
             "initial_pose": pose_to_xyz_xyzw(gt[0]),
             "inputs.sun.reference": "table",
             "inputs.sun.reference_table": str(table.resolve()),
+            **graph.fusion,
         },
     }
     domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
@@ -821,18 +848,19 @@ def bench_faults(args: argparse.Namespace) -> int:
 
     scenarios = [
         ("clean", None),
-        ("stereo_vo killed and restarted", restart("stereo_vo")),
-        ("simulated_sun killed and restarted", restart("simulated_sun")),
-        ("fusion killed and restarted", restart("fusion")),
+        *((f"{node} killed and restarted", restart(node)) for node in nodes),
         ("10 % of images dropped", drop_images),
         ("stamps jump 5 s forward", clock_jump),
     ]
-    print(f"faults on {bag} ({len(stamps)} frames at {args.rate:g}x); node faults at frame {FAULT_AT}, restarts at {RESTART_AT}")
+    print(
+        f"faults on {bag} ({len(stamps)} frames at {args.rate:g}x) through {' + '.join(nodes)}; node faults at frame "
+        f"{FAULT_AT}, restarts at {RESTART_AT}"
+    )
     print(f"{'scenario':<36}{'fused':>7}{'RMSE m':>9}{'vs clean':>10}{'jump m':>8}{'5 sigma m':>11}{'ratio':>7}  exits")
     figures: dict[str, float] = {}
     clean_rmse = None
     for index, (name, factory) in enumerate(scenarios):
-        run = run_fault(name, bag, args.out / f"scenario{index}", domain, params, args.rate, factory)
+        run = run_fault(name, bag, args.out / f"scenario{index}", domain, params, args.rate, factory, sensors)
         shift = CLOCK_JUMP_NS if factory is clock_jump else 0
         by_frame = {}
         for stamp, pose in run.poses.items():
@@ -847,7 +875,8 @@ def bench_faults(args: argparse.Namespace) -> int:
             f"{name:<36}{int(f['frames']):>7}{f['rmse_m']:>9.3f}{f['rmse_m'] - clean_rmse:>+10.3f}"
             f"{f['max_step_excess_m']:>8.3f}{f['five_sigma_m']:>11.3f}{f['jump_ratio']:>7.2f}  {exits}"
         )
-    path = RunResult("bench/faults", bag.name, figures=figures, inputs={"bag": str(bag), "rate": str(args.rate)}).write(args.out)
+    inputs = {"bag": str(bag), "rate": str(args.rate), "sensors": ",".join(sensors), "probe_model": args.probe_model}
+    path = RunResult("bench/faults", bag.name, figures=figures, inputs=inputs).write(args.out)
     print("fused = frames with a fused pose; jump = the step of the fused pose that most exceeds the true step, against")
     print(
         f"5 sigma of the motion model over it (inputs.vo.gap_sigma, {sigma:.2f} m/s); ratio > 1 is a discontinuity. Wrote {path}"
