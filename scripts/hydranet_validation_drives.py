@@ -25,21 +25,24 @@ import hashlib
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 import yaml
+from pvo_core.lie import so3_exp
 from pvo_core.readers import KittiSequence, read_corpus_manifest
 from pvo_core.trajectory import read_kitti_poses
 from pvo_frontend.offline import run_sequence
 from pvo_frontend.vo import VOConfig
 from pvo_frontend.vo import flatten as flatten_vo
 from pvo_frontend.vo import from_flat as from_flat_vo
-from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, true_relative_rotations
+from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, rotation_errors, true_relative_rotations
 from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
 from pvo_pseudosensors.learning.checkpoint import ModelFileError
 from pvo_tools.experiments.common import TRAJECTORY_METRICS, fusion_figures
 from pvo_tools.experiments.hydranet import FIRST_STAMP_NS, rotation_measurements, vo_rotation_errors
+from scipy.spatial.transform import Rotation
 
 from pvo_fusion import CalibrationSequence, FusionGraph, calibrate_vo, ordered_events, run_offline, vo_measurements
 from pvo_fusion.config import from_flat
@@ -88,6 +91,13 @@ def main() -> None:
         default="0",
         help="the scale of the VO's turns learned from HydraNet's rotations (over ~1000 readings) and applied with this "
         "gain (inputs.rotation.vo_rotation_scale_gain), comma-separated; 0: none (each with each gate)",
+    )
+    parser.add_argument(
+        "--readings",
+        default="as-read",
+        help="which readings are fused, comma-separated: as-read (the model's), debiased (an oracle: each drive's own "
+        "mean error per pair, from the truth, taken off its readings - the slow part removed, the rest kept), true (an "
+        "oracle: the true rotations at the model's covariances); each is reported as MODEL@READINGS",
     )
     parser.add_argument(
         "--vo-param",
@@ -166,7 +176,11 @@ def main() -> None:
         models = [(path, *load_hydranet(path)) for path in args.models]
     except ModelFileError as error:
         raise SystemExit(str(error)) from None
-    changes: dict[tuple[str, Setting], list[list[float]]] = {(str(p), s): [] for p in args.models for s in settings}
+    readings = [r.strip() for r in args.readings.split(",") if r.strip()]
+    if not readings or any(r not in READINGS for r in readings):
+        parser.error(f"--readings {args.readings!r}: choose among {', '.join(READINGS)}")
+    labels = [(p, r, str(p) if r == "as-read" else f"{p}@{r}") for p in args.models for r in readings]
+    changes: dict[tuple[str, Setting], list[list[float]]] = {(label, s): [] for _, _, label in labels for s in settings}
     drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
     if not drives:
         raise SystemExit(f"{args.drives}: no drive (render them with `pvo dpc-net drives {args.drives} --split validation`)")
@@ -200,11 +214,13 @@ def main() -> None:
                 calibrations[span] = calibrate_vo(others, span)
         alone = fusion_figures(truth, truth[0] @ vo_poses)
         line = f"{folder.parent.name}/{folder.name}: VO {alone['m_ate_trans']:.2f} m {alone['m_ate_rot_deg']:.2f} deg"
-        for path, model, card in models:
+        for (path, model, card), (_, reading, label) in zip([m for m in models for _ in readings], labels, strict=True):
             predictions = predict_sequence(model, card, folder, cache_dir=args.cache)
             true = true_relative_rotations(truth, predictions.earlier, predictions.frames)
+            predictions = oracle_readings(predictions, true, reading)
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
-            line += f" | {path.name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
+            name = path.name if reading == "as-read" else f"{path.name}@{reading}"
+            line += f" | {name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
             for setting in settings:
                 gate, huber, span, gain, scale, bias, vo_bias, turn = setting
                 scaled = dataclasses.replace(
@@ -227,7 +243,7 @@ def main() -> None:
                 graph.set_initial_pose(truth[0])
                 fused = fusion_figures(truth, run_offline(graph, stamps, ordered_events(vo, rotations)).online_poses)
                 change = [fused[k] / max(alone[k], 1e-12) - 1.0 for k in TRAJECTORY_METRICS]
-                changes[(str(path), setting)].append(change)
+                changes[(label, setting)].append(change)
                 line += f"; gate {gate:g} huber {huber:g} span {span} gain {gain[0]:g}:{gain[1]:g} x{scale:g}"
                 line += f" offset {bias[0]:g}:{bias[1]:g}" if max(bias) > 0 else ""
                 line += f" VO bias over {vo_bias:g}" if vo_bias else ""
@@ -238,6 +254,24 @@ def main() -> None:
     if args.json:
         args.json.write_text(json.dumps(named, indent=1))
     print_means(named)
+
+
+READINGS = ("as-read", "debiased", "true")
+
+
+def oracle_readings(predictions: Any, true: np.ndarray, reading: str) -> Any:
+    """The model's readings (``as-read``), the same with the drive's mean error per pair taken off each (``debiased``:
+    C = Exp(mean Log(C_true C_est^T)) C_est) or the true rotations (``true``), their covariances kept."""
+    if reading == "as-read":
+        return predictions
+    estimates = Rotation.from_quat(np.asarray(predictions.quaternions)[:, [1, 2, 3, 0]]).as_matrix()
+    if reading == "true":
+        rotations = true
+    else:
+        mean = rotation_errors(estimates, true).mean(axis=0)
+        rotations = so3_exp(mean) @ estimates
+    xyzw = Rotation.from_matrix(rotations).as_quat()
+    return dataclasses.replace(predictions, quaternions=xyzw[:, [3, 0, 1, 2]])
 
 
 def setting_name(path: str, setting: Setting) -> str:
