@@ -406,10 +406,10 @@ class FusionGraph:
         if float(innovation @ np.linalg.solve(rotation_covariance + covariance[3:, 3:], innovation)) > self._bridge_gate:
             self.counts["rotation.bridge_gated"] += 1
             return transform, covariance
-        for item in chain:
+        for item in chain:  # taken, not rejected: counted without becoming the status's last rejection
             self._pending.remove(item)
             self.counts[f"rotation.{BUFFERED}"] -= 1
-            self._count("rotation", "bridged")
+            self.counts["rotation.bridged"] += 1
         bridged = np.eye(4)
         bridged[:3, :3] = chained
         bridged[:3, 3] = -chained @ position  # T_stamp,newest from the pose of the new frame in the newest's
