@@ -80,6 +80,43 @@ def test_demo_runs_sun_bcnn_where_the_bag_has_gps(tmp_path: Path, ros_env) -> No
     assert "stereo_vo -> sun_bcnn + hydranet + dpc_net -> fusion" in (sample / "report.md").read_text()
 
 
+def test_demo_ablation_runs_each_graph_through_the_nodes(sample_bag: Path, tmp_path: Path, ros_env) -> None:
+    """`pvo demo --ablation` on the KITTI sample (no GPS: GT-Sun-10 and nothing learned): the graph with the sun and
+    the graph without any sun sensor, each through the real nodes and checked against the ROS-free objects, then
+    tabulated against the VO alone."""
+    out = tmp_path / "demo"
+    result = subprocess.run(
+        ["pvo", "demo", "--ablation", str(sample_bag), "-o", str(out)], env=ros_env, capture_output=True, text=True, timeout=400
+    )
+    assert result.returncode == 0, result.stderr[-2000:]
+    ablation = out / "ablation" / "kitti06_sample"
+    record = json.loads((ablation / "metrics.json").read_text())
+    assert record["kind"] == "demo-ablation"
+    assert record["inputs"]["graphs"] == {
+        "every-sensor": "stereo_vo simulated_sun fusion",
+        "without-the-sun": "stereo_vo fusion",
+    }
+    without = ablation / "without-the-sun"
+    params = (without / "params.yaml").read_text()
+    assert "simulated_sun" not in params and "inputs.sun.enabled: false" in params
+    assert not (without / "sun_reference.csv").exists()
+    figures = json.loads((without / "metrics.json").read_text())["figures"]
+    for key in ("vo", "fused_smoothed", "fused_online"):
+        assert figures[f"agreement_with_ros_free.{key}_max_position_difference_m"] < 1e-6
+    # with no other measurement the fused chain is the VO's own: the same end point to the millimetre
+    tables = record["tables"]
+    assert tables["without-the-sun"]["fused_online"]["end_drift_percent"] == pytest.approx(
+        tables["without-the-sun"]["vo"]["end_drift_percent"], abs=1e-3
+    )
+    assert tables["every-sensor"]["vo"]["end_drift_percent"] == pytest.approx(1.022, abs=5e-4)
+    bag_info = subprocess.run(["pvo", "bag", "info", str(without / "recorded")], capture_output=True, text=True, timeout=60)
+    assert "/pvo/sun/direction" not in bag_info.stdout and "Topic: /pvo/fusion/odometry" in bag_info.stdout
+    table = (ablation / "ablation.md").read_text()
+    assert "VO alone" in table and "without the sun" in table and "stereo_vo simulated_sun fusion" in table
+    assert "stereo_vo -> fusion over DDS" in (without / "report.md").read_text()
+    assert "kitti06_sample" in (out / "ablation" / "report.md").read_text()
+
+
 def test_demo_on_a_missing_bag_is_one_clear_line(tmp_path: Path, ros_env) -> None:
     result = subprocess.run(
         ["pvo", "demo", str(tmp_path / "none"), "-o", str(tmp_path / "out")],
@@ -90,3 +127,12 @@ def test_demo_on_a_missing_bag_is_one_clear_line(tmp_path: Path, ros_env) -> Non
     )
     assert result.returncode == 2
     assert result.stderr.strip().splitlines()[-1] == f"pvo: error: {tmp_path / 'none'}: no such bag"
+    ablation = subprocess.run(
+        ["pvo", "demo", "--ablation", str(tmp_path / "none"), "-o", str(tmp_path / "out")],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert ablation.returncode == 2
+    assert ablation.stderr.strip().splitlines()[-1] == f"pvo: error: {tmp_path / 'none'}: no such bag"

@@ -60,7 +60,7 @@ def run_pipeline(
 ) -> PipelineResult:
     """Every stereo pair through :class:`StereoVO`; the sun from every ground-truth sun vector through the
     simulated sun sensor (``sun_config``: a :class:`SimulatedSunConfig`) or from every left image through
-    Sun-BCNN (a :class:`~pvo_pseudosensors.sun_bcnn.estimator.SunBCNNSensorConfig`); both through a
+    Sun-BCNN (a :class:`~pvo_pseudosensors.sun_bcnn.estimator.SunBCNNSensorConfig`), or none (None); both through a
     :class:`FusionGraph` in the usual arrival order (:func:`pvo_fusion.run_offline`; each sun before the next
     frame); ``sun_stamps``: the frames a ``sun_bcnn`` node estimated at (it counts the images it receives: one it
     never got shifts its choice); ``rotation_config``: a
@@ -86,7 +86,9 @@ def run_pipeline(
             previous = int(stamp)
         poses.append(result.pose)
         covariances.append(result.pose_covariance)
-    if isinstance(sun_config, SimulatedSunConfig):
+    if sun_config is None:
+        sun = []
+    elif isinstance(sun_config, SimulatedSunConfig):
         sun = simulated_sun(sample, sun_config)
     else:
         sun = learned_sun(sample, sun_config, sun_stamps)

@@ -83,6 +83,12 @@ def register(sub: Any) -> None:
         help="DPC-Net model directory or shipped name (default dpc_net_clean: the sample's rig, no lens distortion)",
     )
     demo.add_argument(
+        "--ablation",
+        action="store_true",
+        help="run each bag once per sensor set (every sensor; without each; each alone) on the same VO and tabulate "
+        "what each adds (OUT/ablation/)",
+    )
+    demo.add_argument(
         "--probe-model",
         default="probe_sim",
         help="PROBE model of stereo_vo (probe.model) beside the learned sun: a directory or shipped name (default "
@@ -108,6 +114,8 @@ def run(args: argparse.Namespace) -> int:
         args.probe_model,
     )
     domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
+    if args.ablation:
+        return run_ablation(bags, args.out / "ablation", settings, domain)
     start = time.perf_counter()
     results = []
     for bag in bags:
@@ -135,7 +143,7 @@ def write_params(path: Path, parameters: dict[str, dict[str, Any]]) -> Path:
     return path
 
 
-SUN_SOURCES = ("auto", "sun-bcnn", "simulated")
+SUN_SOURCES = ("auto", "sun-bcnn", "simulated", "none")
 
 
 @dataclass(frozen=True)
@@ -150,6 +158,47 @@ class DemoSettings:
     dpc_net: bool = True  # dpc_net beside the learned sun
     dpc_net_model: str = "dpc_net_clean"  # DPC-Net model directory or shipped name
     probe_model: str = "probe_sim"  # stereo_vo's probe.model beside the learned sun; "" = the default noise
+    # stereo_vo runs the VO the DPC-Net model learned to correct even where dpc_net does not run (an ablation
+    # compares the sensors on one VO)
+    vo_of_dpc_net: bool = False
+
+
+@dataclass(frozen=True)
+class DemoNodes:
+    """Which nodes a sample's graph runs: ``sun_node`` (``sun_bcnn``, ``simulated_sun`` or None: no sun sensor),
+    ``learned`` (the learned pseudo-sensors run: the bag has GPS for the learned sun's reference, or Sun-BCNN was
+    asked for), ``sensors`` (the learned sensor nodes among `LEARNED_SENSORS`) and ``probe`` (stereo_vo with PROBE)."""
+
+    sun_node: str | None
+    learned: bool
+    sensors: tuple[str, ...]
+    probe: bool
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The graph's nodes in data-flow order, as its report names them."""
+        sun = () if self.sun_node is None or self.sun_node in self.sensors else (self.sun_node,)
+        return ("stereo_vo", *sun, *self.sensors, "fusion")
+
+
+def plan_nodes(settings: DemoSettings, gps_fixes: int) -> DemoNodes:
+    """The nodes ``settings`` run on a bag with ``gps_fixes`` /gps/fix messages: the learned sun where the bag has
+    at least 3 fixes (its reference comes from the ephemeris there) and ``sun`` is auto, GT-Sun elsewhere; with the
+    learned sun (or with none asked for, on such a bag) come PROBE, hydranet and dpc_net as ``settings`` ask."""
+    has_gps = gps_fixes >= 3
+    learned = settings.sun == "sun-bcnn" or (settings.sun in ("auto", "none") and has_gps)
+    if settings.sun == "none":
+        sun_node = None
+    else:
+        sun_node = "sun_bcnn" if settings.sun == "sun-bcnn" or (settings.sun == "auto" and has_gps) else "simulated_sun"
+    if not learned:
+        return DemoNodes(sun_node, False, (), False)
+    sensors = (
+        *(("sun_bcnn",) if sun_node == "sun_bcnn" else ()),
+        *(("hydranet",) if settings.hydranet else ()),
+        *(("dpc_net",) if settings.dpc_net else ()),
+    )
+    return DemoNodes(sun_node, True, sensors, bool(settings.probe_model))
 
 
 @dataclass
@@ -187,15 +236,19 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     sample = read_stereo_sample(bag)
     stamps = sample.frame_stamps
     ground_truth = sample.ground_truth_at(stamps)
-    learned = settings.sun == "sun-bcnn" or (settings.sun == "auto" and len(sample.gps) >= 3)
+    plan = plan_nodes(settings, len(sample.gps))
+    learned = plan.learned
     if out.exists():
         if any(out.iterdir()) and not (out / "params.yaml").is_file():
             raise PvoError(f"{out} exists and is not an earlier demo output (no params.yaml); not replaced")
         shutil.rmtree(out)
     out.mkdir(parents=True)
     reference_table = out / "sun_reference.csv"
-    sun_config: Any
-    if learned:
+    sun_config: Any = None
+    sun_node = plan.sun_node
+    if sun_node is None:
+        pass  # no sun sensor: the fusion gets none to weigh and needs no reference
+    elif sun_node == "sun_bcnn":
         from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensorConfig
 
         fixes = [s for s in sorted(sample.gps) if s in sample.ground_truth]
@@ -206,7 +259,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         )
         TabulatedSunReference.write(reference_table, stamps, reference.directions)
         sun_config = SunBCNNSensorConfig(model=settings.sun_model)
-        sun_node, sun_parameters = "sun_bcnn", {"model": settings.sun_model}
+        sun_parameters: dict[str, Any] = {"model": settings.sun_model}
     else:
         sun_stamps = sorted(s for s in sample.sun if s in sample.ground_truth)
         if not sun_stamps:
@@ -221,14 +274,14 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
             ).directions,
         )
         sun_config = SimulatedSunConfig(mean_error_deg=settings.sun_error_deg)
-        sun_node, sun_parameters = "simulated_sun", {"mean_error_deg": settings.sun_error_deg}
+        sun_parameters = {"mean_error_deg": settings.sun_error_deg}
     initial_pose = pose_to_xyz_xyzw(ground_truth[0])
-    fusion_overrides = {
-        "prior.source": "given",
-        "inputs.sun.reference": "table",
-        "inputs.sun.reference_table": str(reference_table.resolve()),
-    }
-    graph = learned_graph(settings) if learned else LearnedGraph({}, {}, {})
+    fusion_overrides: dict[str, Any] = {"prior.source": "given"}
+    if sun_node is None:
+        fusion_overrides["inputs.sun.enabled"] = False
+    else:
+        fusion_overrides.update({"inputs.sun.reference": "table", "inputs.sun.reference_table": str(reference_table.resolve())})
+    graph = learned_graph(settings, plan.sensors) if learned else LearnedGraph({}, {}, {})
     fusion_overrides.update(graph.fusion)
     vo_parameters = graph.vo
     rotation_config = None
@@ -243,7 +296,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         correction_config = DPCNetSensorConfig(model=settings.dpc_net_model)
     parameters = {
         "stereo_vo": vo_parameters,
-        sun_node: sun_parameters,
+        **({sun_node: sun_parameters} if sun_node is not None else {}),
         **{name: values for name, values in graph.sensors.items() if name != "sun_bcnn"},
         "fusion": {**fusion_overrides, "initial_pose": initial_pose, "path_period": 0.0, "path_max_poses": 0},
     }
@@ -260,7 +313,7 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
     from ..recorded import read_arrivals, read_header_stamps, read_windows
 
     fusion_config: FusionConfig = fusion_from_flat(fusion_overrides)
-    sun_stamps = read_header_stamps(recorded_bag, "/pvo/sun/direction")
+    sun_stamps = read_header_stamps(recorded_bag, "/pvo/sun/direction") if sun_node == "sun_bcnn" else None
     # the objects estimate the sun at the frames the sun node chose (it counts the images it received)
     vo_config: VOConfig = from_flat(vo_parameters)  # the node's parameters, so the objects run the same VO
     ros_free = run_pipeline(
@@ -268,9 +321,9 @@ def run_demo_sample(bag: Path, out: Path, settings: DemoSettings, domain_id: int
         vo_config,
         sun_config,
         fusion_config,
-        TabulatedSunReference.read(reference_table),
+        TabulatedSunReference.read(reference_table) if sun_node is not None else None,
         xyz_xyzw_to_pose(initial_pose),
-        sun_stamps=sun_stamps if sun_node == "sun_bcnn" else None,
+        sun_stamps=sun_stamps,
         rotation_config=rotation_config,
         # the sensors race the VO for each image (load decides who wins): the objects take every measurement in
         # the order the fusion node did (its status lists what it took before each frame)
@@ -324,8 +377,9 @@ def learned_graph(settings: DemoSettings, sensors: tuple[str, ...] | None = None
     if "hydranet" in sensors:
         nodes["hydranet"] = {"model": settings.hydranet_model}
     vo: dict[str, Any] = {"probe.model": settings.probe_model} if settings.probe_model else {}
-    if "dpc_net" in sensors:  # DPC-Net corrects the VO it learned: the graph runs that one
+    if "dpc_net" in sensors or settings.vo_of_dpc_net:  # DPC-Net corrects the VO it learned: the graph runs that one
         vo = dpc_net_vo(settings.dpc_net_model, who) | vo
+    if "dpc_net" in sensors:
         # ... and weighs its corrections against that VO as the card's validation drives chose (`pvo dpc-net correct`)
         fusion.update(dpc_net_fusion(settings.dpc_net_model, who))
         nodes["dpc_net"] = {"model": settings.dpc_net_model}
@@ -388,12 +442,12 @@ def run_graph(
     settings: DemoSettings,
     domain_id: int,
     frames: int,
-    sun_node: str = "simulated_sun",
+    sun_node: str | None = "simulated_sun",
     hydranet: bool = False,
     dpc_net: bool = False,
 ) -> None:
-    """stereo_vo, the sun node (simulated_sun or sun_bcnn), hydranet and dpc_net (when asked) and fusion as
-    processes; the bag played and the outputs recorded in this process."""
+    """stereo_vo, the sun node (simulated_sun, sun_bcnn or None: no sun sensor), hydranet and dpc_net (when asked)
+    and fusion as processes; the bag played and the outputs recorded in this process."""
     import rclpy
     from rclpy.context import Context
     from rclpy.node import Node
@@ -408,7 +462,9 @@ def run_graph(
     context = Context()
     rclpy.init(context=context, domain_id=domain_id)
     try:
-        executables = [("pvo_frontend", "stereo_vo"), ("pvo_pseudosensors", sun_node), ("pvo_fusion", "fusion")]
+        executables = [("pvo_frontend", "stereo_vo"), ("pvo_fusion", "fusion")]
+        if sun_node is not None:
+            executables.insert(1, ("pvo_pseudosensors", sun_node))
         if hydranet:
             executables.insert(2, ("pvo_pseudosensors", "hydranet"))
         if dpc_net:
@@ -418,7 +474,7 @@ def run_graph(
         recorder_node = Node("pvo_demo_recorder", context=context)
         player_node = Node("pvo_demo_player", context=context)
         outputs = [
-            *OUTPUT_TOPICS,
+            *(t for t in OUTPUT_TOPICS if sun_node is not None or t != "/pvo/sun/direction"),
             *(["/pvo/hydranet/rotation"] if hydranet else []),
             *(["/pvo/dpc/correction"] if dpc_net else []),
         ]
@@ -428,7 +484,8 @@ def run_graph(
             with Spinner(context, recorder_node):
                 # Every edge of the graph, publishers and subscribers, as this process sees them.
                 image_readers = 1 + (sun_node == "sun_bcnn") + hydranet + dpc_net
-                sun_input = {} if sun_node == "sun_bcnn" else {"/ground_truth/sun_direction": (0, 1)}
+                sun_input = {"/ground_truth/sun_direction": (0, 1)} if sun_node == "simulated_sun" else {}
+                sun_output = {"/pvo/sun/direction": (1, 2)} if sun_node is not None else {}
                 rotation = {"/pvo/hydranet/rotation": (1, 2)} if hydranet else {}
                 correction = {"/pvo/dpc/correction": (1, 2), "/stereo/right/image_rect": (0, 1 + dpc_net)} if dpc_net else {}
                 wait_for_graph(
@@ -439,7 +496,7 @@ def run_graph(
                         **rotation,
                         **correction,
                         "/pvo/vo/relative": (1, 2 + dpc_net),
-                        "/pvo/sun/direction": (1, 2),
+                        **sun_output,
                         "/pvo/fusion/odometry": (1, 1),
                         "/pvo/fusion/path": (1, 1),
                     },
@@ -489,7 +546,7 @@ def run_graph(
         )
     expected = [
         "/pvo/vo/relative",
-        "/pvo/sun/direction",
+        *(["/pvo/sun/direction"] if sun_node is not None else []),
         "/pvo/fusion/odometry",
         *(["/pvo/hydranet/rotation"] if hydranet else []),
         *(["/pvo/dpc/correction"] if dpc_net else []),
@@ -524,7 +581,7 @@ def evaluate_sample(
     ground_truth: Any,
     ros_free: Any,
     out: Path,
-    sun_node: str = "simulated_sun",
+    sun_node: str | None = "simulated_sun",
 ) -> SampleResult:
     """Metrics of VO alone and fused against the ground truth, agreement with the ROS-free run, report files."""
     import numpy as np
@@ -554,7 +611,10 @@ def evaluate_sample(
         if complete != len(stamps):
             raise PvoError(f"{recorded_bag}: {key} has poses for {complete} of {len(stamps)} frames")
         ev = evaluate(ground_truth, poses, frames)
-        row = {k: ev.figures[k] for k in ("frames", "path_length_m", "end_drift_percent", "ate_rmse_m")}
+        row = {
+            k: ev.figures[k]
+            for k in ("frames", "path_length_m", "end_drift_percent", "ate_rmse_m", "m_ate_translation_m", "m_ate_rotation_deg")
+        }
         row.update(
             rpe_translation_mean_m=ev.figures["rpe_translation_mean_m"],
             rpe_rotation_mean_deg=ev.figures["rpe_rotation_mean_deg"],
@@ -593,8 +653,16 @@ def evaluate_sample(
     record.write(out)
     plot_demo(out, name, ground_truth, {label: estimates[key][0] for label, key in ESTIMATES})
     (out / "report.md").write_text(
-        f"# pvo demo: {name}\n\nThe sample replayed through stereo_vo -> {sun_node}"
-        f"{' + hydranet' if ros_free.rotations else ''}{' + dpc_net' if ros_free.corrections else ''} -> fusion over DDS "
+        f"# pvo demo: {name}\n\nThe sample replayed through stereo_vo -> "
+        + " + ".join(
+            [
+                *([sun_node] if sun_node is not None else []),
+                *(["hydranet"] if ros_free.rotations else []),
+                *(["dpc_net"] if ros_free.corrections else []),
+            ]
+        )
+        + (" -> " if sun_node is not None or ros_free.rotations or ros_free.corrections else "")
+        + "fusion over DDS "
         "and recorded (`recorded/`), evaluated against its ground truth.\n\n```\n"
         + table
         + "\n```\n\n![trajectory](trajectory.png)\n\n![errors](errors.png)\n"
@@ -658,3 +726,151 @@ def summary_report(results: list[SampleResult], seconds: float) -> str:
     for r in results:
         parts.append(f"## {r.name}\n\n```\n{r.table}\n```\n\nDetails: [{r.name}/report.md]({r.name}/report.md)\n")
     return "\n".join(parts)
+
+
+# The sensor sets of an ablation, as changes to the settings asked for: every sensor, without each, each alone.
+ABLATIONS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("every sensor", {}),
+    ("without PROBE", {"probe_model": ""}),
+    ("without the sun", {"sun": "none"}),
+    ("without hydranet", {"hydranet": False}),
+    ("without dpc_net", {"dpc_net": False}),
+    ("VO, fused alone", {"sun": "none", "hydranet": False, "dpc_net": False}),
+    ("VO + the sun", {"hydranet": False, "dpc_net": False}),
+    ("VO + hydranet", {"sun": "none", "dpc_net": False}),
+    ("VO + dpc_net", {"sun": "none", "hydranet": False}),
+)
+
+
+@dataclass(frozen=True)
+class AblationVariant:
+    label: str
+    slug: str
+    settings: DemoSettings
+    nodes: DemoNodes
+
+
+def ablation_variants(settings: DemoSettings, gps_fixes: int) -> list[AblationVariant]:
+    """The distinct graphs of `ABLATIONS` on a bag with ``gps_fixes`` /gps/fix messages, each on the VO of the
+    graph ``settings`` ask for (the one DPC-Net's model corrects, where dpc_net runs there): a sensor set that
+    gives the same nodes as an earlier one (a sensor the bag's graph does not run) is left out."""
+    from dataclasses import replace
+
+    full = plan_nodes(settings, gps_fixes)
+    same_vo = "dpc_net" in full.sensors
+    variants: list[AblationVariant] = []
+    seen: set[tuple[Any, ...]] = set()
+    for label, changes in ABLATIONS:
+        variant = replace(settings, **changes, vo_of_dpc_net=same_vo)
+        nodes = plan_nodes(variant, gps_fixes)
+        key = (nodes.sun_node, nodes.sensors, nodes.probe)
+        if key in seen:
+            continue
+        seen.add(key)
+        slug = label.lower().replace(",", "").replace("+", "and").replace(" ", "-").replace("--", "-")
+        variants.append(AblationVariant(label, slug, variant, nodes))
+    return variants
+
+
+def describe_nodes(nodes: DemoNodes) -> str:
+    """The graph in one line: ``stereo_vo(PROBE) sun_bcnn hydranet fusion``."""
+    return " ".join(f"{name}(PROBE)" if name == "stereo_vo" and nodes.probe else name for name in nodes.names)
+
+
+ESTIMATE_KEYS = tuple(key for _, key in ESTIMATES)
+ABLATION_KEYS = ("end_drift_percent", "ate_rmse_m", "m_ate_translation_m", "m_ate_rotation_deg", "rpe_rotation_mean_deg")
+
+
+def format_ablation_table(name: str, rows: list[tuple[str, str, dict[str, dict[str, Any]]]]) -> str:
+    """``rows``: (label, nodes, the demo's figures) per variant, the first the full graph. Each variant's fused
+    online estimate, and its change against the VO alone of the same run (the same VO in every run but those
+    without PROBE)."""
+    first = rows[0][2]["vo"]
+    width = max(len(label) for label, _, _ in rows) + 2
+    nodes_width = max(len(nodes) for _, nodes, _ in rows) + 2
+    lines = [
+        f"{name}: {first['frames']} frames, {first['path_length_m']:.1f} m; fused online (/pvo/fusion/odometry), the change "
+        "against the same run's VO alone",
+        f"{'graph':<{width}}{'nodes':<{nodes_width}}{'end drift':>10}{'ATE rmse':>10}{'m-ATE t':>9}{'m-ATE r':>9}"
+        f"{'RPE rot':>9}{'Δ m-ATE t':>11}{'Δ m-ATE r':>11}",
+        f"{'':<{width}}{'':<{nodes_width}}{'[%]':>10}{'[m]':>10}{'[m]':>9}{'[deg]':>9}{'[deg]':>9}{'[%]':>11}{'[%]':>11}",
+    ]
+
+    def row(label: str, nodes: str, f: dict[str, Any], vo: dict[str, Any] | None) -> str:
+        def change(key: str) -> str:
+            if vo is None or not vo[key]:
+                return f"{'-':>11}"
+            percent = round(100.0 * (f[key] - vo[key]) / vo[key], 1)
+            return f"{percent:>+11.1f}" if percent else f"{'0.0':>11}"  # no "-0.0": unchanged is unchanged
+
+        return (
+            f"{label:<{width}}{nodes:<{nodes_width}}{f['end_drift_percent']:>10.3f}{f['ate_rmse_m']:>10.3f}"
+            f"{f['m_ate_translation_m']:>9.3f}{f['m_ate_rotation_deg']:>9.3f}{f['rpe_rotation_mean_deg']:>9.4f}"
+            f"{change('m_ate_translation_m')}{change('m_ate_rotation_deg')}"
+        )
+
+    vo_rows: dict[str, dict[str, Any]] = {}
+    for _, nodes, figures in rows:
+        vo_nodes = nodes.split(" ")[0]
+        vo_rows.setdefault(vo_nodes, figures["vo"])
+    for vo_nodes, figures in vo_rows.items():
+        lines.append(row("VO alone", vo_nodes, figures, None))
+    for label, nodes, figures in rows:
+        lines.append(row(label, nodes, figures["fused_online"], figures["vo"]))
+    return "\n".join(lines)
+
+
+def run_ablation(bags: list[Path], out: Path, settings: DemoSettings, domain_id: int) -> int:
+    """Every bag through each distinct graph of `ablation_variants`, as the demo runs it (nodes checked against
+    the ROS-free objects), tabulated per bag (``OUT/<bag>/ablation.md``, ``metrics.json``) and in ``OUT/report.md``."""
+    from pvo_core.results import RunResult
+
+    from ..baginfo import bag_info
+
+    start = time.perf_counter()
+    reports = []
+    disagreements = []
+    for bag in bags:
+        bag = Path(bag)
+        if not bag.exists():
+            raise PvoError(f"{bag}: no such bag")
+        fixes = sum(count for topic, _, count, _ in bag_info(bag).topics if topic == "/gps/fix")
+        variants = ablation_variants(settings, fixes)
+        rows = []
+        for k, variant in enumerate(variants, 1):
+            target = out / bag.name / variant.slug
+            described = describe_nodes(variant.nodes)
+            print(f"== {bag.name} [{k}/{len(variants)}] {variant.label}: {described} -> {target} ==", flush=True)
+            result = run_demo_sample(bag, target, variant.settings, domain_id)
+            print(
+                f"   fused online: end drift {result.figures['fused_online']['end_drift_percent']:.3f} %, ATE "
+                f"{result.figures['fused_online']['ate_rmse_m']:.3f} m ({result.seconds:.1f} s)",
+                flush=True,
+            )
+            if not result.agrees:
+                disagreements.append(f"{bag.name} {variant.label} ({result.max_difference_m:.2e} m)")
+            rows.append((variant.label, described, result.figures))
+        table = format_ablation_table(bag.name, rows)
+        print(table + "\n", flush=True)
+        RunResult(
+            "demo-ablation",
+            bag.name,
+            tables={
+                variant.slug: {
+                    key: {k: rows[i][2][key][k] for k in ABLATION_KEYS} for key in ("vo", "fused_online", "fused_smoothed")
+                }
+                for i, variant in enumerate(variants)
+            },
+            inputs={"bag": str(bag), "graphs": {v.slug: describe_nodes(v.nodes) for v in variants}},
+            notes={"change": "each graph's fused online estimate against the VO alone of the same run"},
+        ).write(out / bag.name)
+        (out / bag.name / "ablation.md").write_text(f"# pvo demo --ablation: {bag.name}\n\n```\n{table}\n```\n")
+        reports.append(f"## {bag.name}\n\n```\n{table}\n```\n")
+    seconds = time.perf_counter() - start
+    (out / "report.md").write_text(f"# pvo demo --ablation\n\n{len(bags)} bag(s) in {seconds:.1f} s.\n\n" + "\n".join(reports))
+    print(f"demo --ablation: {len(bags)} bag(s) in {seconds:.1f} s; summary in {out / 'report.md'}")
+    if disagreements:
+        raise PvoError(
+            f"the node graph and the ROS-free objects disagree on {', '.join(disagreements)} (allowed {AGREEMENT_M:g} m)"
+        )
+    return 0
