@@ -97,7 +97,14 @@ def main() -> None:
         default="as-read",
         help="which readings are fused, comma-separated: as-read (the model's), debiased (an oracle: each drive's own "
         "mean error per pair, from the truth, taken off its readings - the slow part removed, the rest kept), true (an "
-        "oracle: the true rotations at the model's covariances); each is reported as MODEL@READINGS",
+        "oracle: the true rotations at the model's covariances), turn-scaled (each reading's rotation vector divided by "
+        "1 + --turn-gain per axis); each is reported as MODEL@READINGS",
+    )
+    parser.add_argument(
+        "--turn-gain",
+        default="",
+        help="x,y,z: how much too long the model reads each axis's rotation (the least-squares slope of its error, "
+        "estimate minus truth, on the true rotation vector; measured on validation data), for --readings turn-scaled",
     )
     parser.add_argument(
         "--vo-param",
@@ -177,6 +184,15 @@ def main() -> None:
     except ModelFileError as error:
         raise SystemExit(str(error)) from None
     readings = [r.strip() for r in args.readings.split(",") if r.strip()]
+    turn_gain = None
+    if args.turn_gain:
+        try:
+            turn_gain = np.array([float(v) for v in args.turn_gain.split(",")])
+            assert turn_gain.shape == (3,) and np.all(turn_gain > -1.0)
+        except (ValueError, AssertionError):
+            parser.error(f"--turn-gain {args.turn_gain!r}: give three gains x,y,z (each > -1)")
+    if "turn-scaled" in readings and turn_gain is None:
+        parser.error("--readings turn-scaled needs --turn-gain")
     if not readings or any(r not in READINGS for r in readings):
         parser.error(f"--readings {args.readings!r}: choose among {', '.join(READINGS)}")
     labels = [(p, r, str(p) if r == "as-read" else f"{p}@{r}") for p in args.models for r in readings]
@@ -217,7 +233,7 @@ def main() -> None:
         for (path, model, card), (_, reading, label) in zip([m for m in models for _ in readings], labels, strict=True):
             predictions = predict_sequence(model, card, folder, cache_dir=args.cache)
             true = true_relative_rotations(truth, predictions.earlier, predictions.frames)
-            predictions = oracle_readings(predictions, true, reading)
+            predictions = oracle_readings(predictions, true, reading, turn_gain)
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
             name = path.name if reading == "as-read" else f"{path.name}@{reading}"
             line += f" | {name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
@@ -256,16 +272,22 @@ def main() -> None:
     print_means(named)
 
 
-READINGS = ("as-read", "debiased", "true")
+READINGS = ("as-read", "debiased", "true", "turn-scaled")
 
 
-def oracle_readings(predictions: Any, true: np.ndarray, reading: str) -> Any:
+def oracle_readings(predictions: Any, true: np.ndarray, reading: str, turn_gain: np.ndarray | None = None) -> Any:
     """The model's readings (``as-read``), the same with the drive's mean error per pair taken off each (``debiased``:
-    C = Exp(mean Log(C_true C_est^T)) C_est) or the true rotations (``true``), their covariances kept."""
+    C = Exp(mean Log(C_true C_est^T)) C_est), the true rotations (``true``), or each reading's rotation vector divided
+    per axis by 1 + ``turn_gain`` (``turn-scaled``: a model that reads every turn g short has g < 0), their
+    covariances kept."""
     if reading == "as-read":
         return predictions
     estimates = Rotation.from_quat(np.asarray(predictions.quaternions)[:, [1, 2, 3, 0]]).as_matrix()
-    if reading == "true":
+    if reading == "turn-scaled":
+        if turn_gain is None:
+            raise ValueError("turn-scaled readings need the model's turn gain (--turn-gain)")
+        rotations = Rotation.from_rotvec(Rotation.from_matrix(estimates).as_rotvec() / (1.0 + turn_gain)).as_matrix()
+    elif reading == "true":
         rotations = true
     else:
         mean = rotation_errors(estimates, true).mean(axis=0)

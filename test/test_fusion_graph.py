@@ -328,6 +328,65 @@ def test_a_restarted_fusion_node_resumes_from_its_state_file(ros_context, tmp_pa
     np.testing.assert_allclose(z[10:], [21.0, 22.0, 23.0, 24.0, 25.0], atol=1e-6)
 
 
+def test_a_resumed_fusion_node_takes_again_what_the_sensors_kept_while_it_was_down(ros_context, tmp_path: Path) -> None:
+    """The sensors publish their measurements transient-local (`pvo_ros.measurements`): a fusion node resuming from
+    its checkpoint asks for what they kept and chains the frames published while it was down, where bridging at the
+    last velocity would miss a change of speed; what came before the checkpoint is set aside."""
+    from pvo_ros import measurements
+
+    state = tmp_path / "state.json"
+    cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    t0, dt = 1_000_000_000, 100_000_000
+
+    def step(k: int) -> np.ndarray:  # 1 m per frame, 2 m per frame over frames 11..20 (while the node is down)
+        return se3_inverse(se3_exp(np.array([0.0, 0.0, 2.0 if 11 <= k <= 20 else 1.0, 0.0, 0.0, 0.0])))
+
+    odometry: list[Odometry] = []
+    sensor = Node("vo_with_history", context=ros_context)
+    vo_pub = sensor.create_publisher(RelativePose, "/pvo/vo/relative", measurements())
+    sensor.create_publisher(RelativePose, "/pvo/hydranet/rotation", measurements())
+    sensor.create_publisher(SunDirection, "/pvo/sun/direction", RELIABLE)  # volatile, as a bag player's: none kept
+    listener = Node("io", context=ros_context)
+    listener.create_subscription(Odometry, "/pvo/fusion/odometry", odometry.append, RELIABLE)
+    parameters = [Parameter("state_file", value=str(state)), Parameter("publish_path", value=False)]
+    try:
+        with Spinner(ros_context, sensor), Spinner(ros_context, listener):
+            first = FusionNode(context=ros_context, parameter_overrides=parameters)
+            try:
+                with Spinner(ros_context, first):
+                    assert wait_for(lambda: vo_pub.get_subscription_count() > 0, 10.0)
+                    for k in range(1, 11):
+                        vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step(k), cov))
+                    assert wait_for(lambda: first.graph.counts["vo.accepted"] == 10 and len(odometry) == 10, 10.0)
+            finally:
+                first.destroy_node()
+            assert first.history_topics == []  # a fresh node asks for nothing old
+            for k in range(11, 21):  # nobody fuses these
+                vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step(k), cov))
+            resumed = FusionNode(context=ros_context, parameter_overrides=parameters)
+            try:
+                with Spinner(ros_context, resumed):
+                    assert wait_for(lambda: resumed.subscribed and vo_pub.get_subscription_count() > 0, 10.0)
+                    # asked where every publisher keeps its measurements; the volatile sun subscribed volatile
+                    assert resumed.history_topics == ["/pvo/vo/relative", "/pvo/hydranet/rotation"]
+                    assert wait_for(lambda: resumed.graph.counts["vo.accepted"] == 10, 10.0)  # frames 11..20, kept
+                    for k in range(21, 26):
+                        vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step(k), cov))
+                    assert wait_for(lambda: resumed.graph.counts["vo.accepted"] == 15 and len(odometry) == 25, 10.0)
+                    counts = dict(resumed.graph.counts)
+            finally:
+                resumed.destroy_node()
+    finally:
+        sensor.destroy_node()
+        listener.destroy_node()
+    assert counts["vo.rejected.before_checkpoint"] == 10 and counts.get("vo.gap", 0) == 0
+    z = [pose_to_matrix(m.pose.pose)[2, 3] for m in odometry]
+    np.testing.assert_allclose(z[9], 10.0, atol=1e-6)
+    # frames 11..20 at 2 m each, then 1 m again: 30 m at frame 20 and 35 m at 25 (the bridge at the last
+    # velocity would have read 20 and 25)
+    np.testing.assert_allclose(z[10:], [10.0 + 2.0 * k for k in range(1, 11)] + [31.0, 32.0, 33.0, 34.0, 35.0], atol=1e-6)
+
+
 def corrected_drive(
     read: np.ndarray, exact: np.ndarray, vo_cov: np.ndarray, correction_cov: np.ndarray, frames: int, last: bool = True
 ) -> list[tuple[str, RelativePose]]:

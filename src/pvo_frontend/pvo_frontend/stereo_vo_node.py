@@ -28,7 +28,7 @@ from pvo_core.msgconv import fill_pose, fill_stamp, image_to_array, stamp_to_nan
 from sensor_msgs.msg import CameraInfo, Image, Imu
 
 from pvo_msgs.msg import RelativePose
-from pvo_ros import ERROR, OK, SENSOR_QUEUE_DEPTH, WARN, PvoNode, reliable, run_node
+from pvo_ros import ERROR, OK, SENSOR_QUEUE_DEPTH, WARN, PvoNode, measurements, reliable, run_node
 
 from .probe.model import ProbeModel, resolve_model
 from .stereo_vo_settings import StereoVONodeConfig
@@ -146,7 +146,7 @@ class StereoVONode(PvoNode[VOConfig, StereoVONodeConfig]):
         if self.probe is not None and self.probe.predictors.imu:
             self.counts["imu_rejected"] = 0
             self.create_subscription(Imu, "/imu/data", self._on_imu, reliable(IMU_HISTORY))
-        self.pub_relative = self.create_publisher(RelativePose, "/pvo/vo/relative", reliable(50))
+        self.pub_relative = self.create_publisher(RelativePose, "/pvo/vo/relative", measurements())
         self.pub_odometry = self.create_publisher(Odometry, "/pvo/vo/odometry", reliable(50))
         self.pub_path = self.create_publisher(Path, "/pvo/vo/path", reliable(10))
 

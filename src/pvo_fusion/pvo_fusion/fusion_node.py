@@ -33,10 +33,11 @@ from pvo_core.msgconv import (
     stamp_to_nanoseconds,
     xyz_xyzw_to_pose,
 )
+from rclpy.qos import DurabilityPolicy
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from pvo_msgs.msg import RelativePose, SunDirection
-from pvo_ros import OK, WARN, PvoNode, every_message, reliable, run_node
+from pvo_ros import OK, WARN, PvoNode, every_message, kept_history_durability, reliable, run_node
 
 from .checkpoint import FusionCheckpoint
 from .config import FusionConfig
@@ -68,6 +69,7 @@ def sun_from_msg(msg: SunDirection) -> SunMeasurement:
     )
 
 
+RESUME_SETTLE_S = 0.5  # after the VO's publisher is discovered, for the other sensors' (resuming from a checkpoint)
 LATENCY_SAMPLES = 10_000  # the newest VO-in -> odometry-out latencies kept for benchmarks
 
 
@@ -83,6 +85,10 @@ class FusionNodeConfig:
     at the first VO frame is used instead).
     state_file: where the newest state is checkpointed after every VO frame; a node started with an
     existing checkpoint resumes from it (a restart after a crash continues the trajectory). Empty: off.
+    resume_wait: seconds a node resuming from its checkpoint waits for the VO's publisher to be discovered
+    before it subscribes its inputs, asking each input whose publishers keep their measurements
+    (``pvo_ros.measurements``: transient-local) for them: what was published while it was down is taken again,
+    whatever came before the checkpoint set aside. A node starting afresh subscribes at once (volatile).
     """
 
     map_frame: str = "map"
@@ -93,8 +99,11 @@ class FusionNodeConfig:
     initial_pose: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
     initial_pose_from_ground_truth: bool = False
     state_file: str = ""
+    resume_wait: float = 5.0
 
     def __post_init__(self) -> None:
+        if not self.resume_wait >= 0.0:
+            raise ValueError(f"resume_wait must be >= 0 s, got {self.resume_wait}")
         if not self.path_period >= 0.0:
             raise ValueError(f"path_period must be >= 0 s, got {self.path_period}")
         if self.path_max_poses < 0:
@@ -134,6 +143,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         if self.config.prior.source == "given" and not settings.initial_pose_from_ground_truth:
             self.graph.set_initial_pose(xyz_xyzw_to_pose(settings.initial_pose))
             self._initial_known = True
+        resuming = False
         if settings.state_file and os.path.isfile(settings.state_file):
             try:
                 checkpoint = FusionCheckpoint.read(settings.state_file)
@@ -143,21 +153,57 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
                 self.graph = FusionGraph(self.config, self._static_sun_reference())
                 self.graph.resume(checkpoint)
                 self._initial_known = True
+                resuming = True
                 self.get_logger().info(f"resuming from {settings.state_file} at {checkpoint.stamp * 1e-9:.3f} s")
+        # the input topics whose kept measurements this node asked for (resuming), and the ones it subscribed
+        self.history_topics: list[str] = []
+        self.subscribed = False
+        if resuming and settings.resume_wait > 0.0:
+            # The sensors' publishers keep their last measurements for a late joiner; to ask for them the node
+            # must know that every publisher of a topic keeps them (a volatile one, a bag player, would not match)
+            waited_since = time.monotonic()
+            found_at: list[float] = []
 
-        # Inputs keep every message: a lagging fusion must not silently lose VO frames (a lost frame
-        # would become a gap); outputs keep the last 200.
-        inputs = every_message()
-        self.create_subscription(RelativePose, "/pvo/vo/relative", self._on_vo, inputs)
-        self.create_subscription(SunDirection, "/pvo/sun/direction", self._on_sun, inputs)
-        self.create_subscription(RelativePose, "/pvo/dpc/correction", self._on_correction, inputs)
-        self.create_subscription(RelativePose, "/pvo/hydranet/rotation", self._on_rotation, inputs)
-        self.create_subscription(NavSatFix, "/gps/fix", self._on_gps, inputs)
-        if not self._initial_known:
-            self.create_subscription(Odometry, "/ground_truth/odometry", self._on_ground_truth, inputs)
+            def subscribe_when_discovered() -> None:
+                now = time.monotonic()
+                if not found_at and self.count_publishers("/pvo/vo/relative") > 0:
+                    found_at.append(now)
+                # the other sensors' publishers are discovered within moments of the VO's: give them RESUME_SETTLE_S
+                settled = bool(found_at) and now - found_at[0] >= RESUME_SETTLE_S
+                if settled or now - waited_since >= settings.resume_wait:
+                    self.destroy_timer(self._discovery_timer)
+                    self._subscribe_inputs(history=True)
+
+            self._discovery_timer = self.create_timer(0.05, subscribe_when_discovered)
+        else:
+            self._subscribe_inputs(history=False)
         self.pub_odometry = self.create_publisher(Odometry, "/pvo/fusion/odometry", reliable(200))
         self.pub_pose = self.create_publisher(PoseWithCovarianceStamped, "/pvo/fusion/pose", reliable(200))
         self.pub_path = self.create_publisher(Path, "/pvo/fusion/path", reliable(10))
+
+    def _subscribe_inputs(self, history: bool) -> None:
+        """The inputs, each keeping every message: a lagging fusion must not silently lose VO frames (a lost frame
+        would become a gap). ``history``: ask each measurement topic whose publishers all keep theirs for them."""
+        inputs = {
+            "/pvo/vo/relative": (RelativePose, self._on_vo),
+            "/pvo/sun/direction": (SunDirection, self._on_sun),
+            "/pvo/dpc/correction": (RelativePose, self._on_correction),
+            "/pvo/hydranet/rotation": (RelativePose, self._on_rotation),
+        }
+        for topic, (message_type, callback) in inputs.items():
+            qos = every_message()
+            if history:
+                qos.durability = kept_history_durability(self, topic)
+                if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL:
+                    self.history_topics.append(topic)
+            self.create_subscription(message_type, topic, callback, qos)
+        self.create_subscription(NavSatFix, "/gps/fix", self._on_gps, every_message())
+        if not self._initial_known:
+            self.create_subscription(Odometry, "/ground_truth/odometry", self._on_ground_truth, every_message())
+        if history:
+            kept = ", ".join(self.history_topics) or "none (no publisher keeps them)"
+            self.get_logger().info(f"resuming: the measurements published while it was down taken again from {kept}")
+        self.subscribed = True
 
     def _static_sun_reference(self) -> SunReference | None:
         sun = self.config.inputs.sun

@@ -18,7 +18,7 @@ from pvo_core.msgconv import fill_pose, image_to_array, pose_to_matrix
 from sensor_msgs.msg import CameraInfo, Image
 
 from pvo_msgs.msg import RelativePose
-from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, reliable, run_node, stamp_to_nanoseconds
+from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, measurements, reliable, run_node, stamp_to_nanoseconds
 
 from .dpc_net.estimator import DPCNetSensor, DPCNetSensorConfig
 
@@ -43,7 +43,7 @@ class DPCNetNode(PvoNode[DPCNetSensorConfig, None]):
         self.vo_frame_id = ""
         self.published = 0
         self.rejected = 0
-        self.publisher = self.create_publisher(RelativePose, "/pvo/dpc/correction", reliable(100))
+        self.publisher = self.create_publisher(RelativePose, "/pvo/dpc/correction", measurements())
         self.create_subscription(Image, "/stereo/left/image_rect", lambda m: self._on_image(m, "left"), reliable(10))
         self.create_subscription(Image, "/stereo/right/image_rect", lambda m: self._on_image(m, "right"), reliable(10))
         self.create_subscription(RelativePose, "/pvo/vo/relative", self._on_vo, reliable(100))

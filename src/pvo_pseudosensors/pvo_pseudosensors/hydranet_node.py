@@ -17,7 +17,7 @@ from pvo_core.msgconv import image_to_array
 from sensor_msgs.msg import Image
 
 from pvo_msgs.msg import RelativePose
-from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, reliable, run_node, stamp_to_nanoseconds
+from pvo_ros import ERROR, OK, WARN, PvoNode, fill_stamp, measurements, reliable, run_node, stamp_to_nanoseconds
 
 from .hydranet.estimator import HydraNetSensor, HydraNetSensorConfig, RotationEstimate
 
@@ -51,7 +51,7 @@ class HydraNetNode(PvoNode[HydraNetSensorConfig, None]):
         self.images = 0
         self.published = 0
         self.rejected = 0
-        self.publisher = self.create_publisher(RelativePose, "/pvo/hydranet/rotation", reliable(100))
+        self.publisher = self.create_publisher(RelativePose, "/pvo/hydranet/rotation", measurements())
         self.create_subscription(Image, "/stereo/left/image_rect", self._on_image, reliable(10))
         if self.sensor is not None:
             card = self.sensor.card

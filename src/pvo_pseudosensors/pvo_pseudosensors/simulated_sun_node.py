@@ -14,7 +14,7 @@ import numpy as np
 from pvo_core.sun import vector_to_zenith_azimuth
 
 from pvo_msgs.msg import SunDirection
-from pvo_ros import OK, WARN, PvoNode, reliable, run_node, stamp_to_nanoseconds
+from pvo_ros import OK, WARN, PvoNode, measurements, reliable, run_node, stamp_to_nanoseconds
 
 from .simulated_sun import SimulatedSunConfig, SimulatedSunSensor
 
@@ -27,7 +27,7 @@ class SimulatedSunNode(PvoNode[SimulatedSunConfig, None]):
         self.published = 0
         self.rejected = 0
         qos = reliable(100)
-        self.publisher = self.create_publisher(SunDirection, "/pvo/sun/direction", qos)
+        self.publisher = self.create_publisher(SunDirection, "/pvo/sun/direction", measurements())
         self.create_subscription(SunDirection, "/ground_truth/sun_direction", self._on_truth, qos)
         self.get_logger().info(f"GT-Sun-{config.mean_error_deg:g}: every {config.every_n} frame(s), seed {config.seed}")
 

@@ -14,7 +14,7 @@ from pvo_core.msgconv import image_to_array
 from sensor_msgs.msg import Image
 
 from pvo_msgs.msg import SunDirection
-from pvo_ros import ERROR, OK, WARN, PvoNode, reliable, run_node, stamp_to_nanoseconds
+from pvo_ros import ERROR, OK, WARN, PvoNode, measurements, reliable, run_node, stamp_to_nanoseconds
 
 from .sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
 from .sun_bcnn.infer import card_fusion, fusion_arguments
@@ -27,7 +27,7 @@ class SunBCNNNode(PvoNode[SunBCNNSensorConfig, None]):
         self.images = 0
         self.published = 0
         self.rejected = 0
-        self.publisher = self.create_publisher(SunDirection, "/pvo/sun/direction", reliable(100))
+        self.publisher = self.create_publisher(SunDirection, "/pvo/sun/direction", measurements())
         self.create_subscription(Image, "/stereo/left/image_rect", self._on_image, reliable(10))
         if self.sensor is not None:
             card, calibration = self.sensor.card, self.sensor.calibration
