@@ -115,6 +115,11 @@ def main() -> None:
         help="a VO setting (VOConfig's dotted name) for every drive's VO run instead of its default, e.g. "
         "-p ransac.inlier_threshold=4 (the VO's covariance scales are then learned with it too)",
     )
+    parser.add_argument(
+        "--vo-as-read",
+        action="store_true",
+        help="fuse the VO's covariances as it reports them instead of scaled by the corpus's calibration (span 0)",
+    )
     parser.add_argument("--part", default="1/1", help="K/N: every N-th drive from the K-th (default 1/1: all)")
     parser.add_argument("--json", type=Path, help="write the per-drive changes here (for --merge)")
     parser.add_argument("--merge", nargs="+", type=Path, help="only average the per-drive changes of these --json files")
@@ -160,6 +165,9 @@ def main() -> None:
         corpus_sequences.append(CalibrationSequence(item.name, truth, relative["transforms"], relative["covariances"]))
     corpus_calibration = calibrate_vo(corpus_sequences, 1)
     print(f"VO covariance scales (x y z rx ry rz) on the corpus: {np.round(corpus_calibration.scale, 2)}", flush=True)
+    if args.vo_as_read:
+        corpus_calibration = None
+        print("  not applied (--vo-as-read): the VO's covariances as it reports them", flush=True)
     spans = [int(v) for v in args.vo_spans.split(",")] if args.vo_spans else [0]  # 0: the corpus's frame-to-frame scales
 
     gains = [tuple(float(v) for v in (g if ":" in g else f"0:{g}").split(":")) for g in args.vo_gains.split(",")]
@@ -267,6 +275,8 @@ def main() -> None:
                 line += f"{100 * change[0]:+.1f} / {100 * change[1]:+.1f} %"
         print(f"{line} ({time.perf_counter() - started:.0f} s)", flush=True)
     named = {setting_name(path, setting): rows for (path, setting), rows in changes.items()}
+    if args.vo_as_read:
+        named = {name.replace("VO scales from the corpus", "VO covariances as read"): rows for name, rows in named.items()}
     if args.json:
         args.json.write_text(json.dumps(named, indent=1))
     print_means(named)

@@ -196,3 +196,37 @@ class ProbeModel:
             return FeatureNoiseEstimate(noise.scale, noise.dof, loss="student_t", propagate_reference=self.propagate_reference)
         covariances, keep = self.estimator.covariances(phi, np.diag(np.asarray(self.nominal_sigma) ** 2))
         return FeatureNoiseEstimate(covariances, None, keep=keep)
+
+
+def card_vo_covariance_scale(directory: Path) -> list[float] | None:
+    """The per-axis variance scales (ROS order x y z rx ry rz) that make the VO with this PROBE model consistent on
+    its calibration data (``vo_calibration.covariance_scale`` of the card, written by ``pvo probe calibrate``): the
+    fusion's ``inputs.vo.covariance_scale`` for this VO. None when the card has none; a malformed entry is a
+    ValueError naming the card."""
+    card_path = Path(directory) / "model.yaml"
+    try:
+        card = yaml.safe_load(card_path.read_text())
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{card_path}: not a readable model card ({exc})") from None
+    entry = (card or {}).get("vo_calibration") if isinstance(card, dict) else None
+    if entry is None:
+        return None
+    scale = entry.get("covariance_scale") if isinstance(entry, dict) else None
+    try:
+        values = [float(v) for v in scale]  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        values = []
+    if len(values) != 6 or not all(np.isfinite(values)) or min(values) <= 0.0:
+        raise ValueError(f"{card_path}: vo_calibration.covariance_scale must be 6 positive numbers, got {scale!r}")
+    return values
+
+
+def write_vo_calibration(directory: Path, entry: dict[str, Any]) -> Path:
+    """Record ``entry`` (``covariance_scale`` and how it was measured) as the card's ``vo_calibration``, every other
+    field of the card kept as it was."""
+    card_path = Path(directory) / "model.yaml"
+    card = yaml.safe_load(card_path.read_text())
+    card["vo_calibration"] = entry
+    card_path.write_text(yaml.safe_dump(card, sort_keys=False, width=120, allow_unicode=True))
+    card_vo_covariance_scale(directory)  # what was written reads back
+    return card_path

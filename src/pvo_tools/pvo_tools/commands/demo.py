@@ -377,6 +377,8 @@ def learned_graph(settings: DemoSettings, sensors: tuple[str, ...] | None = None
     if "hydranet" in sensors:
         nodes["hydranet"] = {"model": settings.hydranet_model}
     vo: dict[str, Any] = {"probe.model": settings.probe_model} if settings.probe_model else {}
+    if settings.probe_model:  # the fusion weighs the VO's motions by their covariances: as PROBE's card calibrated them
+        fusion.update(probe_vo_fusion(settings.probe_model, who))
     if "dpc_net" in sensors or settings.vo_of_dpc_net:  # DPC-Net corrects the VO it learned: the graph runs that one
         vo = dpc_net_vo(settings.dpc_net_model, who) | vo
     if "dpc_net" in sensors:
@@ -384,6 +386,27 @@ def learned_graph(settings: DemoSettings, sensors: tuple[str, ...] | None = None
         fusion.update(dpc_net_fusion(settings.dpc_net_model, who))
         nodes["dpc_net"] = {"model": settings.dpc_net_model}
     return LearnedGraph(vo, fusion, nodes)
+
+
+def probe_vo_fusion(model: str, who: str = "pvo demo") -> dict[str, Any]:
+    """The fusion's ``inputs.vo.covariance_scale`` from the PROBE ``model``'s card (``vo_calibration``, written by
+    `pvo probe calibrate`: the per-axis scales that make the VO with this model consistent on its calibration
+    sequences), announced on stderr; none when the card has none. A DPC-Net card that fuses sets its own after."""
+    from pvo_frontend.probe.model import card_vo_covariance_scale, resolve_model
+
+    try:
+        scale = card_vo_covariance_scale(resolve_model(model))
+    except ValueError as exc:
+        raise PvoError(f"{model}: {exc}") from None
+    if scale is None:
+        return {}
+    listed = " ".join(f"{v:.3g}" for v in scale)
+    print(
+        f"{who}: fusion weighs the VO by its covariances scaled as {model}'s card calibrated them ({listed})",
+        file=sys.stderr,
+        flush=True,
+    )
+    return {"inputs.vo.covariance_scale": scale}
 
 
 def dpc_net_vo(model: str, who: str = "pvo demo") -> dict[str, Any]:

@@ -58,6 +58,18 @@ def register(sub: Any) -> None:
         "--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter for the runs that collect the tracks"
     )
     train.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
+    cal = actions.add_parser(
+        "calibrate",
+        help="the VO with a PROBE model over a corpus split: the per-axis covariance scales that make it consistent, "
+        "recorded in the model card for the fusion",
+    )
+    cal.set_defaults(handler=run_calibrate)
+    cal.add_argument("--model", required=True, help="PROBE model directory (its model.yaml gets vo_calibration)")
+    cal.add_argument("--corpus", type=Path, required=True, help="a `pvo sim corpus` directory")
+    cal.add_argument("--split", default="validation", choices=("train", "validation"), help="default validation")
+    cal.add_argument("--preset", default="urban", help="the corpus preset to calibrate on (default urban)")
+    cal.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter")
+    cal.add_argument("--dry-run", action="store_true", help="print the scales, leave the card as it is")
     ev = actions.add_parser("eval", help="the VO with and without a PROBE model on a sequence with poses")
     ev.set_defaults(handler=run_eval)
     ev.add_argument("sequence", type=Path, metavar="SEQUENCE_DIR", help="KITTI-layout sequence directory with poses")
@@ -129,6 +141,50 @@ def run_train(args: argparse.Namespace) -> int:
     model.save(args.out)
     samples = len(model.estimator.errors)
     print(f"wrote {args.out}: PROBE {args.kind}, {samples} stored samples, predictors {', '.join(predictors.names)}")
+    return 0
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    """`pvo probe calibrate`: parse, call `pvo_tools.probe_calibration.calibrate_probe_vo`, print, record."""
+    import sys
+
+    from pvo_frontend.probe.model import resolve_model, write_vo_calibration
+
+    from ..probe_calibration import calibrate_probe_vo
+
+    model = resolve_model(args.model)
+    config = replace(vo_config(args.param), probe=replace(vo_config(args.param).probe, model=str(model)))
+    result = calibrate_probe_vo(
+        args.corpus, config, args.split, args.preset, progress=lambda line: print(line, file=sys.stderr, flush=True)
+    )
+    listed = " ".join(f"{v:.3g}" for v in result.scale)
+    print(
+        f"{model}: the VO's covariance scales (x y z rx ry rz) on {result.sequences} {args.preset} {args.split} sequences "
+        f"of {args.corpus} ({result.pairs} frame pairs): {listed}"
+    )
+    if args.dry_run:
+        return 0
+    command = " ".join(
+        [
+            "pvo probe calibrate",
+            f"--model {args.model}",
+            f"--corpus {args.corpus}",
+            f"--split {args.split}",
+            f"--preset {args.preset}",
+            *(f"-p {p}" for p in args.param or []),
+        ]
+    )
+    entry = {
+        "covariance_scale": [round(float(v), 4) for v in result.scale],
+        "span_frames": 1,
+        "corpus": {"path": str(args.corpus), "digest": result.digest, "split": args.split, "preset": args.preset},
+        "sequences": result.sequences,
+        "pairs": result.pairs,
+        "command": command,
+        "notes": "per-axis variance scales (ROS order) that make this VO's frame-to-frame covariances consistent on "
+        "those sequences (fusion: inputs.vo.covariance_scale; pvo demo applies them where stereo_vo runs this model)",
+    }
+    print(f"wrote {write_vo_calibration(model, entry)} (vo_calibration)")
     return 0
 
 

@@ -1,0 +1,63 @@
+"""The VO's covariance calibrated on a corpus split: per-axis variance scales that make its frame-to-frame
+covariances consistent (`pvo_fusion.calibrate_vo`, span 1) for the VO with a given configuration (a PROBE model)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from pvo_frontend.vo import VOConfig
+
+from .errors import PvoError
+
+
+@dataclass(frozen=True)
+class VOCovarianceCalibration:
+    """``scale`` (6,): ROS-order variance scales x y z rx ry rz; over ``sequences`` sequences and ``pairs`` frame
+    pairs of the corpus whose manifest digest is ``digest``."""
+
+    scale: NDArray[np.float64]
+    sequences: int
+    pairs: int
+    digest: str
+
+
+def calibrate_probe_vo(
+    corpus: Path,
+    config: VOConfig,
+    split: str = "validation",
+    preset: str = "urban",
+    progress: Callable[[str], None] | None = None,
+) -> VOCovarianceCalibration:
+    """Run the VO (``config``) over the ``preset`` sequences of the corpus's ``split`` and calibrate its covariance
+    (span 1: the frame-to-frame motions the fusion takes)."""
+    from pvo_core.readers import KittiSequence, read_corpus_manifest
+    from pvo_core.trajectory import read_kitti_poses
+    from pvo_frontend.offline import run_sequence
+
+    from pvo_fusion import CalibrationSequence, calibrate_vo
+
+    try:
+        manifest = read_corpus_manifest(corpus)
+    except (OSError, ValueError) as exc:
+        raise PvoError(f"{corpus}: not a readable corpus ({exc})") from None
+    items = [s for s in manifest.split(split) if s.preset == preset]
+    if not items:
+        raise PvoError(f"{corpus}: no {preset} sequence in the {split} split")
+    sequences = []
+    for k, item in enumerate(items, 1):
+        run = run_sequence(KittiSequence(item.root), config)
+        relative = run.relative()
+        sequences.append(
+            CalibrationSequence(
+                item.name, read_kitti_poses(item.root / "poses.txt"), relative["transforms"], relative["covariances"]
+            )
+        )
+        if progress is not None:
+            progress(f"  [{k}/{len(items)}] {item.name}: {len(relative['transforms'])} pairs")
+    calibration = calibrate_vo(sequences, 1)
+    pairs = sum(len(s.motions) for s in sequences)
+    return VOCovarianceCalibration(np.asarray(calibration.scale, dtype=float), len(items), pairs, manifest.sha256)
