@@ -25,7 +25,7 @@ class VOCovarianceCalibration:
     digest: str
 
 
-def calibrate_probe_vo(
+def calibrate_vo_on_corpus(
     corpus: Path,
     config: VOConfig,
     split: str = "validation",

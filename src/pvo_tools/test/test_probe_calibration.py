@@ -1,5 +1,6 @@
-"""`pvo probe calibrate`: the VO with a PROBE model over a corpus split, its per-axis covariance scales recorded in
-the model card, and the learned graph (`pvo demo`, the soak, the faults) fusing the VO with them."""
+"""`pvo probe calibrate` and `pvo hydranet vo-scale`: the VO (with a PROBE model, or the default one) over a corpus
+split, its per-axis covariance scales recorded in a model card, and the learned graph (`pvo demo`, the soak, the
+faults) fusing the VO with them."""
 
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ def probe_copy(tmp_path: Path) -> Path:
     return copy
 
 
-def independent_scales(corpus: Path, model: Path, names: list[str]) -> np.ndarray:
+def independent_scales(corpus: Path, model: Path | None, names: list[str]) -> np.ndarray:
     """mean over the frame pairs of e_i^2 / Sigma_ii, e = Log(T_vo T_true^-1) (ROS order), written out here."""
     from pvo_core.lie import se3_inverse, se3_log
     from pvo_core.readers import KittiSequence
@@ -47,7 +48,7 @@ def independent_scales(corpus: Path, model: Path, names: list[str]) -> np.ndarra
 
     ratios = []
     for name in names:
-        run = run_sequence(KittiSequence(corpus / name), from_flat({"probe.model": str(model)}))
+        run = run_sequence(KittiSequence(corpus / name), from_flat({"probe.model": str(model)} if model else {}))
         relative = run.relative()
         truth = read_kitti_poses(corpus / name / "poses.txt")
         for k, (motion, covariance) in enumerate(zip(relative["transforms"], relative["covariances"], strict=True), 1):
@@ -82,8 +83,8 @@ def test_the_learned_graph_fuses_the_vo_with_its_calibrated_covariance(probe_cop
     graph = learned_graph(DemoSettings(probe_model=str(probe_copy), dpc_net=False))
     assert graph.fusion["inputs.vo.covariance_scale"] == [6.0, 3.0, 9.0, 2.0, 1.9, 1.7]
     assert "fusion weighs the VO by its covariances scaled as" in capsys.readouterr().err
-    # without PROBE no card speaks for the VO
-    assert "inputs.vo.covariance_scale" not in learned_graph(DemoSettings(probe_model="", dpc_net=False)).fusion
+    # without PROBE (and without hydranet, whose card speaks for the default VO) no card speaks for the VO
+    assert "inputs.vo.covariance_scale" not in learned_graph(DemoSettings(probe_model="", hydranet=False, dpc_net=False)).fusion
     # a DPC-Net card that fuses learned the scales for its own VO: its scales win
     lens = learned_graph(DemoSettings(probe_model=str(probe_copy), dpc_net_model="dpc_net"))
     assert lens.fusion["inputs.vo.covariance_scale"] != [6.0, 3.0, 9.0, 2.0, 1.9, 1.7]
@@ -107,3 +108,33 @@ def test_bad_calibration_input_is_one_line(corpus: Path, probe_copy: Path, tmp_p
         learned_graph(DemoSettings(probe_model=str(probe_copy), dpc_net=False))
     with pytest.raises(ValueError, match="must be 6 positive numbers"):
         write_vo_calibration(probe_copy, {"covariance_scale": [0.0] * 6})
+
+
+def test_vo_scale_records_the_default_vos_scales_in_the_hydranet_card(corpus: Path, tmp_path: Path, capsys) -> None:
+    from pvo_pseudosensors.hydranet.estimator import resolve_model
+    from pvo_tools.commands.demo import DemoSettings, learned_graph
+
+    model = tmp_path / "hydranet"
+    shutil.copytree(resolve_model(""), model)
+    del_entry = yaml.safe_load((model / "model.yaml").read_text())
+    del_entry["calibration"].pop("default_vo_fusion", None)
+    (model / "model.yaml").write_text(yaml.safe_dump(del_entry, sort_keys=False))
+    no_scale = learned_graph(DemoSettings(probe_model="", hydranet_model=str(model), dpc_net=False))
+    assert "inputs.vo.covariance_scale" not in no_scale.fusion
+    assert main(["hydranet", "vo-scale", "--model", str(model), "--corpus", str(corpus)]) == 0
+    assert "the default VO's covariance scales" in capsys.readouterr().out
+    entry = yaml.safe_load((model / "model.yaml").read_text())["calibration"]["default_vo_fusion"]
+    expected = independent_scales(corpus, None, ["0000", "0001"])
+    np.testing.assert_allclose(entry["inputs.vo.covariance_scale"], expected, rtol=1e-3, atol=1e-4)
+    graph = learned_graph(DemoSettings(probe_model="", hydranet_model=str(model), dpc_net=False))
+    assert graph.fusion["inputs.vo.covariance_scale"] == entry["inputs.vo.covariance_scale"]
+    assert "scaled as" in capsys.readouterr().err
+    # beside PROBE's VO the HydraNet card's scales for the default VO do not apply; without hydranet neither
+    assert "inputs.vo.covariance_scale" not in learned_graph(DemoSettings(hydranet_model=str(model), dpc_net=False)).fusion
+    assert "inputs.vo.covariance_scale" not in learned_graph(DemoSettings(probe_model="", hydranet=False, dpc_net=False)).fusion
+    # the shipped card carries the scales its experiments weighed the default VO with
+    shipped = learned_graph(DemoSettings(probe_model="", dpc_net=False)).fusion["inputs.vo.covariance_scale"]
+    assert shipped == pytest.approx([1.2497, 0.249, 1.1548, 0.1342, 0.3691, 0.193])
+    capsys.readouterr()
+    assert main(["hydranet", "vo-scale", "--model", str(tmp_path / "none"), "--corpus", str(corpus)]) == 2
+    assert capsys.readouterr().err.count("\n") == 1

@@ -13,6 +13,7 @@ rotation factor, and ``dpc_net`` (DPC-Net's corrections of the VO over Δp frame
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import random
 import signal
@@ -379,6 +380,8 @@ def learned_graph(settings: DemoSettings, sensors: tuple[str, ...] | None = None
     vo: dict[str, Any] = {"probe.model": settings.probe_model} if settings.probe_model else {}
     if settings.probe_model:  # the fusion weighs the VO's motions by their covariances: as PROBE's card calibrated them
         fusion.update(probe_vo_fusion(settings.probe_model, who))
+    elif "hydranet" in sensors:  # ... or as HydraNet's card says its fusion figures weighed the default VO
+        fusion.update(hydranet_vo_fusion(settings.hydranet_model, who))
     if "dpc_net" in sensors or settings.vo_of_dpc_net:  # DPC-Net corrects the VO it learned: the graph runs that one
         vo = dpc_net_vo(settings.dpc_net_model, who) | vo
     if "dpc_net" in sensors:
@@ -407,6 +410,31 @@ def probe_vo_fusion(model: str, who: str = "pvo demo") -> dict[str, Any]:
         flush=True,
     )
     return {"inputs.vo.covariance_scale": scale}
+
+
+def hydranet_vo_fusion(model: str, who: str = "pvo demo") -> dict[str, Any]:
+    """The fusion's ``inputs.vo.covariance_scale`` for the default VO (no PROBE) from the HydraNet ``model``'s card
+    (``calibration.default_vo_fusion``, written by `pvo hydranet vo-scale`: the scales its experiments weigh that VO
+    with), announced on stderr; none when the card has none."""
+    from pvo_pseudosensors.hydranet.estimator import resolve_model
+    from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
+
+    try:
+        block = (read_card(resolve_model(model)).calibration or {}).get("default_vo_fusion") or {}
+        scale = block.get("inputs.vo.covariance_scale") if isinstance(block, dict) else None
+        if scale is None:
+            return {}
+        values = [float(v) for v in scale]
+        if len(values) != 6 or min(values) <= 0.0 or not all(math.isfinite(v) for v in values):
+            raise ValueError(
+                f"calibration.default_vo_fusion: inputs.vo.covariance_scale must be 6 positive numbers, got {scale!r}"
+            )
+    except (ModelFileError, ValueError, TypeError) as exc:
+        raise PvoError(f"{model or 'hydranet'}: {exc}") from None
+    listed = " ".join(f"{v:.3g}" for v in values)
+    said = f"{who}: fusion weighs the VO by its covariances scaled as {model or 'hydranet'}'s card says its fusion did ({listed})"
+    print(said, file=sys.stderr, flush=True)
+    return {"inputs.vo.covariance_scale": values}
 
 
 def dpc_net_vo(model: str, who: str = "pvo demo") -> dict[str, Any]:

@@ -145,16 +145,16 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    """`pvo probe calibrate`: parse, call `pvo_tools.probe_calibration.calibrate_probe_vo`, print, record."""
+    """`pvo probe calibrate`: parse, call `pvo_tools.probe_calibration.calibrate_vo_on_corpus`, print, record."""
     import sys
 
     from pvo_frontend.probe.model import resolve_model, write_vo_calibration
 
-    from ..probe_calibration import calibrate_probe_vo
+    from ..probe_calibration import calibrate_vo_on_corpus
 
     model = resolve_model(args.model)
     config = replace(vo_config(args.param), probe=replace(vo_config(args.param).probe, model=str(model)))
-    result = calibrate_probe_vo(
+    result = calibrate_vo_on_corpus(
         args.corpus, config, args.split, args.preset, progress=lambda line: print(line, file=sys.stderr, flush=True)
     )
     listed = " ".join(f"{v:.3g}" for v in result.scale)
