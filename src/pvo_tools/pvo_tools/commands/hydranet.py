@@ -42,7 +42,7 @@ def run_vo_scale(args: argparse.Namespace) -> int:
     from pvo_frontend.vo import VOConfig
     from pvo_pseudosensors.learning.checkpoint import read_card, write_card
 
-    from ..probe_calibration import calibrate_vo_on_corpus
+    from ..vo_calibration import calibrate_vo_on_corpus
 
     card = read_card(args.model)  # a missing or unreadable model is one line before the VO runs
     result = calibrate_vo_on_corpus(

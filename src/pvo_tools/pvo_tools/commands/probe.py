@@ -145,12 +145,12 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    """`pvo probe calibrate`: parse, call `pvo_tools.probe_calibration.calibrate_vo_on_corpus`, print, record."""
+    """`pvo probe calibrate`: parse, call `pvo_tools.vo_calibration.calibrate_vo_on_corpus`, print, record."""
     import sys
 
     from pvo_frontend.probe.model import resolve_model, write_vo_calibration
 
-    from ..probe_calibration import calibrate_vo_on_corpus
+    from ..vo_calibration import calibrate_vo_on_corpus
 
     model = resolve_model(args.model)
     config = replace(vo_config(args.param), probe=replace(vo_config(args.param).probe, model=str(model)))

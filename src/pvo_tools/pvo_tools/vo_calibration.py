@@ -1,5 +1,6 @@
 """The VO's covariance calibrated on a corpus split: per-axis variance scales that make its frame-to-frame
-covariances consistent (`pvo_fusion.calibrate_vo`, span 1) for the VO with a given configuration (a PROBE model)."""
+covariances consistent (`pvo_fusion.calibrate_vo`, span 1) for the VO with a given configuration: a PROBE model's
+(`pvo probe calibrate`) or the default VO's (`pvo hydranet vo-scale`)."""
 
 from __future__ import annotations
 
