@@ -97,6 +97,10 @@ def test_bad_calibration_input_is_one_line(corpus: Path, probe_copy: Path, tmp_p
     assert main(["probe", "calibrate", "--model", str(probe_copy), "--corpus", str(corpus), "--preset", "planetary"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no planetary sequence in the validation split" in err
+    # a shipped name resolves to the installed copy, which the next build replaces: refused before any VO runs
+    assert main(["probe", "calibrate", "--model", "probe_sim", "--corpus", str(corpus)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a shipped model's name; give its directory" in err
     from pvo_frontend.probe.model import write_vo_calibration
     from pvo_tools.commands.demo import DemoSettings, learned_graph
     from pvo_tools.errors import PvoError

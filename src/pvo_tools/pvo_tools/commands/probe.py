@@ -10,6 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from ..errors import PvoError
 from .vo import frame_imu, open_sequence, vo_config
 
 
@@ -153,7 +154,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from ..vo_calibration import calibrate_vo_on_corpus
 
     model = resolve_model(args.model)
-    config = replace(vo_config(args.param), probe=replace(vo_config(args.param).probe, model=str(model)))
+    if not args.dry_run and Path(args.model) != model:
+        # a shipped name resolves to the installed copy, which the next build replaces: write the source's card
+        raise PvoError(
+            f"{args.model}: a shipped model's name; give its directory (src/pvo_frontend/models/{args.model}) "
+            "to record in its card"
+        )
+    base = vo_config(args.param)
+    config = replace(base, probe=replace(base.probe, model=str(model)))
     result = calibrate_vo_on_corpus(
         args.corpus, config, args.split, args.preset, progress=lambda line: print(line, file=sys.stderr, flush=True)
     )
