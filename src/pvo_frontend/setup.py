@@ -12,6 +12,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/calibration", glob("calibration/*.yaml")),
         ("share/" + package_name + "/models/probe_kitti", glob("models/probe_kitti/*")),
         ("share/" + package_name + "/models/probe_sim", glob("models/probe_sim/*")),
     ],

@@ -39,8 +39,8 @@ def _terminate(signum: int, frame: object) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv[:2] in (["sim", "corpus"], ["sim", "mirror"]):  # `pvo sim OUT` takes a folder; these are commands
-        argv = [f"sim-{argv[1]}", *argv[2:]]
+    if argv[:2] in (["sim", "corpus"], ["sim", "mirror"], ["vo", "calibrate"]):  # `pvo sim OUT`, `pvo vo SEQUENCE`
+        argv = [f"{argv[0]}-{argv[1]}", *argv[2:]]  # take a folder; these are commands
     args = build_parser().parse_args(argv)
     args.argv = argv  # the command line as given (model cards record how their weights were made)
     keep_large_blocks()  # per-frame numpy temporaries reuse the heap instead of faulting in fresh pages

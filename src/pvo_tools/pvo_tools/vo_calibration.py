@@ -1,12 +1,14 @@
 """The VO's covariance calibrated on a corpus split: per-axis variance scales that make its frame-to-frame
 covariances consistent (`pvo_fusion.calibrate_vo`, span 1) for the VO with a given configuration: a PROBE model's
-(`pvo probe calibrate`) or the default VO's (`pvo hydranet vo-scale`)."""
+(`pvo probe calibrate`, recorded in its card) or the default VO's (`pvo vo calibrate`, a record of its own); the
+record's form is `pvo_frontend.vo_calibration`'s."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,3 +64,25 @@ def calibrate_vo_on_corpus(
     calibration = calibrate_vo(sequences, 1)
     pairs = sum(len(s.motions) for s in sequences)
     return VOCovarianceCalibration(np.asarray(calibration.scale, dtype=float), len(items), pairs, manifest.sha256)
+
+
+def calibration_entry(
+    result: VOCovarianceCalibration, config: VOConfig, corpus: Path, split: str, preset: str, command: str
+) -> dict[str, Any]:
+    """The ``vo_calibration`` entry recording ``result`` for the VO ``config``: its scales (rounded to 4 digits),
+    every VO setting it was measured with (the PROBE model left to the record's home), the corpus and the
+    command that made it."""
+    from pvo_frontend.vo_calibration import recorded_settings
+
+    return {
+        "covariance_scale": [round(float(v), 4) for v in result.scale],
+        "span_frames": 1,
+        "corpus": {"path": str(corpus), "digest": result.digest, "split": split, "preset": preset},
+        "sequences": result.sequences,
+        "pairs": result.pairs,
+        "command": command,
+        "vo_settings": recorded_settings(config),
+        "notes": "per-axis variance scales (ROS order) that make this VO's frame-to-frame covariances consistent on "
+        "those sequences (fusion: inputs.vo.covariance_scale; pvo demo applies them where stereo_vo runs this VO, "
+        "these settings)",
+    }

@@ -198,35 +198,28 @@ class ProbeModel:
         return FeatureNoiseEstimate(covariances, None, keep=keep)
 
 
+def card_vo_calibration(directory: Path) -> Any:
+    """The card's ``vo_calibration`` (written by ``pvo probe calibrate``): the per-axis variance scales that make the
+    VO with this PROBE model consistent on its calibration data, as a `pvo_frontend.vo_calibration.VOCalibration`;
+    None when the card has none; a malformed entry is a ValueError naming the card."""
+    from ..vo_calibration import read_vo_calibration
+
+    return read_vo_calibration(Path(directory) / "model.yaml")
+
+
 def card_vo_covariance_scale(directory: Path) -> list[float] | None:
-    """The per-axis variance scales (ROS order x y z rx ry rz) that make the VO with this PROBE model consistent on
-    its calibration data (``vo_calibration.covariance_scale`` of the card, written by ``pvo probe calibrate``): the
-    fusion's ``inputs.vo.covariance_scale`` for this VO. None when the card has none; a malformed entry is a
-    ValueError naming the card."""
-    card_path = Path(directory) / "model.yaml"
-    try:
-        card = yaml.safe_load(card_path.read_text())
-    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{card_path}: not a readable model card ({exc})") from None
-    entry = (card or {}).get("vo_calibration") if isinstance(card, dict) else None
-    if entry is None:
-        return None
-    scale = entry.get("covariance_scale") if isinstance(entry, dict) else None
-    try:
-        values = [float(v) for v in scale]  # type: ignore[union-attr]
-    except (TypeError, ValueError):
-        values = []
-    if len(values) != 6 or not all(np.isfinite(values)) or min(values) <= 0.0:
-        raise ValueError(f"{card_path}: vo_calibration.covariance_scale must be 6 positive numbers, got {scale!r}")
-    return values
+    """The card's calibration scales (ROS order x y z rx ry rz: the fusion's ``inputs.vo.covariance_scale`` for this
+    VO), None when the card has none."""
+    calibration = card_vo_calibration(directory)
+    return None if calibration is None else list(calibration.covariance_scale)
 
 
 def write_vo_calibration(directory: Path, entry: dict[str, Any]) -> Path:
     """Record ``entry`` (``covariance_scale`` and how it was measured) as the card's ``vo_calibration``, every other
     field of the card kept as it was."""
+    from ..vo_calibration import write_vo_calibration as write_record
+
     card_path = Path(directory) / "model.yaml"
-    card = yaml.safe_load(card_path.read_text())
-    card["vo_calibration"] = entry
-    card_path.write_text(yaml.safe_dump(card, sort_keys=False, width=120, allow_unicode=True))
-    card_vo_covariance_scale(directory)  # what was written reads back
-    return card_path
+    if not card_path.is_file():
+        raise ValueError(f"{card_path}: no PROBE model card here")
+    return write_record(card_path, entry)

@@ -13,7 +13,6 @@ rotation factor, and ``dpc_net`` (DPC-Net's corrections of the VO over Δp frame
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import random
 import signal
@@ -95,6 +94,13 @@ def register(sub: Any) -> None:
         help="PROBE model of stereo_vo (probe.model) beside the learned sun: a directory or shipped name (default "
         "probe_sim: the synthetic sample's rig); '' for the VO's default noise",
     )
+    demo.add_argument(
+        "--vo-calibration",
+        default="default_vo",
+        help="where the learned graph runs the VO without PROBE, the fusion weighs its covariances as this "
+        "calibration (`pvo vo calibrate`) scales them: a file, or default_vo (default: the shipped one); '' for as read "
+        "(a PROBE model's VO: its card's calibration, if any)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -113,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
         args.dpc_net,
         args.dpc_net_model,
         args.probe_model,
+        vo_calibration=args.vo_calibration,
     )
     domain = int(os.environ.get("ROS_DOMAIN_ID") or random.Random().randint(40, 89))
     if args.ablation:
@@ -162,6 +169,9 @@ class DemoSettings:
     # stereo_vo runs the VO the DPC-Net model learned to correct even where dpc_net does not run (an ablation
     # compares the sensors on one VO)
     vo_of_dpc_net: bool = False
+    # the calibration of the VO without PROBE (a PROBE model's VO: its card's): the shipped default_vo, a file, or
+    # "" for none (its covariances as read)
+    vo_calibration: str = "default_vo"
 
 
 @dataclass(frozen=True)
@@ -378,12 +388,11 @@ def learned_graph(settings: DemoSettings, sensors: tuple[str, ...] | None = None
     if "hydranet" in sensors:
         nodes["hydranet"] = {"model": settings.hydranet_model}
     vo: dict[str, Any] = {"probe.model": settings.probe_model} if settings.probe_model else {}
-    if settings.probe_model:  # the fusion weighs the VO's motions by their covariances: as PROBE's card calibrated them
-        fusion.update(probe_vo_fusion(settings.probe_model, who))
-    elif "hydranet" in sensors:  # ... or as HydraNet's card says its fusion figures weighed the default VO
-        fusion.update(hydranet_vo_fusion(settings.hydranet_model, who))
     if "dpc_net" in sensors or settings.vo_of_dpc_net:  # DPC-Net corrects the VO it learned: the graph runs that one
         vo = dpc_net_vo(settings.dpc_net_model, who) | vo
+    # the fusion weighs the VO's motions by their covariances as that VO's calibration scales them (a DPC-Net card
+    # that fuses sets its own after)
+    fusion.update(vo_fusion(settings, vo, who))
     if "dpc_net" in sensors:
         # ... and weighs its corrections against that VO as the card's validation drives chose (`pvo dpc-net correct`)
         fusion.update(dpc_net_fusion(settings.dpc_net_model, who))
@@ -391,50 +400,57 @@ def learned_graph(settings: DemoSettings, sensors: tuple[str, ...] | None = None
     return LearnedGraph(vo, fusion, nodes)
 
 
-def probe_vo_fusion(model: str, who: str = "pvo demo") -> dict[str, Any]:
-    """The fusion's ``inputs.vo.covariance_scale`` from the PROBE ``model``'s card (``vo_calibration``, written by
-    `pvo probe calibrate`: the per-axis scales that make the VO with this model consistent on its calibration
-    sequences), announced on stderr; none when the card has none. A DPC-Net card that fuses sets its own after."""
-    from pvo_frontend.probe.model import card_vo_covariance_scale, resolve_model
+def vo_fusion(settings: DemoSettings, vo: dict[str, Any], who: str = "pvo demo") -> dict[str, Any]:
+    """The fusion's ``inputs.vo.covariance_scale`` for the VO the graph runs (``vo``: stereo_vo's parameters) from
+    that VO's calibration record (`pvo_frontend.vo_calibration`): the PROBE model's card where it runs one (`pvo probe
+    calibrate`), else ``settings.vo_calibration`` (the shipped ``default_vo``: `pvo vo calibrate`), announced on stderr.
+    None when there is no record, or when the record measured a VO with other settings (said on stderr: its scales
+    are not this VO's)."""
+    from pvo_frontend.probe.model import card_vo_calibration
+    from pvo_frontend.probe.model import resolve_model as resolve_probe_model
+    from pvo_frontend.vo_calibration import differing_settings, read_vo_calibration, resolve_calibration
 
-    try:
-        scale = card_vo_covariance_scale(resolve_model(model))
-    except ValueError as exc:
-        raise PvoError(f"{model}: {exc}") from None
-    if scale is None:
+    if settings.probe_model:
+        where = f"{settings.probe_model}'s card"
+        try:
+            calibration = card_vo_calibration(resolve_probe_model(settings.probe_model))
+        except ValueError as exc:
+            raise PvoError(f"{settings.probe_model}: {exc}") from None
+    elif settings.vo_calibration:
+        path = resolve_calibration(settings.vo_calibration)
+        where = str(path) if settings.vo_calibration != path.stem else f"the {path.stem} calibration ({path})"
+        if not path.is_file():
+            raise PvoError(f"{settings.vo_calibration}: no VO calibration file there ({path})")
+        try:
+            calibration = read_vo_calibration(path)
+        except ValueError as exc:
+            raise PvoError(str(exc)) from None
+        if calibration is None:
+            raise PvoError(f"{path}: no vo_calibration entry (write one with pvo vo calibrate)")
+    else:
         return {}
+    if calibration is None:
+        return {}
+    try:
+        differ = differing_settings(calibration, vo)
+    except ValueError as exc:
+        raise PvoError(f"stereo_vo's parameters {vo}: {exc}") from None
+    if differ:
+        listed = ", ".join(f"{name} {recorded!r} there, {value!r} here" for name, (recorded, value) in differ.items())
+        print(
+            f"{who}: {where} calibrated another VO ({listed}): the fusion weighs the VO's covariances as read",
+            file=sys.stderr,
+            flush=True,
+        )
+        return {}
+    scale = list(calibration.covariance_scale)
     listed = " ".join(f"{v:.3g}" for v in scale)
     print(
-        f"{who}: fusion weighs the VO by its covariances scaled as {model}'s card calibrated them ({listed})",
+        f"{who}: fusion weighs the VO by its covariances scaled as {where} calibrated them ({listed})",
         file=sys.stderr,
         flush=True,
     )
     return {"inputs.vo.covariance_scale": scale}
-
-
-def hydranet_vo_fusion(model: str, who: str = "pvo demo") -> dict[str, Any]:
-    """The fusion's ``inputs.vo.covariance_scale`` for the default VO (no PROBE) from the HydraNet ``model``'s card
-    (``calibration.default_vo_fusion``, written by `pvo hydranet vo-scale`: the scales its experiments weigh that VO
-    with), announced on stderr; none when the card has none."""
-    from pvo_pseudosensors.hydranet.estimator import resolve_model
-    from pvo_pseudosensors.learning.checkpoint import ModelFileError, read_card
-
-    try:
-        block = (read_card(resolve_model(model)).calibration or {}).get("default_vo_fusion") or {}
-        scale = block.get("inputs.vo.covariance_scale") if isinstance(block, dict) else None
-        if scale is None:
-            return {}
-        values = [float(v) for v in scale]
-        if len(values) != 6 or min(values) <= 0.0 or not all(math.isfinite(v) for v in values):
-            raise ValueError(
-                f"calibration.default_vo_fusion: inputs.vo.covariance_scale must be 6 positive numbers, got {scale!r}"
-            )
-    except (ModelFileError, ValueError, TypeError) as exc:
-        raise PvoError(f"{model or 'hydranet'}: {exc}") from None
-    listed = " ".join(f"{v:.3g}" for v in values)
-    said = f"{who}: fusion weighs the VO by its covariances scaled as {model or 'hydranet'}'s card says its fusion did ({listed})"
-    print(said, file=sys.stderr, flush=True)
-    return {"inputs.vo.covariance_scale": values}
 
 
 def dpc_net_vo(model: str, who: str = "pvo demo") -> dict[str, Any]:

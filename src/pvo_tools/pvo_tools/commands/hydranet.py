@@ -23,46 +23,6 @@ def register_actions(actions: Any, entry: Any) -> None:
     ensemble.add_argument("--out", "-o", type=Path, required=True, help="new model directory (copies of the weights)")
     register_density(actions)
     register_widening(actions)
-    scale = actions.add_parser(
-        "vo-scale",
-        help="the default VO's per-axis covariance scales on a corpus split, recorded in the card as the weighing "
-        "its fusion figures assume beside that VO (the learned graph applies them where stereo_vo runs without PROBE)",
-    )
-    scale.set_defaults(handler=run_vo_scale)
-    scale.add_argument("--model", type=Path, required=True, help="HydraNet model directory (its card is rewritten)")
-    scale.add_argument("--corpus", type=Path, required=True, help="a `pvo sim corpus` directory")
-    scale.add_argument("--split", default="validation", choices=("train", "validation"), help="default validation")
-    scale.add_argument("--preset", default="urban", help="the corpus preset (default urban)")
-    scale.add_argument("--dry-run", action="store_true", help="print the scales, leave the card as it is")
-
-
-def run_vo_scale(args: argparse.Namespace) -> int:
-    """`pvo hydranet vo-scale`: the default VO calibrated on the corpus split (`calibrate_vo_on_corpus`), its scales
-    recorded as the card's ``calibration.default_vo_fusion`` (``inputs.vo.covariance_scale``)."""
-    from pvo_frontend.vo import VOConfig
-    from pvo_pseudosensors.learning.checkpoint import read_card, write_card
-
-    from ..vo_calibration import calibrate_vo_on_corpus
-
-    card = read_card(args.model)  # a missing or unreadable model is one line before the VO runs
-    result = calibrate_vo_on_corpus(
-        args.corpus, VOConfig(), args.split, args.preset, progress=lambda line: print(line, file=sys.stderr, flush=True)
-    )
-    scale = [round(float(v), 4) for v in result.scale]
-    print(
-        f"{args.model}: the default VO's covariance scales (x y z rx ry rz) on {result.sequences} {args.preset} "
-        f"{args.split} sequences of {args.corpus} ({result.pairs} frame pairs): {' '.join(f'{v:.3g}' for v in scale)}"
-    )
-    if args.dry_run:
-        return 0
-    card.calibration["default_vo_fusion"] = {
-        "inputs.vo.covariance_scale": scale,
-        "corpus": {"path": str(args.corpus), "digest": result.digest, "split": args.split, "preset": args.preset},
-        "command": f"pvo hydranet vo-scale --model {args.model} --corpus {args.corpus} --split {args.split} "
-        f"--preset {args.preset}",
-    }
-    print(f"wrote {write_card(args.model, card)} (calibration.default_vo_fusion)")
-    return 0
 
 
 def _shift_arguments(parser: Any, corpus_help: str, shift_help: str) -> None:

@@ -151,7 +151,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
     from pvo_frontend.probe.model import resolve_model, write_vo_calibration
 
-    from ..vo_calibration import calibrate_vo_on_corpus
+    from ..vo_calibration import calibrate_vo_on_corpus, calibration_entry
 
     model = resolve_model(args.model)
     if not args.dry_run and Path(args.model) != model:
@@ -182,16 +182,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             *(f"-p {p}" for p in args.param or []),
         ]
     )
-    entry = {
-        "covariance_scale": [round(float(v), 4) for v in result.scale],
-        "span_frames": 1,
-        "corpus": {"path": str(args.corpus), "digest": result.digest, "split": args.split, "preset": args.preset},
-        "sequences": result.sequences,
-        "pairs": result.pairs,
-        "command": command,
-        "notes": "per-axis variance scales (ROS order) that make this VO's frame-to-frame covariances consistent on "
-        "those sequences (fusion: inputs.vo.covariance_scale; pvo demo applies them where stereo_vo runs this model)",
-    }
+    entry = calibration_entry(result, config, args.corpus, args.split, args.preset, command)
     print(f"wrote {write_vo_calibration(model, entry)} (vo_calibration)")
     return 0
 

@@ -1,4 +1,5 @@
-"""`pvo vo SEQUENCE_DIR -o TRAJ`: the stereo VO on a KITTI-layout sequence, without ROS."""
+"""`pvo vo SEQUENCE_DIR -o TRAJ`: the stereo VO on a KITTI-layout sequence, without ROS; `pvo vo calibrate`: the
+VO's covariance calibrated on a corpus split, recorded in a file of its own (`pvo_frontend.vo_calibration`)."""
 
 from __future__ import annotations
 
@@ -42,6 +43,28 @@ def register(sub: Any) -> None:
     )
     vo.add_argument("--relative", type=Path, help="also write per-frame motions and covariances (.npz) for `pvo eval --relative`")
     vo.add_argument("--quiet", "-q", action="store_true", help="no progress output")
+    register_calibrate(sub)
+
+
+def register_calibrate(sub: Any) -> None:
+    cal = sub.add_parser(
+        "vo-calibrate",
+        prog="pvo vo calibrate",
+        help="(pvo vo calibrate) the VO's per-axis covariance scales on a corpus split, recorded for the fusion",
+        description="Run the VO (its defaults, or the settings given) over the urban sequences of a corpus split and "
+        "record the per-axis variance scales that make its frame-to-frame covariances consistent there, with the "
+        "VO's settings, as a calibration file (the shipped one: src/pvo_frontend/calibration/default_vo.yaml; `pvo demo "
+        "--vo-calibration` takes another). A PROBE model's VO is calibrated into its card: `pvo probe calibrate`.",
+    )
+    cal.set_defaults(handler=run_calibrate)
+    cal.add_argument("--corpus", type=Path, required=True, help="a `pvo sim corpus` directory")
+    cal.add_argument("--split", default="validation", choices=("train", "validation"), help="default validation")
+    cal.add_argument("--preset", default="urban", help="the corpus preset to calibrate on (default urban)")
+    cal.add_argument("--param", "-p", action="append", metavar="NAME=VALUE", help="VO parameter (not probe.model)")
+    cal.add_argument("--params-file", type=Path, help="ROS-style YAML with stereo_vo parameters")
+    out = cal.add_mutually_exclusive_group(required=True)
+    out.add_argument("--out", "-o", type=Path, help="calibration file to write (its other fields kept)")
+    out.add_argument("--dry-run", action="store_true", help="print the scales, write nothing")
 
 
 def open_sequence(
@@ -105,4 +128,36 @@ def run(args: argparse.Namespace) -> int:
             f"against {args.poses or 'poses.txt'}: end drift {summary['end_drift_percent']:.3f} % of {summary['path_m']:.1f} m, "
             f"ATE mean {summary['ate_mean_m']:.3f} m, ANEES {summary['anees']:.2f}"
         )
+    return 0
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    """`pvo vo calibrate`: parse, call `pvo_tools.vo_calibration.calibrate_vo_on_corpus`, print, record."""
+    import shlex
+    import sys
+
+    from pvo_frontend.vo_calibration import write_vo_calibration
+
+    from ..errors import PvoError
+    from ..vo_calibration import calibrate_vo_on_corpus, calibration_entry
+
+    config = vo_config(args.param, args.params_file)
+    if config.probe.model:
+        raise PvoError(
+            f"probe.model={config.probe.model}: a PROBE model's VO is calibrated into its card: pvo probe calibrate "
+            f"--model {config.probe.model} --corpus {args.corpus}"
+        )
+    result = calibrate_vo_on_corpus(
+        args.corpus, config, args.split, args.preset, progress=lambda line: print(line, file=sys.stderr, flush=True)
+    )
+    listed = " ".join(f"{v:.3g}" for v in result.scale)
+    print(
+        f"the VO's covariance scales (x y z rx ry rz) on {result.sequences} {args.preset} {args.split} sequences of "
+        f"{args.corpus} ({result.pairs} frame pairs): {listed}"
+    )
+    if args.dry_run:
+        return 0
+    command = shlex.join(["pvo", "vo", "calibrate", *args.argv[1:]])
+    entry = calibration_entry(result, config, args.corpus, args.split, args.preset, command)
+    print(f"wrote {write_vo_calibration(args.out, entry)} (vo_calibration)")
     return 0
