@@ -128,3 +128,31 @@ def test_demo_on_a_missing_bag_is_one_clear_line(tmp_path: Path, ros_env, extra:
     )
     assert result.returncode == 2
     assert result.stderr.strip().splitlines()[-1] == f"pvo: error: {tmp_path / 'none'}: no such bag"
+
+
+def test_demo_with_a_missing_vo_calibration_is_one_clear_line(tmp_path: Path, ros_env) -> None:
+    """`--vo-calibration` names the record the learned graph weighs the plain VO with; a missing one stops the demo
+    before any node starts, in one line naming it."""
+    from conftest import REPO_ROOT
+
+    missing = tmp_path / "none.yaml"
+    result = subprocess.run(
+        [
+            "pvo",
+            "demo",
+            str(REPO_ROOT / "bags" / "sim_urban_sample"),
+            "--probe-model",
+            "",
+            "--vo-calibration",
+            str(missing),
+            "-o",
+            str(tmp_path / "out"),
+        ],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines()[-1] == f"pvo: error: {missing}: no VO calibration file there ({missing})"
+    assert not (tmp_path / "out" / "sim_urban_sample" / "recorded").exists()
