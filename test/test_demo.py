@@ -117,42 +117,25 @@ def test_demo_ablation_runs_each_graph_through_the_nodes(sample_bag: Path, tmp_p
     assert "kitti06_sample" in (out / "ablation" / "report.md").read_text()
 
 
-@pytest.mark.parametrize("extra", [[], ["--ablation"]])
-def test_demo_on_a_missing_bag_is_one_clear_line(tmp_path: Path, ros_env, extra: list[str]) -> None:
-    result = subprocess.run(
-        ["pvo", "demo", *extra, str(tmp_path / "none"), "-o", str(tmp_path / "out")],
-        env=ros_env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert result.returncode == 2
-    assert result.stderr.strip().splitlines()[-1] == f"pvo: error: {tmp_path / 'none'}: no such bag"
-
-
-def test_demo_with_a_missing_vo_calibration_is_one_clear_line(tmp_path: Path, ros_env) -> None:
-    """`--vo-calibration` names the record the learned graph weighs the plain VO with; a missing one stops the demo
-    before any node starts, in one line naming it."""
+@pytest.mark.parametrize(
+    ("case", "extra"),
+    [("bag", []), ("bag", ["--ablation"]), ("vo-calibration", ["--probe-model", "", "--vo-calibration", "{missing}"])],
+)
+def test_demo_on_missing_input_is_one_clear_line(tmp_path: Path, ros_env, case: str, extra: list[str]) -> None:
+    """A missing bag, or a missing `--vo-calibration` (the record the learned graph weighs the plain VO with): one
+    line naming it, before any node starts."""
     from conftest import REPO_ROOT
 
-    missing = tmp_path / "none.yaml"
+    missing = tmp_path / "none"
+    bag = missing if case == "bag" else REPO_ROOT / "bags" / "sim_urban_sample"
     result = subprocess.run(
-        [
-            "pvo",
-            "demo",
-            str(REPO_ROOT / "bags" / "sim_urban_sample"),
-            "--probe-model",
-            "",
-            "--vo-calibration",
-            str(missing),
-            "-o",
-            str(tmp_path / "out"),
-        ],
+        ["pvo", "demo", *(e.format(missing=missing) for e in extra), str(bag), "-o", str(tmp_path / "out")],
         env=ros_env,
         capture_output=True,
         text=True,
         timeout=120,
     )
     assert result.returncode == 2
-    assert result.stderr.strip().splitlines()[-1] == f"pvo: error: {missing}: no VO calibration file there ({missing})"
+    said = "no such bag" if case == "bag" else f"no VO calibration file there ({missing})"
+    assert result.stderr.strip().splitlines()[-1] == f"pvo: error: {missing}: {said}"
     assert not (tmp_path / "out" / "sim_urban_sample" / "recorded").exists()

@@ -86,3 +86,17 @@ def calibration_entry(
         "those sequences (fusion: inputs.vo.covariance_scale; pvo demo applies them where stereo_vo runs this VO, "
         "these settings)",
     }
+
+
+def calibrate_and_report(corpus: Path, config: VOConfig, split: str, preset: str, label: str) -> VOCovarianceCalibration:
+    """`calibrate_vo_on_corpus` as the commands run it: progress on stderr, then one line with the scales on stdout,
+    ``label`` saying whose VO they are."""
+    import sys
+
+    result = calibrate_vo_on_corpus(corpus, config, split, preset, progress=lambda line: print(line, file=sys.stderr, flush=True))
+    listed = " ".join(f"{v:.3g}" for v in result.scale)
+    print(
+        f"{label}covariance scales (x y z rx ry rz) on {result.sequences} {preset} {split} sequences of {corpus} "
+        f"({result.pairs} frame pairs): {listed}"
+    )
+    return result

@@ -147,11 +147,10 @@ def run_train(args: argparse.Namespace) -> int:
 
 def run_calibrate(args: argparse.Namespace) -> int:
     """`pvo probe calibrate`: parse, call `pvo_tools.vo_calibration.calibrate_vo_on_corpus`, print, record."""
-    import sys
 
     from pvo_frontend.probe.model import resolve_model, write_vo_calibration
 
-    from ..vo_calibration import calibrate_vo_on_corpus, calibration_entry
+    from ..vo_calibration import calibrate_and_report, calibration_entry
 
     model = resolve_model(args.model)
     if not args.dry_run and Path(args.model) != model:
@@ -162,14 +161,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         )
     base = vo_config(args.param)
     config = replace(base, probe=replace(base.probe, model=str(model)))
-    result = calibrate_vo_on_corpus(
-        args.corpus, config, args.split, args.preset, progress=lambda line: print(line, file=sys.stderr, flush=True)
-    )
-    listed = " ".join(f"{v:.3g}" for v in result.scale)
-    print(
-        f"{model}: the VO's covariance scales (x y z rx ry rz) on {result.sequences} {args.preset} {args.split} sequences "
-        f"of {args.corpus} ({result.pairs} frame pairs): {listed}"
-    )
+    result = calibrate_and_report(args.corpus, config, args.split, args.preset, f"{model}: the VO's ")
     if args.dry_run:
         return 0
     command = " ".join(

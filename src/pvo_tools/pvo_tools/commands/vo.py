@@ -134,12 +134,11 @@ def run(args: argparse.Namespace) -> int:
 def run_calibrate(args: argparse.Namespace) -> int:
     """`pvo vo calibrate`: parse, call `pvo_tools.vo_calibration.calibrate_vo_on_corpus`, print, record."""
     import shlex
-    import sys
 
     from pvo_frontend.vo_calibration import write_vo_calibration
 
     from ..errors import PvoError
-    from ..vo_calibration import calibrate_vo_on_corpus, calibration_entry
+    from ..vo_calibration import calibrate_and_report, calibration_entry
 
     config = vo_config(args.param, args.params_file)
     if config.probe.model:
@@ -147,14 +146,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
             f"probe.model={config.probe.model}: a PROBE model's VO is calibrated into its card: pvo probe calibrate "
             f"--model {config.probe.model} --corpus {args.corpus}"
         )
-    result = calibrate_vo_on_corpus(
-        args.corpus, config, args.split, args.preset, progress=lambda line: print(line, file=sys.stderr, flush=True)
-    )
-    listed = " ".join(f"{v:.3g}" for v in result.scale)
-    print(
-        f"the VO's covariance scales (x y z rx ry rz) on {result.sequences} {args.preset} {args.split} sequences of "
-        f"{args.corpus} ({result.pairs} frame pairs): {listed}"
-    )
+    result = calibrate_and_report(args.corpus, config, args.split, args.preset, "the VO's ")
     if args.dry_run:
         return 0
     command = shlex.join(["pvo", "vo", "calibrate", *args.argv[1:]])
