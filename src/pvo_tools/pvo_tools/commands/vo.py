@@ -51,7 +51,8 @@ def register_calibrate(sub: Any) -> None:
         "vo-calibrate",
         prog="pvo vo calibrate",
         help="(pvo vo calibrate) the VO's per-axis covariance scales on a corpus split, recorded for the fusion",
-        description="Run the VO (its defaults, or the settings given) over the urban sequences of a corpus split and "
+        description="Run the VO (its defaults, or the settings given) over one preset's sequences (--preset, default "
+        "urban) of a corpus split and "
         "record the per-axis variance scales that make its frame-to-frame covariances consistent there, with the "
         "VO's settings, as a calibration file (the shipped one: src/pvo_frontend/calibration/default_vo.yaml; `pvo demo "
         "--vo-calibration` takes another). A PROBE model's VO is calibrated into its card: `pvo probe calibrate`.",
