@@ -14,35 +14,33 @@ from __future__ import annotations
 
 import argparse
 import sys
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
 from pvo_core.readers import KittiSequence
 from pvo_frontend.vo_calibration import read_vo_calibration, resolve_calibration
-from pvo_fusion.calibration import CalibrationSequence, span_errors
+from pvo_fusion.calibration import CalibrationSequence, SigmaConsistency, sigma_consistency
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from hydranet_validation_drives import vo_of
 
 AXES = ("x", "y", "z", "rx", "ry", "rz")
-BINS = ((0.0, 0.5), (0.5, 0.8), (0.8, 1.0), (1.0, 1.5), (1.5, 2.5), (2.5, 5.0), (5.0, np.inf))
 
 
-def consistency_table(errors: np.ndarray, sigmas: np.ndarray) -> list[str]:
+def consistency_table(consistency: SigmaConsistency) -> list[str]:
     """Markdown rows: per axis, ρ and the mean e²/σ² (pair count) in each bin of σ/ρ."""
-    lines = ["| axis | ρ (p90 of σ) | " + " | ".join(f"σ/ρ {lo:g}–{hi:g}" for lo, hi in BINS) + " |"]
-    lines.append("|---" * (len(BINS) + 2) + "|")
-    squared = (errors / sigmas) ** 2
+    edges = consistency.edges
+    lines = ["| axis | ρ (p90 of σ) | " + " | ".join(f"σ/ρ {lo:g}–{hi:g}" for lo, hi in pairwise(edges)) + " |"]
+    lines.append("|---" * (len(edges) + 1) + "|")
     for i, axis in enumerate(AXES):
-        rho = float(np.quantile(sigmas[:, i], 0.9))
-        ratio = sigmas[:, i] / rho
-        cells = []
-        for lo, hi in BINS:
-            chosen = (ratio >= lo) & (ratio < hi)
-            cells.append(f"{squared[chosen, i].mean():.2f} ({chosen.sum()})" if chosen.any() else "–")
-        unit = "m" if i < 3 else "deg"
-        shown = rho if i < 3 else np.degrees(rho)
-        lines.append(f"| {axis} | {shown:.3g} {unit} | " + " | ".join(cells) + " |")
+        cells = [
+            f"{mean:.2f} ({count})" if count else "–"
+            for mean, count in zip(consistency.mean_nees[i], consistency.counts[i], strict=True)
+        ]
+        rho = consistency.reference[i]
+        shown = f"{rho:.3g} m" if i < 3 else f"{np.degrees(rho):.3g} deg"
+        lines.append(f"| {axis} | {shown} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -63,26 +61,18 @@ def main() -> None:
     drives = sorted(p for p in args.drives.glob("*/*") if (p / "poses.txt").is_file())
     if not drives:
         parser.error(f"--drives {args.drives}: no drive (render them with `pvo dpc-net drives`)")
-    by_rig: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {}
+    by_rig: dict[str, list[CalibrationSequence]] = {}
     for folder in drives:
         sequence = KittiSequence(folder, poses_file=folder / "poses.txt")
         _, relative = vo_of(folder, sequence, args.vo_cache)
-        errors, covariances = span_errors(
-            CalibrationSequence(folder.name, sequence.poses, relative["transforms"], relative["covariances"]), 1
+        by_rig.setdefault(folder.parent.name, []).append(
+            CalibrationSequence(folder.name, sequence.poses, relative["transforms"], relative["covariances"])
         )
-        sigmas = np.sqrt(np.diagonal(covariances, axis1=1, axis2=2) * scale)
-        kept = sigmas.max(axis=1) < 10.0  # lost frames carry the VO's lost covariance, no information
-        rig = by_rig.setdefault(folder.parent.name, ([], []))
-        rig[0].append(errors[kept])
-        rig[1].append(sigmas[kept])
-    every = (
-        np.concatenate([e for errors, _ in by_rig.values() for e in errors]),
-        np.concatenate([s for _, sigmas in by_rig.values() for s in sigmas]),
-    )
-    for name, (errors, sigmas) in [("every rig", ([every[0]], [every[1]])), *sorted(by_rig.items())]:
-        stacked = np.concatenate(errors), np.concatenate(sigmas)
-        print(f"\n{name}: {len(stacked[0])} pairs, mean e²/σ² (pairs) by σ/ρ\n")
-        print("\n".join(consistency_table(*stacked)))
+    every = [s for sequences in by_rig.values() for s in sequences]
+    for name, sequences in [("every rig", every), *sorted(by_rig.items())]:
+        consistency = sigma_consistency(sequences, scale)
+        print(f"\n{name}: {consistency.counts[0].sum()} pairs, mean e²/σ² (pairs) by σ/ρ\n")
+        print("\n".join(consistency_table(consistency)))
 
 
 if __name__ == "__main__":

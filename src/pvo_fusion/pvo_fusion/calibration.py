@@ -82,6 +82,67 @@ def calibrate_vo(train: Iterable[CalibrationSequence], span: int) -> VOCalibrati
     )
 
 
+#: Bins of σ/ρ for `sigma_consistency` (ρ: the quantile of each axis's σ).
+CONSISTENCY_EDGES = (0.0, 0.5, 0.8, 1.0, 1.5, 2.5, 5.0, np.inf)
+
+
+@dataclass(frozen=True)
+class SigmaConsistency:
+    """How consistent a VO's frame-to-frame covariance is against its own size, per ROS-order axis (x y z rotX rotY
+    rotZ): ``reference`` (6,) ρ, a quantile of each axis's σ (m, rad); ``edges`` (B+1,) of σ/ρ; ``mean_nees`` (6, B)
+    the mean e²/σ² of the pairs whose σ/ρ falls in each bin (NaN where none do); ``counts`` (6, B) those pairs.
+
+    A calibrated VO reads 1 in every bin. A scale per axis (`calibrate_vo`) makes their average 1 and leaves the
+    shape: where a VO's error grows faster than the σ it reports (it fails where it is unsure), the high bins read
+    far above 1."""
+
+    reference: Array
+    edges: Array
+    mean_nees: Array
+    counts: NDArray[np.int64]
+
+
+def sigma_consistency(
+    sequences: Iterable[CalibrationSequence],
+    scale: Array | None = None,
+    quantile: float = 0.9,
+    edges: tuple[float, ...] = CONSISTENCY_EDGES,
+    lost_variance: float = 1000.0,
+) -> SigmaConsistency:
+    """`SigmaConsistency` of the VO's frame-to-frame motions on ``sequences``, its covariances times ``scale`` (6,)
+    (the fusion's ``inputs.vo.covariance_scale``; None: as read). Motions with a variance of ``lost_variance`` or
+    more (a lost frame: no information) are left out."""
+    factor = np.ones(6) if scale is None else np.asarray(scale, dtype=float)
+    if factor.shape != (6,) or not np.all(factor > 0.0):
+        raise ValueError(f"scale must be 6 positive variance scales, got {scale!r}")
+    if not 0.0 < quantile < 1.0 or len(edges) < 2 or np.any(np.diff(edges) <= 0.0):
+        raise ValueError("sigma_consistency needs a quantile in (0, 1) and increasing bin edges")
+    errors, variances = [], []
+    for seq in sequences:
+        if seq.covariances is None:
+            raise ValueError(f"{seq.name}: the VO carries no covariances to check")
+        e, propagated = span_errors(seq, 1)
+        diagonal = np.diagonal(propagated, axis1=1, axis2=2)
+        kept = diagonal.max(axis=1) < lost_variance
+        errors.append(e[kept])
+        variances.append(diagonal[kept] * factor)
+    if not errors or not sum(len(e) for e in errors):
+        raise ValueError("sigma_consistency needs at least one motion that was not lost")
+    e, variance = np.concatenate(errors), np.concatenate(variances)
+    sigma = np.sqrt(variance)
+    reference = np.quantile(sigma, quantile, axis=0)
+    bins = np.digitize(sigma / reference, np.asarray(edges, dtype=float)[1:-1])
+    nees = e**2 / variance
+    counts = np.zeros((6, len(edges) - 1), dtype=np.int64)
+    means = np.full((6, len(edges) - 1), np.nan)
+    for axis in range(6):
+        counts[axis] = np.bincount(bins[:, axis], minlength=len(edges) - 1)
+        sums = np.bincount(bins[:, axis], weights=nees[:, axis], minlength=len(edges) - 1)
+        filled = counts[axis] > 0
+        means[axis, filled] = sums[filled] / counts[axis, filled]
+    return SigmaConsistency(reference, np.asarray(edges, dtype=float), means, counts)
+
+
 def calibrated_covariances(covariances: Array | None, frames: int, calibration: VOCalibration | None) -> Array:
     """Per-frame VO covariances (frames, 6, 6): scaled per dof, or the static one when the VO has none."""
     if covariances is not None:

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from itertools import pairwise
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,16 +17,21 @@ from pvo_frontend.vo import VOConfig
 
 from .errors import PvoError
 
+if TYPE_CHECKING:
+    from pvo_fusion.calibration import SigmaConsistency
+
 
 @dataclass(frozen=True)
 class VOCovarianceCalibration:
     """``scale`` (6,): ROS-order variance scales x y z rx ry rz; over ``sequences`` sequences and ``pairs`` frame
-    pairs of the corpus whose manifest digest is ``digest``."""
+    pairs of the corpus whose manifest digest is ``digest``; ``consistency``: the VO with those scales, its e²/σ² by
+    the size of its own σ (`pvo_fusion.calibration.sigma_consistency`)."""
 
     scale: NDArray[np.float64]
     sequences: int
     pairs: int
     digest: str
+    consistency: SigmaConsistency | None = None
 
 
 def calibrate_vo_on_corpus(
@@ -40,6 +46,7 @@ def calibrate_vo_on_corpus(
     from pvo_core.readers import KittiSequence, read_corpus_manifest
     from pvo_core.trajectory import read_kitti_poses
     from pvo_frontend.offline import run_sequence
+    from pvo_fusion.calibration import sigma_consistency
 
     from pvo_fusion import CalibrationSequence, calibrate_vo
 
@@ -63,7 +70,28 @@ def calibrate_vo_on_corpus(
             progress(f"  [{k}/{len(items)}] {item.name}: {len(relative['transforms'])} pairs")
     calibration = calibrate_vo(sequences, 1)
     pairs = sum(len(s.motions) for s in sequences)
-    return VOCovarianceCalibration(np.asarray(calibration.scale, dtype=float), len(items), pairs, manifest.sha256)
+    scale = np.asarray(calibration.scale, dtype=float)
+    try:
+        consistency = sigma_consistency(sequences, scale)
+    except ValueError:  # every motion lost: the scales say so already
+        consistency = None
+    return VOCovarianceCalibration(scale, len(items), pairs, manifest.sha256, consistency)
+
+
+def consistency_lines(consistency: SigmaConsistency) -> list[str]:
+    """`SigmaConsistency` as a table to print: per axis, ρ and the mean e²/σ² (pairs) in each bin of σ/ρ."""
+    edges = consistency.edges
+    names = [f"{lo:g}-{hi:g}" if np.isfinite(hi) else f">{lo:g}" for lo, hi in pairwise(edges)]
+    lines = [f"  {'axis':4s} {'rho':>10s}  " + " ".join(f"{n:>12s}" for n in names)]
+    for axis, name in enumerate(("x", "y", "z", "rx", "ry", "rz")):
+        rho = consistency.reference[axis]
+        shown = f"{rho:.3g} m" if axis < 3 else f"{np.degrees(rho):.3g} deg"
+        cells = [
+            f"{mean:6.2f} ({count})" if count else "-"
+            for mean, count in zip(consistency.mean_nees[axis], consistency.counts[axis], strict=True)
+        ]
+        lines.append(f"  {name:4s} {shown:>10s}  " + " ".join(f"{c:>12s}" for c in cells))
+    return lines
 
 
 def calibration_entry(
@@ -99,4 +127,10 @@ def calibrate_and_report(corpus: Path, config: VOConfig, split: str, preset: str
         f"{label}covariance scales (x y z rx ry rz) on {result.sequences} {preset} {split} sequences of {corpus} "
         f"({result.pairs} frame pairs): {listed}"
     )
+    if result.consistency is not None:
+        print(
+            "with them, the mean e^2/sigma^2 (pairs) by sigma / rho, rho the 90th percentile of each axis's sigma "
+            "(1 = consistent; far above 1 in the high bins: the VO errs more where it is unsure than it says):"
+        )
+        print("\n".join(consistency_lines(result.consistency)))
     return result

@@ -5,6 +5,7 @@ the learned graph (`pvo demo`, the soak, the faults) fusing the VO with them onl
 from __future__ import annotations
 
 import hashlib
+import re
 import shutil
 from pathlib import Path
 
@@ -133,7 +134,13 @@ def test_vo_calibrate_records_the_default_vos_scales_and_settings_in_a_file_of_i
 
     record = tmp_path / "my_vo.yaml"
     assert main(["vo", "calibrate", "--corpus", str(corpus), "-o", str(record)]) == 0
-    assert "on 2 urban validation sequences" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "on 2 urban validation sequences" in out
+    # then how consistent the scaled VO is by the size of its own sigma: a row per axis, its pairs in the bins
+    table = out[out.index("mean e^2/sigma^2") :].splitlines()[1:8]
+    assert [row.split()[0] for row in table[1:]] == ["x", "y", "z", "rx", "ry", "rz"]
+    for row in table[1:]:
+        assert sum(int(cell) for cell in re.findall(r"\((\d+)\)", row)) == 22
     entry = yaml.safe_load(record.read_text())["vo_calibration"]
     np.testing.assert_allclose(
         entry["covariance_scale"], independent_scales(corpus, None, ["0000", "0001"]), rtol=1e-3, atol=1e-4
