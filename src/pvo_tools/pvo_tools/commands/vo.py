@@ -55,7 +55,9 @@ def register_calibrate(sub: Any) -> None:
         "urban) of a corpus split and "
         "record the per-axis variance scales that make its frame-to-frame covariances consistent there, with the "
         "VO's settings, as a calibration file (the shipped one: src/pvo_frontend/calibration/default_vo.yaml; `pvo demo "
-        "--vo-calibration` takes another). A PROBE model's VO is calibrated into its card: `pvo probe calibrate`.",
+        "--vo-calibration` takes another). Then, with those scales, how consistent the VO is by the size of its own "
+        "sigma (mean e^2/sigma^2 per axis in bins of sigma over its 90th percentile; 1 = consistent). A PROBE model's "
+        "VO is calibrated into its card: `pvo probe calibrate`.",
     )
     cal.set_defaults(handler=run_calibrate)
     cal.add_argument("--corpus", type=Path, required=True, help="a `pvo sim corpus` directory")
