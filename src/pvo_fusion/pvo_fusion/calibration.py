@@ -89,7 +89,7 @@ CONSISTENCY_EDGES = (0.0, 0.5, 0.8, 1.0, 1.5, 2.5, 5.0, np.inf)
 @dataclass(frozen=True)
 class SigmaConsistency:
     """How consistent a VO's frame-to-frame covariance is against its own size, per ROS-order axis (x y z rotX rotY
-    rotZ): ``reference`` (6,) ρ, a quantile of each axis's σ (m, rad); ``edges`` (B+1,) of σ/ρ; ``mean_nees`` (6, B)
+    rotZ): ``reference`` (6,) ρ, the ``quantile`` of each axis's σ (m, rad); ``edges`` (B+1,) of σ/ρ; ``mean_nees`` (6, B)
     the mean e²/σ² of the pairs whose σ/ρ falls in each bin (NaN where none do); ``counts`` (6, B) those pairs.
 
     A calibrated VO reads 1 in every bin. A scale per axis (`calibrate_vo`) makes their average 1 and leaves the
@@ -97,6 +97,7 @@ class SigmaConsistency:
     far above 1."""
 
     reference: Array
+    quantile: float
     edges: Array
     mean_nees: Array
     counts: NDArray[np.int64]
@@ -140,7 +141,7 @@ def sigma_consistency(
         sums = np.bincount(bins[:, axis], weights=nees[:, axis], minlength=len(edges) - 1)
         filled = counts[axis] > 0
         means[axis, filled] = sums[filled] / counts[axis, filled]
-    return SigmaConsistency(reference, np.asarray(edges, dtype=float), means, counts)
+    return SigmaConsistency(reference, quantile, np.asarray(edges, dtype=float), means, counts)
 
 
 def calibrated_covariances(covariances: Array | None, frames: int, calibration: VOCalibration | None) -> Array:

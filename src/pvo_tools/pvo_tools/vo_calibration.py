@@ -99,10 +99,10 @@ def calibration_entry(
 ) -> dict[str, Any]:
     """The ``vo_calibration`` entry recording ``result`` for the VO ``config``: its scales (rounded to 4 digits),
     every VO setting it was measured with (the PROBE model left to the record's home), the corpus and the
-    command that made it."""
+    command that made it, and how consistent the VO is with those scales by the size of its own σ."""
     from pvo_frontend.vo_calibration import recorded_settings
 
-    return {
+    entry = {
         "covariance_scale": [round(float(v), 4) for v in result.scale],
         "span_frames": 1,
         "corpus": {"path": str(corpus), "digest": result.digest, "split": split, "preset": preset},
@@ -113,6 +113,23 @@ def calibration_entry(
         "notes": "per-axis variance scales (ROS order) that make this VO's frame-to-frame covariances consistent on "
         "those sequences (fusion: inputs.vo.covariance_scale; pvo demo applies them where stereo_vo runs this VO, "
         "these settings)",
+    }
+    if result.consistency is not None:
+        entry["consistency_by_sigma"] = consistency_entry(result.consistency)
+    return entry
+
+
+def consistency_entry(consistency: SigmaConsistency) -> dict[str, Any]:
+    """`SigmaConsistency` as a record entry: per axis the mean e²/σ² (3 decimals; null where no pair) and the pairs
+    in each bin of σ over ``reference`` (m, rad)."""
+    axes = ("x", "y", "z", "rx", "ry", "rz")
+    means = np.round(consistency.mean_nees, 3)
+    return {
+        "reference_quantile": consistency.quantile,
+        "reference": [float(f"{v:.4g}") for v in consistency.reference],
+        "sigma_over_reference_edges": [float(v) for v in consistency.edges],
+        "mean_nees": {a: [None if np.isnan(v) else float(v) for v in row] for a, row in zip(axes, means, strict=True)},
+        "pairs": {a: [int(v) for v in row] for a, row in zip(axes, consistency.counts, strict=True)},
     }
 
 

@@ -141,6 +141,12 @@ def test_vo_calibrate_records_the_default_vos_scales_and_settings_in_a_file_of_i
     assert [row.split()[0] for row in table[1:]] == ["x", "y", "z", "rx", "ry", "rz"]
     for row in table[1:]:
         assert sum(int(cell) for cell in re.findall(r"\((\d+)\)", row)) == 22
+    recorded = yaml.safe_load(record.read_text())["vo_calibration"]["consistency_by_sigma"]
+    assert recorded["reference_quantile"] == 0.9 and len(recorded["reference"]) == 6
+    assert all(sum(recorded["pairs"][axis]) == 22 for axis in ("x", "y", "z", "rx", "ry", "rz"))
+    # the record's means are the printed ones (an empty bin: null there, '-' printed)
+    printed = [float(v) for v in re.findall(r"([\d.]+) \(\d+\)", table[5])]
+    assert printed == pytest.approx([v for v in recorded["mean_nees"]["ry"] if v is not None], abs=0.006)
     entry = yaml.safe_load(record.read_text())["vo_calibration"]
     np.testing.assert_allclose(
         entry["covariance_scale"], independent_scales(corpus, None, ["0000", "0001"]), rtol=1e-3, atol=1e-4
