@@ -20,12 +20,10 @@ from pathlib import Path
 import numpy as np
 from pvo_core.readers import KittiSequence
 from pvo_frontend.vo_calibration import read_vo_calibration, resolve_calibration
-from pvo_fusion.calibration import CalibrationSequence, SigmaConsistency, sigma_consistency
+from pvo_fusion.calibration import AXES, CalibrationSequence, SigmaConsistency, sigma_consistency
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from hydranet_validation_drives import vo_of
-
-AXES = ("x", "y", "z", "rx", "ry", "rz")
 
 
 def consistency_table(consistency: SigmaConsistency) -> list[str]:

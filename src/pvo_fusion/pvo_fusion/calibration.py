@@ -82,7 +82,9 @@ def calibrate_vo(train: Iterable[CalibrationSequence], span: int) -> VOCalibrati
     )
 
 
-#: Bins of σ/ρ for `sigma_consistency` (ρ: the quantile of each axis's σ).
+#: The six axes of a VO motion, ROS order (translation m, rotation rad), as tables name them.
+AXES = ("x", "y", "z", "rx", "ry", "rz")
+#: Bins of σ/ρ for `sigma_consistency` (ρ: the quantile of each axis's σ), from 0 to infinity.
 CONSISTENCY_EDGES = (0.0, 0.5, 0.8, 1.0, 1.5, 2.5, 5.0, np.inf)
 
 
@@ -116,8 +118,8 @@ def sigma_consistency(
     factor = np.ones(6) if scale is None else np.asarray(scale, dtype=float)
     if factor.shape != (6,) or not np.all(factor > 0.0):
         raise ValueError(f"scale must be 6 positive variance scales, got {scale!r}")
-    if not 0.0 < quantile < 1.0 or len(edges) < 2 or np.any(np.diff(edges) <= 0.0):
-        raise ValueError("sigma_consistency needs a quantile in (0, 1) and increasing bin edges")
+    if not 0.0 < quantile < 1.0 or len(edges) < 2 or np.any(np.diff(edges) <= 0.0) or edges[0] != 0.0 or edges[-1] != np.inf:
+        raise ValueError("sigma_consistency needs a quantile in (0, 1) and bin edges increasing from 0 to inf")
     errors, variances = [], []
     for seq in sequences:
         if seq.covariances is None:

@@ -83,6 +83,8 @@ def test_bad_input_is_a_clear_error() -> None:
         sigma_consistency(sequences, np.ones(5))
     with pytest.raises(ValueError, match="quantile in"):
         sigma_consistency(sequences, quantile=1.0)
+    with pytest.raises(ValueError, match="from 0 to inf"):
+        sigma_consistency(sequences, edges=(0.5, 1.0, np.inf))
     with pytest.raises(ValueError, match="carries no covariances"):
         sigma_consistency([CalibrationSequence("bare", sequences[0].ground_truth, sequences[0].motions, None)])
     every_lost = CalibrationSequence(

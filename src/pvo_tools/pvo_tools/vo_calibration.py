@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 from pvo_frontend.vo import VOConfig
+from pvo_fusion.calibration import AXES
 
 from .errors import PvoError
 
@@ -83,7 +84,7 @@ def consistency_lines(consistency: SigmaConsistency) -> list[str]:
     edges = consistency.edges
     names = [f"{lo:g}-{hi:g}" if np.isfinite(hi) else f">{lo:g}" for lo, hi in pairwise(edges)]
     lines = [f"  {'axis':4s} {'rho':>10s}  " + " ".join(f"{n:>12s}" for n in names)]
-    for axis, name in enumerate(("x", "y", "z", "rx", "ry", "rz")):
+    for axis, name in enumerate(AXES):
         rho = consistency.reference[axis]
         shown = f"{rho:.3g} m" if axis < 3 else f"{np.degrees(rho):.3g} deg"
         cells = [
@@ -122,14 +123,13 @@ def calibration_entry(
 def consistency_entry(consistency: SigmaConsistency) -> dict[str, Any]:
     """`SigmaConsistency` as a record entry: per axis the mean e²/σ² (3 decimals; null where no pair) and the pairs
     in each bin of σ over ``reference`` (m, rad)."""
-    axes = ("x", "y", "z", "rx", "ry", "rz")
     means = np.round(consistency.mean_nees, 3)
     return {
         "reference_quantile": consistency.quantile,
         "reference": [float(f"{v:.4g}") for v in consistency.reference],
         "sigma_over_reference_edges": [float(v) for v in consistency.edges],
-        "mean_nees": {a: [None if np.isnan(v) else float(v) for v in row] for a, row in zip(axes, means, strict=True)},
-        "pairs": {a: [int(v) for v in row] for a, row in zip(axes, consistency.counts, strict=True)},
+        "mean_nees": {a: [None if np.isnan(v) else float(v) for v in row] for a, row in zip(AXES, means, strict=True)},
+        "pairs": {a: [int(v) for v in row] for a, row in zip(AXES, consistency.counts, strict=True)},
     }
 
 
