@@ -24,6 +24,7 @@ import dataclasses
 import hashlib
 import json
 import time
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -97,7 +98,9 @@ def main() -> None:
         default="as-read",
         help="which readings are fused, comma-separated: as-read (the model's), debiased (an oracle: each drive's own "
         "mean error per pair, from the truth, taken off its readings - the slow part removed, the rest kept), true (an "
-        "oracle: the true rotations at the model's covariances), turn-scaled (each reading's rotation vector divided by "
+        "oracle: the true rotations at the model's covariances), sampled (an oracle: an honest, unbiased model - the true "
+        "rotations each perturbed by an error drawn from its reading's own covariance, independently pair by pair, seeded "
+        "by the drive's name), turn-scaled (each reading's rotation vector divided by "
         "1 + --turn-gain per axis); each is reported as MODEL@READINGS",
     )
     parser.add_argument(
@@ -241,7 +244,8 @@ def main() -> None:
         for (path, model, card), (_, reading, label) in zip([m for m in models for _ in readings], labels, strict=True):
             predictions = predict_sequence(model, card, folder, cache_dir=args.cache)
             true = true_relative_rotations(truth, predictions.earlier, predictions.frames)
-            predictions = oracle_readings(predictions, true, reading, turn_gain)
+            seed = zlib.crc32(f"{folder.parent.name}/{folder.name}".encode())
+            predictions = oracle_readings(predictions, true, reading, turn_gain, np.random.default_rng(seed))
             accuracy = evaluate_rotations(predictions.quaternions, predictions.covariance, true)
             name = path.name if reading == "as-read" else f"{path.name}@{reading}"
             line += f" | {name}: {accuracy['angle_mean_deg']:.3f} deg, ANEES {accuracy['anees']:.2f}"
@@ -282,14 +286,21 @@ def main() -> None:
     print_means(named)
 
 
-READINGS = ("as-read", "debiased", "true", "turn-scaled")
+READINGS = ("as-read", "debiased", "true", "sampled", "turn-scaled")
 
 
-def oracle_readings(predictions: Any, true: np.ndarray, reading: str, turn_gain: np.ndarray | None = None) -> Any:
+def oracle_readings(
+    predictions: Any,
+    true: np.ndarray,
+    reading: str,
+    turn_gain: np.ndarray | None = None,
+    rng: np.random.Generator | None = None,
+) -> Any:
     """The model's readings (``as-read``), the same with the drive's mean error per pair taken off each (``debiased``:
-    C = Exp(mean Log(C_true C_est^T)) C_est), the true rotations (``true``), or each reading's rotation vector divided
-    per axis by 1 + ``turn_gain`` (``turn-scaled``: a model that reads every turn g short has g < 0), their
-    covariances kept."""
+    C = Exp(mean Log(C_true C_est^T)) C_est), the true rotations (``true``), the true rotations each with an error
+    drawn from its reading's covariance (``sampled``: C = Exp(L z) C_true, L L^T = Sigma, z ~ N(0, I) from ``rng``; the
+    covariance is in the left tangent space), or each reading's rotation vector divided per axis by 1 + ``turn_gain``
+    (``turn-scaled``: a model that reads every turn g short has g < 0), their covariances kept."""
     if reading == "as-read":
         return predictions
     estimates = Rotation.from_quat(np.asarray(predictions.quaternions)[:, [1, 2, 3, 0]]).as_matrix()
@@ -299,6 +310,11 @@ def oracle_readings(predictions: Any, true: np.ndarray, reading: str, turn_gain:
         rotations = Rotation.from_rotvec(Rotation.from_matrix(estimates).as_rotvec() / (1.0 + turn_gain)).as_matrix()
     elif reading == "true":
         rotations = true
+    elif reading == "sampled":
+        rng = rng or np.random.default_rng(0)
+        factors = np.linalg.cholesky(np.asarray(predictions.covariance))
+        errors = np.einsum("nij,nj->ni", factors, rng.standard_normal((len(true), 3)))
+        rotations = np.stack([so3_exp(e) for e in errors]) @ true
     else:
         mean = rotation_errors(estimates, true).mean(axis=0)
         rotations = so3_exp(mean) @ estimates

@@ -1,0 +1,54 @@
+"""The oracle readings of `scripts/hydranet_validation_drives.py` (what a model without error, or an honest one, would
+fuse): the errors an honest reading carries are drawn from its own covariance, reproducibly."""
+
+from __future__ import annotations
+
+import runpy
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pvo_core.lie import so3_exp
+from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, rotation_errors
+from pvo_pseudosensors.hydranet.infer import RotationPredictions
+from scipy.spatial.transform import Rotation
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "hydranet_validation_drives.py"
+
+
+@pytest.fixture(scope="module")
+def oracle_readings():
+    return runpy.run_path(str(SCRIPT), run_name="oracles")["oracle_readings"]
+
+
+def _predictions(count: int, rng: np.random.Generator) -> tuple[RotationPredictions, np.ndarray]:
+    true = np.stack([so3_exp(v) for v in rng.normal(0.0, 0.02, (count, 3))])
+    estimates = np.stack([so3_exp(v) @ t for v, t in zip(rng.normal(0.0, 1e-3, (count, 3)), true, strict=True)])
+    xyzw = Rotation.from_matrix(estimates).as_quat()
+    sigmas = np.array([1e-3, 2e-3, 4e-3])  # rad, per axis: an anisotropic covariance, the same for every pair
+    epistemic = np.tile(np.diag(sigmas**2) * 0.25, (count, 1, 1))
+    aleatoric = np.tile(np.diag(sigmas**2) * 0.75, (count, 1, 1))
+    frames = np.arange(1, count + 1)
+    return RotationPredictions(frames - 1, frames, xyzw[:, [3, 0, 1, 2]], epistemic, aleatoric), true
+
+
+def test_sampled_readings_carry_errors_drawn_from_their_covariance(oracle_readings) -> None:
+    predictions, true = _predictions(4000, np.random.default_rng(1))
+    sampled = oracle_readings(predictions, true, "sampled", rng=np.random.default_rng(7))
+    estimates = Rotation.from_quat(sampled.quaternions[:, [1, 2, 3, 0]]).as_matrix()
+    errors = rotation_errors(estimates, true)
+    covariance = predictions.covariance[0]
+    assert np.allclose(errors.mean(axis=0), 0.0, atol=4 * np.sqrt(np.diag(covariance) / len(errors)))
+    assert np.allclose(np.cov(errors.T), covariance, rtol=0.1, atol=0.05 * covariance.max())
+    assert evaluate_rotations(sampled.quaternions, sampled.covariance, true)["anees"] == pytest.approx(1.0, abs=0.06)
+    assert np.array_equal(sampled.epistemic, predictions.epistemic)  # the covariances are the model's, kept
+    again = oracle_readings(predictions, true, "sampled", rng=np.random.default_rng(7))
+    assert np.array_equal(again.quaternions, sampled.quaternions)
+
+
+def test_true_readings_are_the_truth_and_as_read_the_model(oracle_readings) -> None:
+    predictions, true = _predictions(20, np.random.default_rng(2))
+    exact = oracle_readings(predictions, true, "true")
+    estimates = Rotation.from_quat(exact.quaternions[:, [1, 2, 3, 0]]).as_matrix()
+    assert np.abs(rotation_errors(estimates, true)).max() < 1e-12
+    assert oracle_readings(predictions, true, "as-read") is predictions
