@@ -181,6 +181,56 @@ def test_fusion_node_reports_bad_input_and_keeps_going(ros_context) -> None:
     assert np.all(position_variance > 5e-4)  # grown from 1e-6 m² by six VO steps (ROS order: position first)
 
 
+def test_fusion_node_warns_when_the_gate_keeps_an_input_out(ros_context) -> None:
+    """Corrections the gate rejects again and again (the estimate and the sensor disagree for good: one is lost) turn
+    the VO frames' status WARN from GATED_IN_A_ROW_WARNING in a row, the streak per input in it; an accepted one ends
+    it."""
+    from pvo_fusion.graph import GATED_IN_A_ROW_WARNING
+
+    fusion = FusionNode(context=ros_context, parameter_overrides=[Parameter("publish_path", value=False)])
+    io, odometry, statuses, publisher = fusion_io(ros_context)
+    vo_pub, correction_pub = publisher("/pvo/vo/relative"), publisher("/pvo/dpc/correction")
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))  # T_k,k-1
+    cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    t0, dt = 1_000_000_000, 100_000_000
+    wrong = se3_exp(np.array([0.0, 0.0, 2.0, 0.0, 0.2, 0.0])) @ step @ step  # 2 m and 11 deg off the VO's two steps
+    frames: list[DiagnosticStatus] = []  # the status of VO frames 4, 5, 6
+
+    def frame(k: int) -> None:
+        vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step, cov))
+        wait_for(lambda: len(odometry) >= k and any(s.status[0].message == "accepted" for s in statuses[-1:]))
+        frames.append(statuses[-1].status[0])
+
+    def corrections(transform: np.ndarray, count: int, outcome: str) -> None:
+        before = fusion.graph.counts[f"correction.{outcome}"]
+        for _ in range(count):
+            correction_pub.publish(relative_msg(t0 + 3 * dt, t0 + dt, transform, cov))
+        wait_for(lambda: fusion.graph.counts[f"correction.{outcome}"] >= before + count)
+
+    try:
+        with Spinner(ros_context, fusion), Spinner(ros_context, io):
+            wait_for(lambda: correction_pub.get_subscription_count() > 0 and fusion.pub_status.get_subscription_count() > 0)
+            for k in range(1, 4):
+                vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step, cov))
+            wait_for(lambda: len(odometry) >= 3)
+            corrections(wrong, GATED_IN_A_ROW_WARNING - 1, "gated")
+            frame(4)
+            corrections(wrong, 1, "gated")
+            frame(5)
+            corrections(step @ step, 1, "accepted")
+            frame(6)
+    finally:
+        fusion.destroy_node()
+        io.destroy_node()
+    values = [{kv.key: kv.value for kv in status.values} for status in frames]
+    assert [v.get("gated_in_a_row.correction") for v in values] == [
+        str(GATED_IN_A_ROW_WARNING - 1),
+        str(GATED_IN_A_ROW_WARNING),
+        None,
+    ]
+    assert [status.level for status in frames] == [DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.OK]
+
+
 def test_fusion_path_is_published_once_per_path_period(ros_context) -> None:
     fusion = FusionNode(context=ros_context, parameter_overrides=[Parameter("path_period", value=0.5)])
     io = Node("io", context=ros_context)

@@ -56,6 +56,9 @@ Array = NDArray[np.float64]
 
 ACCEPTED = "accepted"
 BUFFERED = "buffered"
+#: an input the gate has shut out this many times in a row is reported (the fusion node's status turns WARN): the
+#: estimate and that sensor disagree for good - one of them is lost, and an input the gate keeps out cannot mend it
+GATED_IN_A_ROW_WARNING = 10
 
 
 @dataclass(frozen=True)
@@ -92,6 +95,7 @@ class FusionGraph:
         self.factor_counts: Counter[str] = Counter()
         self.last_update_seconds = 0.0
         self.last_rejection = ""
+        self.gated_in_a_row: Counter[str] = Counter()  # per input kind: the gate's rejections since its last accepted one
         self._initial_pose: Array | None = None
         self._resume_stamp: int | None = None
         self._initial_covariance: Array | None = None
@@ -244,6 +248,10 @@ class FusionGraph:
 
     def _count(self, name: str, outcome: str) -> str:
         self.counts[f"{name}.{outcome}"] += 1
+        if outcome == "gated":
+            self.gated_in_a_row[name] += 1
+        elif outcome == ACCEPTED:
+            self.gated_in_a_row.pop(name, None)
         if outcome not in (ACCEPTED, BUFFERED):
             self.last_rejection = f"{name}: {outcome}"
         return outcome
