@@ -182,53 +182,49 @@ def test_fusion_node_reports_bad_input_and_keeps_going(ros_context) -> None:
 
 
 def test_fusion_node_warns_when_the_gate_keeps_an_input_out(ros_context) -> None:
-    """Corrections the gate rejects again and again (the estimate and the sensor disagree for good: one is lost) turn
-    the VO frames' status WARN from GATED_IN_A_ROW_WARNING in a row, the streak per input in it; an accepted one ends
-    it."""
-    from pvo_fusion.graph import GATED_IN_A_ROW_WARNING
+    """Corrections the gate rejects for GATED_WARNING_SECONDS on end (the estimate and the sensor disagree for good: one
+    is lost) turn the VO frames' status WARN, the streak per input in it; an accepted one ends it."""
+    from pvo_fusion.graph import GATED_WARNING_SECONDS
 
     fusion = FusionNode(context=ros_context, parameter_overrides=[Parameter("publish_path", value=False)])
     io, odometry, statuses, publisher = fusion_io(ros_context)
     vo_pub, correction_pub = publisher("/pvo/vo/relative"), publisher("/pvo/dpc/correction")
     step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))  # T_k,k-1
     cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
-    t0, dt = 1_000_000_000, 100_000_000
+    t0, dt = 1_000_000_000, int(GATED_WARNING_SECONDS / 4 * 1e9)  # four frames span the warning's time
     wrong = se3_exp(np.array([0.0, 0.0, 2.0, 0.0, 0.2, 0.0])) @ step @ step  # 2 m and 11 deg off the VO's two steps
-    frames: list[DiagnosticStatus] = []  # the status of VO frames 4, 5, 6
+    frames: dict[int, DiagnosticStatus] = {}  # the status of each VO frame
 
     def frame(k: int) -> None:
         vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step, cov))
-        wait_for(lambda: len(odometry) >= k and any(s.status[0].message == "accepted" for s in statuses[-1:]))
-        frames.append(statuses[-1].status[0])
+        wait_for(lambda: len(odometry) >= k and statuses[-1].status[0].message == "accepted")
+        frames[k] = statuses[-1].status[0]
 
-    def corrections(transform: np.ndarray, count: int, outcome: str) -> None:
+    def correction(transform: np.ndarray, outcome: str) -> None:
         before = fusion.graph.counts[f"correction.{outcome}"]
-        for _ in range(count):
-            correction_pub.publish(relative_msg(t0 + 3 * dt, t0 + dt, transform, cov))
-        wait_for(lambda: fusion.graph.counts[f"correction.{outcome}"] >= before + count)
+        correction_pub.publish(relative_msg(t0 + 3 * dt, t0 + dt, transform, cov))
+        wait_for(lambda: fusion.graph.counts[f"correction.{outcome}"] > before)
 
     try:
         with Spinner(ros_context, fusion), Spinner(ros_context, io):
             wait_for(lambda: correction_pub.get_subscription_count() > 0 and fusion.pub_status.get_subscription_count() > 0)
             for k in range(1, 4):
-                vo_pub.publish(relative_msg(t0 + k * dt, t0 + (k - 1) * dt, step, cov))
-            wait_for(lambda: len(odometry) >= 3)
-            corrections(wrong, GATED_IN_A_ROW_WARNING - 1, "gated")
-            frame(4)
-            corrections(wrong, 1, "gated")
-            frame(5)
-            corrections(step @ step, 1, "accepted")
-            frame(6)
+                frame(k)
+            for k in range(4, 8):  # gated at frames 3, 4, 5, 6 and 7: the span reaches the warning after frame 7's
+                correction(wrong, "gated")
+                frame(k)
+            correction(wrong, "gated")
+            frame(8)
+            correction(step @ step, "accepted")
+            frame(9)
     finally:
         fusion.destroy_node()
         io.destroy_node()
-    values = [{kv.key: kv.value for kv in status.values} for status in frames]
-    assert [v.get("gated_in_a_row.correction") for v in values] == [
-        str(GATED_IN_A_ROW_WARNING - 1),
-        str(GATED_IN_A_ROW_WARNING),
-        None,
-    ]
-    assert [status.level for status in frames] == [DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.OK]
+    values = {k: {kv.key: kv.value for kv in status.values} for k, status in frames.items()}
+    assert [values[k].get("gated_in_a_row.correction") for k in (3, 4, 7, 8, 9)] == [None, "1", "4", "5", None]
+    assert values[7]["gated_for_s.correction"] == f"{3 * dt * 1e-9:.3f}" and values[8]["gated_for_s.correction"] == "10.000"
+    levels = [frames[k].level for k in range(1, 10)]
+    assert levels == [DiagnosticStatus.OK] * 7 + [DiagnosticStatus.WARN, DiagnosticStatus.OK]
 
 
 def test_fusion_path_is_published_once_per_path_period(ros_context) -> None:

@@ -41,7 +41,7 @@ from pvo_ros import OK, WARN, PvoNode, every_message, kept_history_durability, r
 
 from .checkpoint import FusionCheckpoint
 from .config import FusionConfig
-from .graph import ACCEPTED, BUFFERED, GATED_IN_A_ROW_WARNING, FusionGraph
+from .graph import ACCEPTED, BUFFERED, GATED_WARNING_SECONDS, FusionGraph
 from .measurements import RelativeMeasurement, SunMeasurement
 from .output import ContinuousOutput
 from .sun_reference import EphemerisSunReference, FixedSunReference, SunReference, TabulatedSunReference
@@ -368,7 +368,7 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
         measurements taken since the frame before, in the order taken (what replays the node's input exactly: a
         message the node never received - published before it subscribed - is not in it)."""
         problems = any(k.startswith(("solver.", "vo.gap", "vo.lost")) for k in self.graph.counts)
-        problems = problems or max(self.graph.gated_in_a_row.values(), default=0) >= GATED_IN_A_ROW_WARNING
+        problems = problems or any(self.graph.gated_seconds(k) >= GATED_WARNING_SECONDS for k in self.graph.gated_in_a_row)
         level = WARN if (problems or message not in (ACCEPTED, BUFFERED)) else OK
         values: dict[str, Any] = {
             "stamp": f"{stamp * 1e-9:.9f}",
@@ -384,7 +384,9 @@ class FusionNode(PvoNode[FusionConfig, FusionNodeConfig]):
                 values[f"vo_rotation_scale.{kind}"] = f"{tracker.rotation_scale:.6g}"  # each VO turn taken 1 + this long
             if tracker.translation_scale_windows:
                 values[f"vo_translation_scale.{kind}"] = f"{tracker.translation_scale:.6g}"  # each VO step 1 + this long
-        values.update({f"gated_in_a_row.{k}": v for k, v in sorted(self.graph.gated_in_a_row.items())})
+        for kind, count in sorted(self.graph.gated_in_a_row.items()):
+            values[f"gated_in_a_row.{kind}"] = count  # the gate's rejections since its last accepted one
+            values[f"gated_for_s.{kind}"] = f"{self.graph.gated_seconds(kind):.3f}"  # over this long (newest state's time)
         values.update({f"factors.{k}": v for k, v in sorted(self.graph.factor_counts.items())})
         values.update({f"count.{k}": v for k, v in sorted(self.graph.counts.items()) if v})
         values.update({f"handled.{k}": v for k, v in sorted(self.handled.items())})

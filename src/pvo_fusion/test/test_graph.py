@@ -713,21 +713,29 @@ def test_grossly_wrong_corrections_and_rotations_are_gated() -> None:
 
 
 def test_the_gate_s_rejections_in_a_row_are_counted_per_input_until_one_is_accepted() -> None:
-    truth = truth_trajectory(12)
+    truth = truth_trajectory(14)
+    vo = vo_stream(truth, None)  # frames 1..13
     graph = FusionGraph()
-    for m in vo_stream(truth, None):
+    for m in vo[:11]:
         graph.add_vo(m)
     t = se3_exp(np.array([0.0, 0.0, 2.0, 0.0, 0.2, 0.0])) @ se3_inverse(truth[11]) @ truth[6]
     wrong = RelativeMeasurement(T0 + 11 * STEP_NS, T0 + 6 * STEP_NS, t, VO_COV)
     for expected in range(1, 4):
         assert graph.add_correction(wrong) == "gated"
         assert graph.gated_in_a_row["correction"] == expected
+    assert graph.gated_seconds("correction") == 0.0  # all three at one newest state
     rot_cov = np.diag([9.0, 9.0, 9.0, 1e-6, 1e-6, 1e-6])
     assert graph.add_rotation(RelativeMeasurement(wrong.stamp, wrong.reference_stamp, t, rot_cov, True)) == "gated"
     assert dict(graph.gated_in_a_row) == {"correction": 3, "rotation": 1}  # each input its own streak
+    graph.add_vo(vo[11])
+    graph.add_vo(vo[12])
+    assert graph.gated_seconds("correction") == 0.0  # the sensor quiet: its streak does not grow with the VO alone
+    assert graph.add_correction(wrong) == "gated"
+    assert graph.gated_seconds("correction") == pytest.approx(2 * STEP_NS * 1e-9)  # first to latest rejection
     right = RelativeMeasurement(wrong.stamp, wrong.reference_stamp, se3_inverse(truth[11]) @ truth[6], VO_COV)
     assert graph.add_correction(right) == "accepted"
     assert dict(graph.gated_in_a_row) == {"rotation": 1}  # an accepted correction ends the corrections' streak only
+    assert graph.gated_seconds("correction") == 0.0
     outside = RelativeMeasurement(right.stamp, T0 - STEP_NS * 50, right.transform, VO_COV)
     assert graph.add_rotation(outside) == "dropped.reference_not_in_window"
     assert graph.gated_in_a_row["rotation"] == 1  # a measurement dropped for another reason neither adds nor ends one
