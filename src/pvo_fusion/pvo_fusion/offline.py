@@ -55,7 +55,9 @@ class OfflineResult:
     """Estimates per frame of ``stamps``: final fixed-lag ``poses`` and ``online_poses`` (the newest state
     right after its VO, as the fusion node publishes it: continuous, :mod:`pvo_fusion.output`), (N, 4, 4), NaN
     where none; their ``covariances`` (N, 6, 6, ROS order, left) when asked; the time spent in the graph
-    (covariance queries excluded); counts and factors."""
+    (covariance queries excluded); counts and factors; ``gated_for_s``: per input the longest time (s of the newest
+    state's time) over which every reading of it was gated (:meth:`FusionGraph.gated_seconds`), inputs never gated
+    left out."""
 
     poses: Array
     online_poses: Array
@@ -63,6 +65,7 @@ class OfflineResult:
     seconds: float
     counts: dict[str, int] = field(default_factory=dict)
     factors: dict[str, int] = field(default_factory=dict)
+    gated_for_s: dict[str, float] = field(default_factory=dict)
 
 
 def run_offline(
@@ -94,8 +97,10 @@ def run_offline(
     cov_seconds = 0.0
     frames = 0
     start = time.perf_counter()
+    gated_for_s: dict[str, float] = {}
     for kind, m in events:
-        add[kind](m)
+        if add[kind](m) == "gated":
+            gated_for_s[kind] = max(gated_for_s.get(kind, 0.0), graph.gated_seconds(kind))
         if kind == "vo":
             frames += 1
             if graph.newest_stamp == m.stamp and m.stamp in index:
@@ -115,4 +120,4 @@ def run_offline(
         if p.stamp in index:
             final[index[p.stamp]] = p.pose
     seconds = time.perf_counter() - start - cov_seconds
-    return OfflineResult(final, online, covariances, seconds, dict(graph.counts), dict(graph.factor_counts))
+    return OfflineResult(final, online, covariances, seconds, dict(graph.counts), dict(graph.factor_counts), gated_for_s)

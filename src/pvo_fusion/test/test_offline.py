@@ -165,3 +165,34 @@ def test_kinds_named_before_come_ahead_of_the_vo_of_their_frame() -> None:
     ]
     default = ordered_events(vo, rotations[:2])
     assert [(kind, int(m.stamp)) for kind, m in default] == [("vo", 1), ("rotation", 1), ("vo", 2), ("rotation", 2), ("vo", 3)]
+
+
+def test_the_offline_result_keeps_each_input_s_longest_run_of_gated_readings() -> None:
+    from pvo_core.lie import se3_exp, se3_inverse
+
+    from pvo_fusion import RelativeMeasurement
+
+    step_ns, t0 = 100_000_000, 1_000_000_000
+    stamps = t0 + step_ns * np.arange(30, dtype=np.int64)
+    step = se3_inverse(se3_exp(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])))  # T_k,k-1
+    cov = np.diag([1e-4, 1e-4, 1e-4, 1e-6, 1e-6, 1e-6])
+    vo = [RelativeMeasurement(int(stamps[k]), int(stamps[k - 1]), step, cov) for k in range(1, 30)]
+    right, wrong = step @ step, se3_exp(np.array([0.0, 0.0, 2.0, 0.0, 0.2, 0.0])) @ step @ step
+
+    def correction(k: int, transform: np.ndarray) -> tuple[str, RelativeMeasurement]:
+        return "correction", RelativeMeasurement(int(stamps[k]), int(stamps[k - 2]), transform, cov)
+
+    # gated at frames 4, 6, 8 (a run over 0.4 s), accepted at 10, gated at 12 .. 20 (0.8 s), accepted at 22
+    corrections = [correction(k, wrong) for k in (4, 6, 8)] + [correction(10, right)]
+    corrections += [correction(k, wrong) for k in range(12, 21, 2)] + [correction(22, right)]
+    result = run_offline(_started(), stamps, ordered_events(vo, corrections))
+    assert result.counts["correction.gated"] == 8 and result.counts["correction.accepted"] == 2
+    assert result.gated_for_s == {"correction": pytest.approx(0.8)}
+    clean = run_offline(_started(), stamps, ordered_events(vo, [correction(k, right) for k in range(4, 23, 2)]))
+    assert clean.gated_for_s == {}
+
+
+def _started() -> FusionGraph:
+    graph = FusionGraph(from_flat({}))
+    graph.set_initial_pose(np.eye(4))
+    return graph

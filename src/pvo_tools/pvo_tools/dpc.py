@@ -91,7 +91,8 @@ class CorrectedSequence:
     """vo: the VO's camera-to-odom poses (N, 4, 4); corrected: after the corrections, online (the newest state
     as the fusion node publishes it; the overwrite is causal, so both are the same there) and smoothed (after
     the fixed lag); corrections: what the model predicted; accepted: corrections the fusion took; warnings: the
-    model card's rig check (what could not be verified)."""
+    model card's rig check (what could not be verified); gated_for_s: the longest time (s) over which the fusion's
+    gate took none of the corrections (0 with the overwrite)."""
 
     vo: Array
     corrected: Array
@@ -99,6 +100,7 @@ class CorrectedSequence:
     corrections: Any
     accepted: int
     warnings: list[str] = field(default_factory=list)
+    gated_for_s: float = 0.0
 
 
 def rig_sequences(manifest: Any, card: Any, split: str = "validation") -> list[Any]:
@@ -282,7 +284,8 @@ def correct_sequence(
     graph.set_initial_pose(np.eye(4))
     fused = run_offline(graph, stamps, ordered_events(vo, others))
     accepted = int(fused.counts.get("correction.accepted", 0))
-    return CorrectedSequence(run.poses, fused.poses, fused.online_poses, corrections, accepted, warnings)
+    gated = fused.gated_for_s.get("correction", 0.0)
+    return CorrectedSequence(run.poses, fused.poses, fused.online_poses, corrections, accepted, warnings, gated)
 
 
 @dataclass

@@ -754,3 +754,26 @@ def test_corrections_drifting_together_are_made_consistent_over_the_span() -> No
     over_40 = correction_calibration(biased, 120, delta)  # 40 windows: the bias adds ~40 sigma^2 on z and ry
     # a yaw bias also swings the forward motion sideways (x); nothing moves the chain up or down (y)
     assert over_40[2] > 20.0 and over_40[4] > 20.0 and over_40[0] > 20.0 and over_40[1] < 3.0
+
+
+def test_correct_warns_when_the_gate_kept_the_corrections_out(tmp_path: Path, capsys, monkeypatch) -> None:
+    """`pvo dpc-net correct` says so when the fusion's gate took none of the corrections for 10 s or more on end (a
+    VO and corrections that disagree for good: the estimate is the VO's there), and not when it did not."""
+    import pvo_tools.dpc as dpc
+    from pvo_fusion.graph import GATED_WARNING_SECONDS
+
+    poses = np.tile(np.eye(4), (5, 1, 1))
+    for gated, warned in ((GATED_WARNING_SECONDS + 2.6, True), (GATED_WARNING_SECONDS - 0.1, False)):
+        result = dpc.CorrectedSequence(poses, poses, poses, dpc_corrections(), 1, [], gated)
+        monkeypatch.setattr(dpc, "correct_sequence", lambda *args, result=result, **kwargs: result)
+        out = tmp_path / "corrected.txt"
+        assert main(["dpc-net", "correct", str(tmp_path), "--model", "dpc_net", "-o", str(out)]) == 0
+        err = capsys.readouterr().err
+        assert (f"took none of the corrections for {gated:.1f} s on end" in err) == warned, err
+        assert out.is_file()  # the estimate is written either way
+
+
+def dpc_corrections():
+    from pvo_pseudosensors.dpc_net.infer import Corrections
+
+    return Corrections(np.array([0]), np.array([4]), np.eye(4)[None], np.eye(6)[None])

@@ -219,6 +219,7 @@ def run_predict(args: argparse.Namespace) -> int:
 
 def run_correct(args: argparse.Namespace) -> int:
     from pvo_core.trajectory import write_kitti_poses
+    from pvo_fusion.graph import GATED_WARNING_SECONDS
     from pvo_pseudosensors.dpc_net.estimator import resolve_model
     from pvo_pseudosensors.dpc_net.infer import load_dpc_net
 
@@ -245,6 +246,14 @@ def run_correct(args: argparse.Namespace) -> int:
     if args.method == "fusion" and debias:
         weighed += f"; {debias}"
     print(f"{args.out}: {len(result.vo)} poses, {how}{weighed}; the VO alone in {vo_file}")
+    if result.gated_for_s >= GATED_WARNING_SECONDS:
+        _warn(
+            [
+                f"the fusion's gate took none of the corrections for {result.gated_for_s:.1f} s on end: the VO and the "
+                "corrections disagreed for good there (a model for another rig, or a VO that lost its way)"
+            ],
+            args.model,
+        )
     if args.method == "fusion" and card.calibration.get("fused_axes") == []:
         _warn(["its calibration on validation drives fuses no axis (no weighing was acceptable there): the VO alone"], args.model)
     return 0
