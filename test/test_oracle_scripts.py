@@ -1,5 +1,6 @@
-"""The oracle readings of `scripts/hydranet_validation_drives.py` (what a model without error, or an honest one, would
-fuse): the errors an honest reading carries are drawn from its own covariance, reproducibly."""
+"""The oracles of `scripts/hydranet_validation_drives.py` and `scripts/dpc_correction_ceiling.py` (what a model without
+error, or an honest one, would fuse): the errors an honest reading carries are drawn from its own covariance,
+reproducibly; errorless ones are the truth."""
 
 from __future__ import annotations
 
@@ -13,12 +14,17 @@ from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, rotation_e
 from pvo_pseudosensors.hydranet.infer import RotationPredictions
 from scipy.spatial.transform import Rotation
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "hydranet_validation_drives.py"
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
 
 @pytest.fixture(scope="module")
 def oracle_readings():
-    return runpy.run_path(str(SCRIPT), run_name="oracles")["oracle_readings"]
+    return runpy.run_path(str(SCRIPTS / "hydranet_validation_drives.py"), run_name="oracles")["oracle_readings"]
+
+
+@pytest.fixture(scope="module")
+def ceiling_corrections():
+    return runpy.run_path(str(SCRIPTS / "dpc_correction_ceiling.py"), run_name="oracles")["ceiling_corrections"]
 
 
 def _predictions(count: int, rng: np.random.Generator) -> tuple[RotationPredictions, np.ndarray]:
@@ -52,3 +58,35 @@ def test_true_readings_are_the_truth_and_as_read_the_model(oracle_readings) -> N
     estimates = Rotation.from_quat(exact.quaternions[:, [1, 2, 3, 0]]).as_matrix()
     assert np.abs(rotation_errors(estimates, true)).max() < 1e-12
     assert oracle_readings(predictions, true, "as-read") is predictions
+
+
+def test_ceiling_corrections_are_the_true_windows_or_honestly_perturbed(ceiling_corrections) -> None:
+    from pvo_core.lie import se3_exp
+
+    rng = np.random.default_rng(3)
+    truth = [np.eye(4)]
+    for v in rng.normal(0.0, [0.1, 0.1, 1.0, 0.01, 0.01, 0.01], (4000, 6)):
+        truth.append(truth[-1] @ se3_exp(v))
+    truth = np.array(truth)
+    stamps = 10**9 + 10**8 * np.arange(len(truth), dtype=np.int64)
+    exact = ceiling_corrections(truth, stamps, 4, 0.05, 100.0, False, "drive")
+    assert len(exact) == 1000 and all(kind == "correction" for kind, _ in exact)
+    first, last = exact[1][1].reference_stamp, exact[1][1].stamp
+    assert (first, last) == (stamps[4], stamps[8])  # consecutive windows of 4 frames
+    for k, (_, m) in enumerate(exact):
+        np.testing.assert_allclose(m.transform, np.linalg.inv(truth[4 * k + 4]) @ truth[4 * k], atol=1e-9)
+    np.testing.assert_allclose(np.diag(exact[0][1].covariance), [1e4] * 3 + [np.radians(0.05) ** 2] * 3)
+    honest = ceiling_corrections(truth, stamps, 4, 0.05, 100.0, True, "drive")
+    pairs = [(m.transform, e.transform) for (_, m), (_, e) in zip(honest, exact, strict=True)]
+    errors = np.array([so3_log_of(m @ np.linalg.inv(e)) for m, e in pairs])  # Exp(phi) on the left
+    assert np.allclose(errors.std(axis=0), np.radians(0.05), rtol=0.08)  # each axis drawn at the rotation sigma
+    for (m, e), phi in zip(pairs, errors, strict=True):  # the translation only turned with it: no error of its own
+        np.testing.assert_allclose(m[:3, 3], so3_exp(phi) @ e[:3, 3], atol=1e-9)
+    again = ceiling_corrections(truth, stamps, 4, 0.05, 100.0, True, "drive")
+    assert all(np.array_equal(a.transform, b.transform) for (_, a), (_, b) in zip(again, honest, strict=True))
+
+
+def so3_log_of(transform: np.ndarray) -> np.ndarray:
+    from pvo_core.lie import so3_log
+
+    return so3_log(transform[:3, :3])
