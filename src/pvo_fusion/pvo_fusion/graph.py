@@ -101,6 +101,7 @@ class FusionGraph:
         self.gated_in_a_row: Counter[str] = Counter()  # per input kind: the gate's rejections since its last accepted one
         # per input kind in such a streak: the newest state's stamp at its first and at its latest rejection
         self._gated_span: dict[str, tuple[int, int]] = {}
+        self.longest_gated_s: dict[str, float] = {}  # per input kind: the longest such streak in this graph's life (s)
         self._initial_pose: Array | None = None
         self._resume_stamp: int | None = None
         self._initial_covariance: Array | None = None
@@ -259,6 +260,7 @@ class FusionGraph:
             self.gated_in_a_row[name] += 1
             now = self._stamps[-1] if self._stamps else 0
             self._gated_span[name] = (self._gated_span.get(name, (now, now))[0], now)
+            self.longest_gated_s[name] = max(self.longest_gated_s.get(name, 0.0), self.gated_seconds(name))
         elif outcome == ACCEPTED:
             self.gated_in_a_row.pop(name, None)
             self._gated_span.pop(name, None)

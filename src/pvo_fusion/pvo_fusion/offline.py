@@ -56,8 +56,8 @@ class OfflineResult:
     right after its VO, as the fusion node publishes it: continuous, :mod:`pvo_fusion.output`), (N, 4, 4), NaN
     where none; their ``covariances`` (N, 6, 6, ROS order, left) when asked; the time spent in the graph
     (covariance queries excluded); counts and factors; ``gated_for_s``: per input the longest time (s of the newest
-    state's time) over which every reading of it was gated (:meth:`FusionGraph.gated_seconds`), inputs never gated
-    left out."""
+    state's time) over which every reading of it was gated (:attr:`FusionGraph.longest_gated_s`: buffered readings
+    gated when their state came count too), inputs never gated left out."""
 
     poses: Array
     online_poses: Array
@@ -97,10 +97,8 @@ def run_offline(
     cov_seconds = 0.0
     frames = 0
     start = time.perf_counter()
-    gated_for_s: dict[str, float] = {}
     for kind, m in events:
-        if add[kind](m) == "gated":
-            gated_for_s[kind] = max(gated_for_s.get(kind, 0.0), graph.gated_seconds(kind))
+        add[kind](m)
         if kind == "vo":
             frames += 1
             if graph.newest_stamp == m.stamp and m.stamp in index:
@@ -120,4 +118,6 @@ def run_offline(
         if p.stamp in index:
             final[index[p.stamp]] = p.pose
     seconds = time.perf_counter() - start - cov_seconds
-    return OfflineResult(final, online, covariances, seconds, dict(graph.counts), dict(graph.factor_counts), gated_for_s)
+    return OfflineResult(
+        final, online, covariances, seconds, dict(graph.counts), dict(graph.factor_counts), dict(graph.longest_gated_s)
+    )

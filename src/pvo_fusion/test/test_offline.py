@@ -190,6 +190,11 @@ def test_the_offline_result_keeps_each_input_s_longest_run_of_gated_readings() -
     assert result.gated_for_s == {"correction": pytest.approx(0.8)}
     clean = run_offline(_started(), stamps, ordered_events(vo, [correction(k, right) for k in range(4, 23, 2)]))
     assert clean.gated_for_s == {}
+    # readings that come ahead of the VO of their frame wait for its state and are gated only when it comes
+    rotations = [("rotation", RelativeMeasurement(m.stamp, m.reference_stamp, wrong, cov, True)) for _, m in corrections]
+    early = run_offline(_started(), stamps, ordered_events(vo, rotations, before=("rotation",)))
+    assert early.counts["rotation.gated"] == 10
+    assert early.gated_for_s == {"rotation": pytest.approx(1.8)}  # frames 4 to 22, never one accepted
 
 
 def _started() -> FusionGraph:
