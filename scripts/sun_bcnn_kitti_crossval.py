@@ -15,7 +15,10 @@ drive (four headings towards the sun) judge a recipe better. Rerunning resumes: 
 camera (atan2(x, z) of the truth) is at least 135 deg (07 frames 34-130, the sun behind and to the right) and is
 judged on those below 115 deg (frames 0-28 and 137-159): whether it reads a sun direction it was never shown, as
 it must on another drive. ``--rotate DEG`` fine-tunes with that camera-turn augmentation (yaw within +-DEG) instead
-of the model's own.
+of the model's own. ``--trainable`` says what the fine-tune changes, the rest kept as the synthetic world trained
+it (default: the experiment's, ``features``): ``all``, or comma-separated parameter-name prefixes (``features``,
+``head``, ``concentration``), ``norm`` (the batch-norm affine parameters) and ``blocks:K`` (the first K
+convolutional blocks).
 """
 
 from __future__ import annotations
@@ -30,10 +33,11 @@ from pvo_pseudosensors.learning.training import FineTune
 from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
 from pvo_pseudosensors.sun_bcnn.evaluation import evaluate_predictions
 from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn, predict_sequence
-from pvo_pseudosensors.sun_bcnn.model import SunTask
+from pvo_pseudosensors.sun_bcnn.model import SunTask, trainable_selection
 from pvo_tools.experiments.sun_bcnn import (
     FINETUNE_EPOCHS,
     FINETUNE_LEARNING_RATE,
+    FINETUNE_TRAINABLE,
     kitti_truth,
     stage_kitti,
     synthetic_mix,
@@ -67,6 +71,9 @@ def main() -> None:
     parser.add_argument("--corpus", type=Path, help="the synthetic corpus for --synthetic (its training split)")
     parser.add_argument("--by-azimuth", action="store_true", help="one fold: held out by the sun's azimuth (above)")
     parser.add_argument("--rotate", type=float, help="the fine-tune's camera-turn augmentation, deg (default: the model's)")
+    parser.add_argument(
+        "--trainable", default=FINETUNE_TRAINABLE, help=f"what the fine-tune changes (above; default {FINETUNE_TRAINABLE})"
+    )
     parser.add_argument("--out", "-o", type=Path, required=True, help="folds' models and crossval.json")
     parser.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
     args = parser.parse_args()
@@ -78,11 +85,13 @@ def main() -> None:
     config = load_sun_bcnn(base)[0].config
     if args.rotate is not None:
         config = dataclasses.replace(config, rotate=args.rotate)
+    trainable = () if args.trainable == "all" else trainable_selection(args.trainable, config)
     synthetic = synthetic_mix(args.corpus, args.synthetic, config.spec) if args.synthetic else None
     command = (
         f"python scripts/sun_bcnn_kitti_crossval.py --model {args.model} --learning-rate {args.learning_rate} "
         f"--epochs {args.epochs} --synthetic {args.synthetic}{f' --corpus {args.corpus}' if args.corpus else ''}"
         f"{' --by-azimuth' if args.by_azimuth else ''}{f' --rotate {args.rotate:g}' if args.rotate is not None else ''}"
+        f" --trainable {args.trainable}"
         f" -o {args.out}"
     )
     rows, truths, results = [], [], []
@@ -92,7 +101,7 @@ def main() -> None:
         validation = stage_kitti(data, "07", held, staged / "validation")
         model_dir = args.out / f"fold{fold}"
         if not (model_dir / "done").is_file():
-            train_on_kitti(FineTune(SunTask(config), base), config.spec, train, validation, model_dir, args.epochs,
+            train_on_kitti(FineTune(SunTask(config), base, trainable), config.spec, train, validation, model_dir, args.epochs,
                            args.learning_rate, lambda line: None, {"train": command}, synthetic,
                            f"KITTI 07, {len(kept)} frames in {kept[0]}-{kept[-1]} ({len(held)} others to validate)")  # fmt: skip
             (model_dir / "done").write_text("")

@@ -18,10 +18,11 @@ from pathlib import Path
 from pvo_pseudosensors.learning.training import FineTune
 from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
 from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn
-from pvo_pseudosensors.sun_bcnn.model import SunTask
+from pvo_pseudosensors.sun_bcnn.model import SunTask, trainable_selection
 from pvo_tools.experiments.sun_bcnn import (
     FINETUNE_EPOCHS,
     FINETUNE_LEARNING_RATE,
+    FINETUNE_TRAINABLE,
     KITTI_TRAIN_FRAMES,
     KITTI_VALIDATION_FRAMES,
     kitti_figures,
@@ -41,6 +42,11 @@ def main() -> None:
         help=f"default {FINETUNE_LEARNING_RATE:g} (the experiment's)",
     )
     parser.add_argument("--epochs", type=int, default=FINETUNE_EPOCHS, help=f"default {FINETUNE_EPOCHS}, the experiment's")
+    parser.add_argument(
+        "--trainable",
+        default=FINETUNE_TRAINABLE,
+        help=f"what the fine-tune changes: all, or parts (features, head, norm, blocks:K; default {FINETUNE_TRAINABLE})",
+    )
     parser.add_argument("--out", "-o", type=Path, required=True, help="the fine-tuned model's directory")
     parser.add_argument("--compare", nargs="*", default=[], help="other models judged on the same frames")
     parser.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
@@ -53,8 +59,9 @@ def main() -> None:
     validation = stage_kitti(data, "07", KITTI_VALIDATION_FRAMES, staged / "kitti07-validation")
     config = load_sun_bcnn(base)[0].config
     command = f"python scripts/sun_bcnn_kitti_finetune.py --model {args.model} --learning-rate {args.learning_rate} "
-    command += f"--epochs {args.epochs} -o {args.out}"
-    train_on_kitti(FineTune(SunTask(config), base), config.spec, train, validation, args.out, args.epochs,
+    command += f"--epochs {args.epochs} --trainable {args.trainable} -o {args.out}"
+    trainable = () if args.trainable == "all" else trainable_selection(args.trainable, config)
+    train_on_kitti(FineTune(SunTask(config), base, trainable), config.spec, train, validation, args.out, args.epochs,
                    args.learning_rate, print, {"train": command})  # fmt: skip
     for name in [str(args.out), *args.compare]:
         figures = kitti_figures(name, validation, data, "07", KITTI_VALIDATION_FRAMES, staged / ".cache")

@@ -20,7 +20,7 @@ import csv
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -180,7 +180,9 @@ def fit(
     if config.batch_size % processes.world:
         raise ValueError(f"batch size {config.batch_size} does not split over {processes.world} processes")
     model = task.build().to(processes.device)
-    optimizer = torch.optim.AdamW(model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+    optimizer = torch.optim.AdamW(
+        [p for p in model.parameters() if p.requires_grad], lr=config.learning_rate, weight_decay=config.weight_decay
+    )
     scheduler = _schedule(optimizer, config)
     history: list[dict[str, float]] = []
     best, best_epoch, waited, start_epoch = math.inf, -1, 0, 0
@@ -329,10 +331,16 @@ def _plot(out: Path, history: list[dict[str, float]]) -> None:
 class FineTune:
     """``task`` with its network starting from the trained weights of ``initial`` (a model directory of the
     same architecture and settings; :class:`~.checkpoint.ModelFileError` when it does not fit). The card
-    records where it started."""
+    records where it started.
+
+    ``trainable`` limits what the fine-tune changes: parameter-name prefixes (``"features.0."``) and the word
+    ``"norm"`` (the affine parameters of every normalisation layer); every other parameter keeps its starting
+    value (``requires_grad`` off, so the optimiser skips it). Empty: everything trains. Normalisation layers
+    outside it still re-estimate their running statistics in training mode."""
 
     task: Any
     initial: Path
+    trainable: tuple[str, ...] = ()
 
     @property
     def architecture(self) -> str:
@@ -343,6 +351,10 @@ class FineTune:
 
         model, _ = load_model(Path(self.initial), self.task.architecture, lambda _card: self.task.build())
         model.train()
+        if self.trainable:
+            chosen = trainable_parameters(model, self.trainable)
+            for name, parameter in model.named_parameters():
+                parameter.requires_grad_(name in chosen)
         return model
 
     def loss(self, model: torch.nn.Module, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -350,5 +362,31 @@ class FineTune:
 
     def card(self) -> ModelCard:
         card = self.task.card()
-        card.notes = (card.notes + " " if card.notes else "") + f"fine-tuned from {self.initial}"
+        trained = f" (trained: {', '.join(self.trainable)}; the rest kept)" if self.trainable else ""
+        card.notes = (card.notes + " " if card.notes else "") + f"fine-tuned from {self.initial}{trained}"
         return card
+
+
+def trainable_parameters(model: torch.nn.Module, selection: Sequence[str]) -> set[str]:
+    """Names of ``model``'s parameters that ``selection`` picks (prefixes of parameter names, and ``"norm"``:
+    the affine parameters of batch, group, instance and layer normalisation). ValueError when an entry picks
+    nothing, naming it and what there is."""
+    norm_types = (torch.nn.modules.batchnorm._NormBase, torch.nn.GroupNorm, torch.nn.LayerNorm)
+    names = [name for name, _ in model.named_parameters()]
+    chosen: set[str] = set()
+    for entry in selection:
+        if entry == "norm":
+            picked = {
+                f"{module_name}.{name}" if module_name else name
+                for module_name, module in model.named_modules()
+                if isinstance(module, norm_types)
+                for name, _ in module.named_parameters(recurse=False)
+            }
+        else:
+            picked = {name for name in names if name.startswith(entry)}
+        if not picked:
+            tops = sorted({name.split(".")[0] for name in names})
+            parts = ", ".join(tops)
+            raise ValueError(f"trainable entry {entry!r} picks no parameter of this network (its parts: {parts}; or 'norm')")
+        chosen |= picked
+    return chosen

@@ -118,6 +118,25 @@ class SunBCNN(nn.Module):
 
 
 @lru_cache(maxsize=8)
+def trainable_selection(text: str, config: SunBCNNConfig) -> tuple[str, ...]:
+    """A fine-tune's ``trainable`` entries (:class:`~pvo_pseudosensors.learning.training.FineTune`) from a
+    comma-separated ``text``: parameter-name prefixes (``features``, ``head``, ``concentration``), ``norm`` (the
+    normalisation layers' affine parameters) and ``blocks:K``, the first K convolutional blocks of
+    :attr:`SunBCNN.features` (K in 1..len(widths)). ValueError on a K out of range."""
+    entries: list[str] = []
+    for entry in (part.strip() for part in text.split(",")):
+        if not entry.startswith("blocks:"):
+            entries.append(entry)
+            continue
+        count = entry.removeprefix("blocks:")
+        if not count.isdigit() or not 1 <= int(count) <= len(config.widths):
+            raise ValueError(f"trainable entry {entry!r}: K must be 1 to {len(config.widths)}, the network's blocks")
+        layers = SunBCNN(config).features
+        ends = [i for i, layer in enumerate(layers) if isinstance(layer, nn.Dropout2d)]
+        entries += [f"features.{i}." for i in range(ends[int(count) - 1]) if any(True for _ in layers[i].parameters())]
+    return tuple(entries)
+
+
 def sphere_directions(count: int) -> torch.Tensor:
     """(count, 3) unit vectors spread evenly over the sphere: a Fibonacci lattice, the same for every call
     (do not modify the cached tensor)."""

@@ -39,6 +39,9 @@ FINETUNE_LEARNING_RATE = 3e-3
 FINETUNE_EPOCHS = 40
 #: synthetic training images mixed into every epoch of the KITTI fine-tune (0: the real frames alone)
 FINETUNE_SYNTHETIC = 0
+# stop 74, rule 1: the convolutional features adapt to the real camera, the head keeps where the synthetic world
+# taught the sun to be (07 held out by the sun's azimuth: 54.1 deg against 63.6 for a full fine-tune)
+FINETUNE_TRAINABLE = "features"
 
 
 @dataclass
@@ -422,7 +425,9 @@ def parse_lens(coefficients: Sequence[float] | None) -> tuple[float, ...]:
 
 
 def register(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--corpus", type=Path, required=True, help="the corpus the models were trained on (its test split)")
+    parser.add_argument(
+        "--corpus", type=Path, help="the corpus the models were trained on (its test split); not needed with --kitti-only"
+    )
     parser.add_argument(
         "--model",
         type=Path,
@@ -454,7 +459,15 @@ def register(parser: argparse.ArgumentParser) -> None:
         type=int,
         help="epochs of the baseline trained on KITTI 07 alone, from scratch (default twice --finetune-epochs; 0 skips it)",
     )
+    parser.add_argument(
+        "--finetune-trainable",
+        default=FINETUNE_TRAINABLE,
+        help="what the KITTI fine-tune changes: 'all', or comma-separated parts (features, head, concentration, norm, "
+        f"blocks:K, the first K convolutional blocks), the rest kept as the synthetic world trained it (default "
+        f"{FINETUNE_TRAINABLE})",
+    )
     parser.add_argument("--skip-kitti", action="store_true", help="skip experiment 5 (no training)")
+    parser.add_argument("--kitti-only", action="store_true", help="experiment 5 alone (real images; no synthetic corpus needed)")
     parser.add_argument(
         "--fusion-sequences", type=int, default=5, help="experiment 4: test sequences rendered longer and fused (0: skip)"
     )
@@ -489,18 +502,130 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", "-q", action="store_true", help="no progress lines")
 
 
+def finetune_selection(args: argparse.Namespace) -> tuple[str, ...]:
+    """The KITTI fine-tune's trainable entries from ``--finetune-trainable`` (empty: all), checked against
+    ``args.model``'s network (ValueError naming what is wrong)."""
+    from pvo_pseudosensors.learning.training import trainable_parameters
+    from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn
+    from pvo_pseudosensors.sun_bcnn.model import trainable_selection
+
+    if args.finetune_trainable == "all":
+        return ()
+    model = load_sun_bcnn(args.model)[0]
+    try:
+        selection = trainable_selection(args.finetune_trainable, model.config)
+        trainable_parameters(model, selection)
+    except ValueError as exc:
+        raise ValueError(f"--finetune-trainable {args.finetune_trainable}: {exc}") from None
+    return selection
+
+
+def kitti_experiment(
+    args: argparse.Namespace, config: Any, out: Path, say: Any, command: str, synthetic: Any
+) -> tuple[list[str], dict[str, float]]:
+    """Experiment 5: the synthetic model on KITTI 06 and 07, fine-tuned on 07 (what ``args.finetune_trainable``
+    picks of it), trained on 07 alone; each calibrated on 07 frames 128-159 and read on 06. Returns the report's
+    lines and the figures."""
+    from pvo_pseudosensors.learning.checkpoint import write_card
+    from pvo_pseudosensors.learning.training import FineTune
+    from pvo_pseudosensors.sun_bcnn.infer import DEFAULT_MODE, calibrate, load_sun_bcnn, predict_sequence
+    from pvo_pseudosensors.sun_bcnn.model import SunTask
+
+    trainable = finetune_selection(args)
+    report: list[str] = []
+    figures: dict[str, float] = {}
+    data = data_directory(args.data)
+    report += ["## 5. Real images (KITTI)", ""]
+    kitti_results: list[Evaluated] = []
+
+    def on_kitti(label: str, directory: Path, sequence: str) -> Evaluated:
+        m, c = load_sun_bcnn(directory)
+        p = predict_sequence(m, c, data / "kitti" / "sequences" / sequence, args.samples, cache_dir=out / ".cache")
+        result = evaluate(label, p.rows(), kitti_truth(data, sequence, p.frames))
+        p.write_csv(out / f"kitti{sequence}_{directory.name}.csv")
+        return result
+
+    kitti_results.append(on_kitti("synthetic model, KITTI 06 (51)", args.model, "06"))
+    kitti_results.append(on_kitti("synthetic model, KITTI 07 (160)", args.model, "07"))
+    train = stage_kitti(data, "07", KITTI_TRAIN_FRAMES, out / "kitti07-train")
+    validation = stage_kitti(data, "07", KITTI_VALIDATION_FRAMES, out / "kitti07-validation")
+    say("fine-tuning the synthetic model on KITTI 07 ...")
+    tuned = train_on_kitti(
+        FineTune(SunTask(config), args.model, trainable),
+        config.spec,
+        train,
+        validation,
+        out / "kitti-finetuned",
+        args.finetune_epochs,
+        args.finetune_learning_rate,
+        say,
+        {"train": command},
+        synthetic,
+    )
+    scratch_epochs = 2 * args.finetune_epochs if args.scratch_epochs is None else args.scratch_epochs
+    kitti_models = [tuned]
+    if scratch_epochs:
+        say("training on KITTI 07 alone ...")
+        kitti_models.append(
+            train_on_kitti(
+                SunTask(config),
+                config.spec,
+                train,
+                validation,
+                out / "kitti07-only",
+                scratch_epochs,
+                1e-3,
+                say,
+                {"train": command},
+            )
+        )
+    for directory in kitti_models:
+        m, c = load_sun_bcnn(directory)
+        c.calibration = {  # the mode calibrated in is the mode the card names: the one it then runs in
+            **calibrate(m, c, [validation], samples=args.samples, mode=DEFAULT_MODE, cache_dir=out / ".cache"),
+            "mode": DEFAULT_MODE,
+            "on": "KITTI 07 frames 128-159",
+        }
+        write_card(directory, c)
+    kitti_results.append(on_kitti("fine-tuned on 07, KITTI 06", tuned, "06"))
+    if scratch_epochs:
+        kitti_results.append(on_kitti("trained on 07 alone, KITTI 06", kitti_models[1], "06"))
+    report += ["```", format_table(kitti_results), "```", ""]
+    for r in kitti_results:
+        figures[f"kitti.{r.label}.vector_median_deg"] = r.figures["vector_median_deg"]
+        figures[f"kitti.{r.label}.anees"] = r.figures["anees"]
+
+    return report, figures
+
+
+def run_kitti_only(args: argparse.Namespace) -> int:
+    """``--kitti-only``: experiment 5 alone, its report and metrics.json."""
+    from pvo_core.results import RunResult
+    from pvo_pseudosensors.sun_bcnn.infer import load_sun_bcnn
+
+    config = load_sun_bcnn(args.model)[0].config
+    synthetic = synthetic_mix(args.corpus, args.finetune_synthetic, config.spec) if args.finetune_synthetic else None
+    session = ExperimentRun.start(args)
+    report = ["# pvo experiment sun-bcnn (experiment 5 only)", "", f"Command: `{session.command}`", ""]
+    lines, figures = kitti_experiment(args, config, session.out, session.say, session.command, synthetic)
+    report += [*lines, f"Wall time {session.seconds:.0f} s."]
+    (session.out / "report.md").write_text("\n".join(report) + "\n")
+    inputs = {"model": str(args.model), "corpus": str(args.corpus or "")}
+    RunResult("experiment", "sun-bcnn", figures=figures, tables={}, inputs=inputs).write(session.out)
+    print("\n".join(report))
+    print(f"wrote {session.out}/report.md and metrics.json")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from pvo_core.readers import read_corpus_manifest, read_kitti_sun_csv
     from pvo_core.results import RunResult
     from pvo_pseudosensors.learning.checkpoint import read_card
-    from pvo_pseudosensors.learning.training import FineTune
     from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
     from pvo_pseudosensors.sun_bcnn.evaluation import calibration_curve, method_comparison, time_per_image
     from pvo_pseudosensors.sun_bcnn.infer import (
-        DEFAULT_MODE,
         MODES,
         Draws,
-        calibrate,
         card_calibration,
         card_fusion,
         load_sun_bcnn,
@@ -509,7 +634,6 @@ def run(args: argparse.Namespace) -> int:
         predictions_from_draws,
         sample_sequence,
     )
-    from pvo_pseudosensors.sun_bcnn.model import SunTask
 
     from ..plots import pyplot
     from .sun_sim import experiment_config
@@ -524,7 +648,15 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--finetune-synthetic {args.finetune_synthetic}: a number of images, 0 for none")
     if args.scratch_epochs is not None and args.scratch_epochs < 0:
         raise ValueError(f"--scratch-epochs {args.scratch_epochs}: must be 0 (skip) or a number of epochs")
+    if args.kitti_only and args.skip_kitti:
+        raise ValueError("--kitti-only and --skip-kitti leave nothing to run")
+    if args.corpus is None and (not args.kitti_only or args.finetune_synthetic):
+        raise ValueError("--corpus is needed" + (" for --finetune-synthetic" if args.kitti_only else " (or --kitti-only)"))
     args.model = resolve_model(str(args.model))  # a shipped name (sun_bcnn) or a directory
+    if not args.skip_kitti:
+        finetune_selection(args)  # a wrong --finetune-trainable is said before any long work
+    if args.kitti_only:
+        return run_kitti_only(args)
     manifest = read_corpus_manifest(args.corpus)
     test = manifest.split("test")
     if not test:
@@ -749,69 +881,9 @@ def run(args: argparse.Namespace) -> int:
         report += ["Skipped (--fusion-sequences 0).", ""]
 
     if not args.skip_kitti:
-        data = data_directory(args.data)
-        report += ["## 5. Real images (KITTI)", ""]
-        kitti_results: list[Evaluated] = []
-
-        def on_kitti(label: str, directory: Path, sequence: str) -> Evaluated:
-            m, c = load_sun_bcnn(directory)
-            p = predict_sequence(m, c, data / "kitti" / "sequences" / sequence, args.samples, cache_dir=out / ".cache")
-            result = evaluate(label, p.rows(), kitti_truth(data, sequence, p.frames))
-            p.write_csv(out / f"kitti{sequence}_{directory.name}.csv")
-            return result
-
-        kitti_results.append(on_kitti("synthetic model, KITTI 06 (51)", args.model, "06"))
-        kitti_results.append(on_kitti("synthetic model, KITTI 07 (160)", args.model, "07"))
-        train = stage_kitti(data, "07", KITTI_TRAIN_FRAMES, out / "kitti07-train")
-        validation = stage_kitti(data, "07", KITTI_VALIDATION_FRAMES, out / "kitti07-validation")
-        config = loaded["aleatoric"][0].config
-        say("fine-tuning the synthetic model on KITTI 07 ...")
-        tuned = train_on_kitti(
-            FineTune(SunTask(config), args.model),
-            config.spec,
-            train,
-            validation,
-            out / "kitti-finetuned",
-            args.finetune_epochs,
-            args.finetune_learning_rate,
-            say,
-            {"train": command},
-            synthetic,
-        )
-        scratch_epochs = 2 * args.finetune_epochs if args.scratch_epochs is None else args.scratch_epochs
-        kitti_models = [tuned]
-        if scratch_epochs:
-            say("training on KITTI 07 alone ...")
-            kitti_models.append(
-                train_on_kitti(
-                    SunTask(config),
-                    config.spec,
-                    train,
-                    validation,
-                    out / "kitti07-only",
-                    scratch_epochs,
-                    1e-3,
-                    say,
-                    {"train": command},
-                )
-            )
-        for directory in kitti_models:
-            m, c = load_sun_bcnn(directory)
-            c.calibration = {  # the mode calibrated in is the mode the card names: the one it then runs in
-                **calibrate(m, c, [validation], samples=args.samples, mode=DEFAULT_MODE, cache_dir=out / ".cache"),
-                "mode": DEFAULT_MODE,
-                "on": "KITTI 07 frames 128-159",
-            }
-            from pvo_pseudosensors.learning.checkpoint import write_card
-
-            write_card(directory, c)
-        kitti_results.append(on_kitti("fine-tuned on 07, KITTI 06", tuned, "06"))
-        if scratch_epochs:
-            kitti_results.append(on_kitti("trained on 07 alone, KITTI 06", kitti_models[1], "06"))
-        report += ["```", format_table(kitti_results), "```", ""]
-        for r in kitti_results:
-            figures[f"kitti.{r.label}.vector_median_deg"] = r.figures["vector_median_deg"]
-            figures[f"kitti.{r.label}.anees"] = r.figures["anees"]
+        kitti_report, kitti_figures_ = kitti_experiment(args, loaded["aleatoric"][0].config, out, say, command, synthetic)
+        report += kitti_report
+        figures.update(kitti_figures_)
 
     report.append(f"Wall time {session.seconds:.0f} s.")
     (out / "report.md").write_text("\n".join(report) + "\n")
