@@ -753,3 +753,51 @@ def test_an_equalising_model_reads_any_order_preserving_rescaling_of_an_image_al
     assert card.input["normalisation"].startswith("histogram-equalised") and SunBCNNConfig.from_card(card).equalize
     del card.hyperparameters["equalize"]
     assert SunBCNNConfig.from_card(card).equalize is False
+
+
+# --- fine-tunes that keep part of the network -----------------------------------------------------
+
+TINY_NORM = replace(TINY, batch_norm=True)
+NORM_PARAMETERS = {f"features.{i}.{p}" for i in (1, 4, 8, 11) for p in ("weight", "bias")}  # TINY_NORM's batch norms
+
+
+def test_a_fine_tune_changes_only_what_it_is_told_to(sequences, tmp_path: Path) -> None:
+    from pvo_pseudosensors.learning.training import FineTune
+
+    train, validation = datasets(sequences)
+    torch.manual_seed(0)
+    start = save_model(tmp_path / "start", SunBCNN(TINY_NORM), SunTask(TINY_NORM).card())
+    before = weights(start)
+    for name, trainable, changed in (
+        ("features", ("features",), lambda key: key.startswith("features.")),
+        ("head", ("head",), lambda key: key.startswith("head.")),
+        ("norm", ("norm",), lambda key: key in NORM_PARAMETERS),
+        ("all", (), lambda key: True),
+    ):
+        task = FineTune(SunTask(TINY_NORM), start, trainable)
+        fit(task, train, validation, replace(CONFIG, epochs=2, patience=0), tmp_path / name, say=lambda _: None)
+        after = weights(tmp_path / name)
+        learned = {key for key in after if not key.endswith(("running_mean", "running_var", "num_batches_tracked"))}
+        for key in learned:
+            assert torch.equal(after[key], before[key]) != changed(key), (name, key)
+        notes = load_model(tmp_path / name, "sun-bcnn", build, SIZE)[1].notes
+        assert ("the rest kept" in notes) == bool(trainable)
+
+
+def test_trainable_entries_are_named_and_checked() -> None:
+    from pvo_pseudosensors.learning.training import trainable_parameters
+    from pvo_pseudosensors.sun_bcnn.model import trainable_selection
+
+    assert trainable_selection("blocks:1", TINY_NORM) == ("features.0.", "features.1.", "features.3.", "features.4.")
+    assert trainable_selection("blocks:1", TINY) == ("features.0.", "features.2.")  # no batch norm: conv, relu, ...
+    assert trainable_selection("head, norm", TINY) == ("head", "norm")
+    with pytest.raises(ValueError, match="'blocks:3': K must be 1 to 2"):
+        trainable_selection("blocks:3", TINY)
+    with pytest.raises(ValueError, match="'blocks:x': K must be 1 to 2"):
+        trainable_selection("blocks:x", TINY)
+    model = SunBCNN(TINY_NORM)
+    assert trainable_parameters(model, ("norm",)) == NORM_PARAMETERS
+    with pytest.raises(ValueError, match="'norm' picks no parameter"):
+        trainable_parameters(SunBCNN(TINY), ("norm",))
+    with pytest.raises(ValueError, match=r"'backbone' picks no parameter of this network \(its parts: features, head"):
+        trainable_parameters(model, ("backbone",))

@@ -267,6 +267,39 @@ def test_the_kitti_fine_tune_can_keep_synthetic_images_in_view(corpus: Path, pvo
     assert tuned["training"]["train_samples"] == 128 + 8  # 07 frames 0-127 and the synthetic eight
 
 
+def test_experiment_five_alone_fine_tunes_the_features_and_keeps_the_head(
+    corpus: Path, pvo_data: Path, tmp_path: Path, capsys
+) -> None:
+    """`--kitti-only`: the real-image experiment without a synthetic corpus; by default the fine-tune trains the
+    convolutional features and keeps the synthetic head (`--finetune-trainable all` trains everything); a wrong
+    selection or a contradictory pair of flags is one line before anything is written."""
+    from safetensors.torch import load_file
+
+    model = tmp_path / "model"
+    train = ["sun-bcnn", "train", "--corpus", str(corpus), "-o", str(model), "--epochs", "1", "--batch-size", "16", *TINY]
+    assert main(train) == 0
+    out = tmp_path / "experiment"
+    args = ["experiment", "sun-bcnn", "--model", str(model), "--samples", "2", "--scratch-epochs", "0"]
+    options = ["--finetune-epochs", "2", "--data", str(pvo_data), "-o", str(out), "-q"]
+    assert main([*args, *options]) == 2
+    assert "--corpus is needed (or --kitti-only)" in capsys.readouterr().err
+    assert main([*args, *options, "--kitti-only", "--skip-kitti"]) == 2
+    assert "--kitti-only and --skip-kitti leave nothing to run" in capsys.readouterr().err
+    assert main([*args, *options, "--kitti-only", "--finetune-trainable", "blocks:9"]) == 2
+    assert "--finetune-trainable blocks:9: trainable entry 'blocks:9': K must be 1 to 2" in capsys.readouterr().err
+    assert not out.exists()
+    assert main([*args, *options, "--kitti-only"]) == 0
+    report = (out / "report.md").read_text()
+    assert "## 5. Real images" in report and "## 1. Accuracy" not in report and "fine-tuned on 07, KITTI 06" in report
+    start, tuned = load_file(str(model / "weights.safetensors")), load_file(str(out / "kitti-finetuned" / "weights.safetensors"))
+    assert all(start[k].equal(tuned[k]) for k in start if k.startswith("head."))
+    assert not all(start[k].equal(tuned[k]) for k in start if k.startswith("features.") and k.endswith("weight"))
+    assert "(trained: features; the rest kept)" in yaml.safe_load((out / "kitti-finetuned" / "model.yaml").read_text())["notes"]
+    assert main([*args, *options, "--kitti-only", "--finetune-trainable", "all", "-o", str(tmp_path / "all")]) == 0
+    tuned = load_file(str(tmp_path / "all" / "kitti-finetuned" / "weights.safetensors"))
+    assert not all(start[k].equal(tuned[k]) for k in start if k.startswith("head."))
+
+
 def test_synthetic_mix_spreads_evenly_over_the_training_split(corpus: Path) -> None:
     """The same images every time, spread over both training sequences (frames 0 and 10 of the first, 5 and 15
     of the second: from the split's first image to its last)."""
