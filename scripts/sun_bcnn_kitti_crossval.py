@@ -74,6 +74,9 @@ def main() -> None:
     parser.add_argument(
         "--trainable", default=FINETUNE_TRAINABLE, help=f"what the fine-tune changes (above; default {FINETUNE_TRAINABLE})"
     )
+    parser.add_argument(
+        "--balance-bearing", action="store_true", help="frames repeated by the inverse density of their sun's bearing"
+    )
     parser.add_argument("--out", "-o", type=Path, required=True, help="folds' models and crossval.json")
     parser.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
     args = parser.parse_args()
@@ -91,7 +94,7 @@ def main() -> None:
         f"python scripts/sun_bcnn_kitti_crossval.py --model {args.model} --learning-rate {args.learning_rate} "
         f"--epochs {args.epochs} --synthetic {args.synthetic}{f' --corpus {args.corpus}' if args.corpus else ''}"
         f"{' --by-azimuth' if args.by_azimuth else ''}{f' --rotate {args.rotate:g}' if args.rotate is not None else ''}"
-        f" --trainable {args.trainable}"
+        f" --trainable {args.trainable}{' --balance-bearing' if args.balance_bearing else ''}"
         f" -o {args.out}"
     )
     rows, truths, results = [], [], []
@@ -103,7 +106,8 @@ def main() -> None:
         if not (model_dir / "done").is_file():
             train_on_kitti(FineTune(SunTask(config), base, trainable), config.spec, train, validation, model_dir, args.epochs,
                            args.learning_rate, lambda line: None, {"train": command}, synthetic,
-                           f"KITTI 07, {len(kept)} frames in {kept[0]}-{kept[-1]} ({len(held)} others to validate)")  # fmt: skip
+                           f"KITTI 07, {len(kept)} frames in {kept[0]}-{kept[-1]} ({len(held)} others to validate)",
+                           args.balance_bearing)  # fmt: skip
             (model_dir / "done").write_text("")
         model, card = load_sun_bcnn(model_dir)
         predictions = predict_sequence(model, card, validation, cache_dir=staged / ".cache")

@@ -312,6 +312,26 @@ def test_synthetic_mix_spreads_evenly_over_the_training_split(corpus: Path) -> N
     assert [int(mix[i]["sequence"]) for i in range(4)] == [0, 0, 1, 1]
 
 
+def test_a_bearing_balanced_epoch_repeats_rare_suns_and_keeps_its_length() -> None:
+    """Three suns at one bearing and one at another (mirrored: the sign of the azimuth does not count): the lone
+    one appears as often as the three together; the epoch keeps its length; the same list every time."""
+    from pvo_tools.experiments.sun_bcnn import bearing_balanced_indices
+
+    def sun(azimuth_deg: float) -> list[float]:
+        a = np.radians(azimuth_deg)
+        return [np.sin(a) * 0.8, -0.6, np.cos(a) * 0.8]
+
+    suns = np.array([sun(160), sun(-158), sun(162), sun(70)])
+    indices = bearing_balanced_indices(suns)
+    assert len(indices) == 4 and indices == bearing_balanced_indices(suns) == sorted(indices)
+    assert np.bincount(indices, minlength=4)[3] == 2  # half the epoch: the rare bearing weighs as much as the rest
+    many = np.array([sun(155 + 0.1 * k) for k in range(90)] + [sun(60 + 2 * k) for k in range(30)])
+    counts = np.bincount(bearing_balanced_indices(many), minlength=120)
+    assert counts.sum() == 120 and counts[90:].sum() > 60
+    kept = np.flatnonzero(counts[:90])  # the crowded bearing thinned evenly along the drive, not dropped in a block
+    assert kept.size > 5 and np.diff(kept).max() <= 4
+
+
 def test_training_on_two_corpora_joins_their_splits(corpus: Path, tmp_path: Path, capsys) -> None:
     import shutil
 

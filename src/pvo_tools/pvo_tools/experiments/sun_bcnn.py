@@ -114,6 +114,23 @@ def synthetic_mix(corpus: Path, count: int, spec: Any) -> Any:
     return torch.utils.data.Subset(everything, chosen.tolist())
 
 
+BEARING_WINDOW_DEG = 15.0  # sun bearings this close count as the same for bearing_balanced_indices
+
+
+def bearing_balanced_indices(suns: Array, window_deg: float = BEARING_WINDOW_DEG) -> list[int]:
+    """Indices into ``suns`` (N, 3 unit vectors, camera optical frame) for an epoch of the same length N in which
+    each frame appears in proportion to 1 / (the frames whose sun's |azimuth| atan2(x, z) lies within
+    ``window_deg`` of its own): a drive that mostly kept the sun at one bearing no longer teaches that bearing as
+    the answer. The sign of the azimuth is ignored because training mirrors images (and suns) at random. Counts by
+    systematic rounding of the running share (a frame kept less than once in a while is kept every so often along
+    the drive, not dropped in a block), so the result is deterministic and sums to N; frames in ascending order."""
+    azimuth = np.abs(np.degrees(np.arctan2(suns[:, 0], suns[:, 2])))
+    neighbours = (np.abs(azimuth[:, None] - azimuth[None, :]) <= window_deg).sum(axis=1)
+    share = (1.0 / neighbours) / np.sum(1.0 / neighbours) * len(suns)
+    edges = np.floor(np.round(np.concatenate([[0.0], np.cumsum(share)]), 9) + 0.5).astype(int)
+    return np.repeat(np.arange(len(suns)), np.diff(edges)).tolist()
+
+
 def train_on_kitti(
     task: Any,
     spec: Any,
@@ -126,17 +143,28 @@ def train_on_kitti(
     commands: dict[str, str],
     synthetic: Any = None,
     frames: str = "KITTI 07 frames 0-127 (validation 128-159)",
+    balance_bearing: bool = False,
 ) -> Path:
     """Fine-tune (or train) ``task`` on the staged real frames ``train``, selecting on ``validation``; with
-    ``synthetic`` (a dataset, :func:`synthetic_mix`) those images join every epoch."""
+    ``synthetic`` (a dataset, :func:`synthetic_mix`) those images join every epoch; ``balance_bearing``: the real
+    frames repeated by :func:`bearing_balanced_indices`."""
     import torch
     from pvo_pseudosensors.learning import FrameDataset, Source, TrainConfig, fit
 
     cache = out.parent / ".cache"
     train_set = FrameDataset([Source(train, "07-train", "train")], spec, cache)
+    if balance_bearing:
+        from pvo_core.readers import read_kitti_sun_csv
+
+        suns = read_kitti_sun_csv(train / "sun.csv")
+        if len(suns) != len(train_set):
+            raise ValueError(f"{train}: {len(suns)} suns for {len(train_set)} images")
+        train_set = torch.utils.data.Subset(train_set, bearing_balanced_indices(suns))
     validation_set = FrameDataset([Source(validation, "07-validation", "validation")], spec, cache)
     config = TrainConfig(epochs=epochs, batch_size=16, learning_rate=learning_rate, patience=6, seed=0)
-    corpus = {"path": frames}
+    corpus: dict[str, Any] = {"path": frames}
+    if balance_bearing:
+        corpus["balanced"] = f"frames repeated by the inverse density of their sun's |azimuth| within {BEARING_WINDOW_DEG:g} deg"
     if synthetic is not None:
         corpus["synthetic"] = f"{len(synthetic)} images of {Path(synthetic.dataset.sources[0].root).parent}'s training split"
         train_set = torch.utils.data.ConcatDataset([train_set, synthetic])
