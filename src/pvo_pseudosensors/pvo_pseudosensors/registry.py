@@ -60,10 +60,12 @@ def _sun_bcnn() -> ModelEntry:
 
         return SunTask(config)
 
-    def predict(model_dir, sequence, samples=25, seed=0, cache_dir=None, mode=None):
-        from .sun_bcnn.infer import load_sun_bcnn, predict_sequence
+    def predict(model_dir, sequence, samples=25, seed=0, cache_dir=None, mode=None, equalize=False):
+        from .sun_bcnn.infer import equalize_input, load_sun_bcnn, predict_sequence
 
         model, card = load_sun_bcnn(model_dir)
+        if equalize:
+            equalize_input(model)
         return predict_sequence(model, card, sequence, samples=samples, seed=seed, cache_dir=cache_dir, mode=mode)
 
     def calibrate(model_dir, sequences, samples=25, mode=None, cache_dir=None):

@@ -1,7 +1,7 @@
 """sun_bcnn: /stereo/left/image_rect -> /pvo/sun/direction, the sun from the image by Sun-BCNN (thesis ch. 5).
 
 Parameters mirror :class:`~pvo_pseudosensors.sun_bcnn.estimator.SunBCNNSensorConfig` (``model``, ``every_n``,
-``samples``, ``mode``, ``seed``, ``threads``); defaults in ``config/sun_bcnn.yaml``. A model that cannot be
+``samples``, ``mode``, ``seed``, ``threads``, ``equalize``); defaults in ``config/sun_bcnn.yaml``. A model that cannot be
 loaded, or an image it cannot take, is reported on ``/pvo/sun_bcnn/status`` (and once in the log) and the
 node keeps running: it publishes nothing rather than a guess.
 """

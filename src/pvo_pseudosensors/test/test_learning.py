@@ -664,6 +664,29 @@ def test_the_sensor_runs_in_the_mode_its_model_was_calibrated_in_unless_told(seq
         model_mode(card)
 
 
+def test_an_equalising_sensor_reads_what_the_plain_one_reads_from_the_equalised_image(tmp_path: Path) -> None:
+    """`equalize`: the model reads every image histogram-equalised (as OpenCV's equalizeHist does it), whatever
+    it was trained on; the card's own setting is untouched on disk."""
+    import cv2
+    from pvo_pseudosensors.sun_bcnn.estimator import SunBCNNSensor, SunBCNNSensorConfig
+
+    torch.manual_seed(0)
+    save_model(tmp_path / "model", SunBCNN(TINY), SunTask(TINY).card())
+    rng = np.random.default_rng(1)
+    v, u = np.mgrid[0 : SIZE[0], 0 : SIZE[1]]
+    image = np.clip(60 + 2 * u + v + rng.normal(0, 3, SIZE), 0, 255).astype(np.uint8)  # a dim, low-contrast frame
+    equalised = cv2.equalizeHist(image)
+    assert not np.array_equal(image, equalised)
+
+    def reading(picture: np.ndarray, equalize: bool) -> np.ndarray:
+        sensor = SunBCNNSensor(SunBCNNSensorConfig(model=str(tmp_path / "model"), samples=4, equalize=equalize))
+        return sensor.estimate(picture).direction
+
+    np.testing.assert_allclose(reading(image, True), reading(equalised, False), atol=1e-6)
+    assert not np.allclose(reading(image, True), reading(image, False), atol=1e-4)
+    assert "equalize: false" in (tmp_path / "model" / "model.yaml").read_text()
+
+
 def test_the_model_parameter_names_a_shipped_model_or_a_path(tmp_path: Path) -> None:
     from pvo_pseudosensors.sun_bcnn.estimator import resolve_model
 

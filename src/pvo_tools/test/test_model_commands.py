@@ -67,6 +67,9 @@ def test_train_predict_eval(corpus: Path, tmp_path: Path, capsys) -> None:
     again = tmp_path / "again.csv"
     main([*predict, "-o", str(again)])
     assert again.read_text() == predictions.read_text()  # seeded MC samples
+    equalised = tmp_path / "equalised.csv"
+    assert main([*predict, "--equalize", "-o", str(equalised)]) == 0  # the images equalised before the network
+    assert equalised.read_text() != predictions.read_text()
 
     capsys.readouterr()
     assert (

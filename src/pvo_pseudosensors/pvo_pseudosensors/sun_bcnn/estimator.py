@@ -12,7 +12,7 @@ from pvo_core.sun import unit_zenith_azimuth
 
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import SHIPPED
-from .infer import MODES, card_calibration, combine, draw_samples, load_sun_bcnn, model_mode
+from .infer import MODES, card_calibration, combine, draw_samples, equalize_input, load_sun_bcnn, model_mode
 
 Array = NDArray[np.float64]
 
@@ -23,7 +23,9 @@ class SunBCNNSensorConfig:
     "sun_bcnn_kitti" = the shipped one fine-tuned on KITTI); every_n: one estimate every N
     images (the thesis used every 10th); samples: MC-dropout passes; mode: full | head | full-mirrored |
     head-mirrored (see `infer.MODES`), "" = the one the model's τ was calibrated in (its card; the shipped
-    ``sun_bcnn``: `infer.DEFAULT_MODE`); seed: of the dropout samples; threads: torch threads."""
+    ``sun_bcnn``: `infer.DEFAULT_MODE`); seed: of the dropout samples; threads: torch threads; equalize: every
+    image histogram-equalised before the network reads it, whatever the model was trained on (`infer.equalize_input`:
+    the synthetic model on a real camera)."""
 
     model: str = ""
     every_n: int = 10
@@ -31,6 +33,7 @@ class SunBCNNSensorConfig:
     mode: str = ""
     seed: int = 0
     threads: int = 1
+    equalize: bool = False
 
     def __post_init__(self) -> None:
         if self.every_n < 1 or self.samples < 2 or self.threads < 1:
@@ -64,6 +67,8 @@ class SunBCNNSensor:
         self.config = config
         torch.set_num_threads(config.threads)
         self.model, self.card = load_sun_bcnn(resolve_model(config.model))
+        if config.equalize:
+            equalize_input(self.model)
         self.height, self.width = (int(v) for v in self.card.input["size"])
         self.colour = bool(self.card.input.get("colour", False))
         self.calibration = card_calibration(self.card)

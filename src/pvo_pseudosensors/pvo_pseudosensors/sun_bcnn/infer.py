@@ -3,7 +3,7 @@ the prediction file. Its evaluation against the true sun vectors is :mod:`.evalu
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,15 @@ from ..learning.spec import DataSpec
 from .model import ARCHITECTURE, SunBCNN, SunBCNNConfig
 
 Array = NDArray[np.float64]
+
+
+def equalize_input(model: SunBCNN) -> SunBCNN:
+    """``model``, now reading every image histogram-equalised (as a model trained with ``equalize`` does), whatever
+    it was trained on; returned for chaining. For the synthetic model on a real camera: equalised KITTI 07 frames
+    read 31.4 deg instead of 37.6 (stop 74, rule 3) — the renders' grey levels spread more evenly than a real
+    exposure's."""
+    model.config = replace(model.config, equalize=True)
+    return model
 
 
 def load_sun_bcnn(directory: Path) -> tuple[SunBCNN, ModelCard]:

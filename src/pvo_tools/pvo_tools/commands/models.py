@@ -116,6 +116,13 @@ def _predict_parser(actions: Any, entry: ModelEntry) -> None:
         )
     if not entry.mc_sampling:
         return
+    if any(field.name == "equalize" for field in dataclasses.fields(entry.config)):  # Sun-BCNN: a real camera's images
+        predict.add_argument(
+            "--equalize",
+            action="store_true",
+            help="histogram-equalise every image before the network reads it, whatever the model was trained on (the "
+            "synthetic model on a real camera)",
+        )
     predict.add_argument("--samples", type=int, default=25, help="MC-dropout samples per image (default 25)")
     predict.add_argument("--seed", type=int, default=0, help="seed of the dropout samples (default 0)")
     predict.add_argument(
@@ -363,8 +370,9 @@ def run_predict(args: argparse.Namespace, entry: ModelEntry) -> int:
         return 0
     if args.samples < 2:
         raise ValueError(f"--samples must be >= 2 (the covariance needs two), got {args.samples}")
+    extra = {"equalize": True} if getattr(args, "equalize", False) else {}
     predictions = entry.predict(
-        args.model, args.sequence, samples=args.samples, seed=args.seed, mode=args.mode, cache_dir=args.cache
+        args.model, args.sequence, samples=args.samples, seed=args.seed, mode=args.mode, cache_dir=args.cache, **extra
     )
     path = predictions.write_csv(args.out)
     print(f"{path}: {len(predictions.frames)} predictions ({args.samples} MC samples each)")
