@@ -75,6 +75,9 @@ def main() -> None:
         "--trainable", default=FINETUNE_TRAINABLE, help=f"what the fine-tune changes (above; default {FINETUNE_TRAINABLE})"
     )
     parser.add_argument(
+        "--equalize", action="store_true", help="the fine-tuned network reads every image equalised (training and after)"
+    )
+    parser.add_argument(
         "--balance-bearing", action="store_true", help="frames repeated by the inverse density of their sun's bearing"
     )
     parser.add_argument("--out", "-o", type=Path, required=True, help="folds' models and crossval.json")
@@ -88,6 +91,8 @@ def main() -> None:
     config = load_sun_bcnn(base)[0].config
     if args.rotate is not None:
         config = dataclasses.replace(config, rotate=args.rotate)
+    if args.equalize:
+        config = dataclasses.replace(config, equalize=True)
     trainable = () if args.trainable == "all" else trainable_selection(args.trainable, config)
     synthetic = synthetic_mix(args.corpus, args.synthetic, config.spec) if args.synthetic else None
     command = (
@@ -95,6 +100,7 @@ def main() -> None:
         f"--epochs {args.epochs} --synthetic {args.synthetic}{f' --corpus {args.corpus}' if args.corpus else ''}"
         f"{' --by-azimuth' if args.by_azimuth else ''}{f' --rotate {args.rotate:g}' if args.rotate is not None else ''}"
         f" --trainable {args.trainable}{' --balance-bearing' if args.balance_bearing else ''}"
+        f"{' --equalize' if args.equalize else ''}"
         f" -o {args.out}"
     )
     rows, truths, results = [], [], []
