@@ -157,6 +157,7 @@ def _hydranet() -> ModelEntry:
             texture=config.texture,
             pitch=config.pitch,
             flow_prior=config.flow_prior,
+            depth=config.depth,
         )
 
     def predict(model_dir, sequence, cache_dir=None, pitch_deg=None, **_mc):
@@ -261,6 +262,8 @@ def _hydranet() -> ModelEntry:
             "mirror": "mirror training pairs left-right at random (flow flipped, the rotation's y and z negated)",
             "texture": "a third input channel: the texture (log gradient magnitude) of the image the flow starts from",
             "pitch": "one more input channel: the camera's pitch below the horizon (from each sequence's sim.yaml)",
+            "depth": "one more input channel: the inverse depth of the image the flow starts from, by stereo matching "
+            "(the right images and calib.txt needed; no node reads such a model yet)",
             "flow_prior": "where Farneback starts: none (zero, the thesis; loses turns beyond ~3 deg per frame at 64 px "
             "high) | shift (the images' global shift: 98-99 %% of a turn's flow up to 6 deg per frame)",
         },

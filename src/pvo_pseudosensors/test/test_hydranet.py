@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from pvo_core.errors import DataFormatError
 from pvo_core.lie import quaternion_to_rotation, so3_exp
 from pvo_pseudosensors.hydranet import quaternion as quat
 from pvo_pseudosensors.hydranet.config import HydraNetConfig
@@ -566,3 +567,67 @@ def test_the_shipped_default_reads_the_pitch_it_is_told_and_the_level_model_is_f
         assert np.all(np.isfinite(estimates[1].quaternion)) and np.all(np.isfinite(estimates[1].covariance))
         readings.append(estimates[1].quaternion)
     assert not np.allclose(readings[0], readings[1], atol=1e-7)
+
+
+def _stereo_copy(source: Source, root: Path, disparity: int, focal: float = 70.0, baseline: float = 0.5) -> Source:
+    """``source`` with a right camera that sees every left image shifted by ``disparity`` px (a fronto-parallel
+    scene at Z = focal * baseline / disparity) and the calib.txt of that rig."""
+    import cv2
+
+    (root / "image_0").mkdir(parents=True)
+    (root / "image_1").mkdir()
+    for path in sorted((source.root / "image_0").glob("*.png")):
+        left = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        cv2.imwrite(str(root / "image_0" / path.name), left)
+        right = np.roll(left, -disparity, axis=1)  # x_right = x_left - d
+        cv2.imwrite(str(root / "image_1" / path.name), right)
+    (root / "poses.txt").write_text((source.root / "poses.txt").read_text())
+    height, width = left.shape
+    p0 = f"{focal} 0 {width / 2} 0 0 {focal} {height / 2} 0 0 0 1 0"
+    p1 = f"{focal} 0 {width / 2} {-focal * baseline} 0 {focal} {height / 2} 0 0 0 1 0"
+    (root / "calib.txt").write_text(f"P0: {p0}\nP1: {p1}\n")
+    return Source(root, root.name)
+
+
+def test_the_depth_channel_is_the_stereo_inverse_depth_of_the_image_the_flow_starts_from(rotations, tmp_path: Path) -> None:
+    """A right camera that sees the scene shifted by 7 px: inverse depth 7 / (f b) wherever the matcher can search,
+    0 in the left border it cannot; the channel rides with the flow of the image it starts from (the later one for a
+    reversed pair), and a mirrored pair flips it; the sensor refuses such a model with one line."""
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+    from pvo_pseudosensors.hydranet.flow import DEPTH_SCALE, stereo_inverse_depth
+
+    source = _stereo_copy(rotations["train"][0], tmp_path / "stereo", disparity=7)
+    import cv2
+
+    left = cv2.imread(str(source.root / "image_0" / "000003.png"), cv2.IMREAD_GRAYSCALE)
+    right = cv2.imread(str(source.root / "image_1" / "000003.png"), cv2.IMREAD_GRAYSCALE)
+    inverse = stereo_inverse_depth(left, right, 70.0, 0.5, left.shape)
+    searchable = inverse[8:-8, 40:-16]  # away from the 32-px border the matcher cannot search and the image's edges
+    assert np.median(searchable) == pytest.approx(7 * DEPTH_SCALE / 35.0, rel=0.02)
+    assert np.all(inverse[:, :16] == 0.0)
+
+    plain = FlowPairs([source], (48, 144), reverse=True, cache_dir=tmp_path)
+    deep = FlowPairs([source], (48, 144), reverse=True, cache_dir=tmp_path, depth=True)
+    depths = deep.pairs[0].inverse_depths
+    assert depths is not None and depths.shape == (25, 1, 48, 144)
+    forward, backward = deep[4], deep[24 + 4]  # the pair 4 -> 5 and its reverse 5 -> 4
+    assert forward["flow"].shape == (3, 48, 144)
+    torch.testing.assert_close(forward["flow"][:2], plain[4]["flow"])
+    np.testing.assert_array_equal(forward["flow"][2].numpy(), depths[4, 0].astype(np.float32))
+    np.testing.assert_array_equal(backward["flow"][2].numpy(), depths[5, 0].astype(np.float32))
+    mirrored, _ = mirror_pairs(forward["flow"][None], forward["rotation"][None], torch.tensor([True]))
+    torch.testing.assert_close(mirrored[0, 2], forward["flow"][2].flip(-1))
+    assert HydraNetConfig(depth=True).channels == 3 and HydraNetConfig(depth=True, pitch=True).channels == 4
+
+    config = dataclasses.replace(TINY, depth=True)
+    task = HydraTask(config)
+    save_model(tmp_path / "deep-model", HydraNet(config), task.card())
+    from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+
+    model, card = load_hydranet(tmp_path / "deep-model")
+    predictions = predict_sequence(model, card, source.root, cache_dir=tmp_path)
+    assert len(predictions.frames) == 24
+    with pytest.raises(ModelFileError, match="depth input .* read by `pvo hydranet predict` only"):
+        HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "deep-model")))
+    with pytest.raises(DataFormatError, match="image directory not found"):
+        FlowPairs(rotations["train"][:1], (48, 144), cache_dir=tmp_path, depth=True)  # no right camera

@@ -36,7 +36,10 @@ class HydraNetConfig:
     camera's pitch below the horizon (deg / 10; a mount calibration: the corpus's sim.yaml records it), so that a
     pitched camera's translational flow is not read as rotation; flow_prior: where Farnebäck starts — "none" (zero,
     the thesis; its two-level pyramid at this size under-reads turns beyond ~3° per frame) or "shift" (the images'
-    global shift by phase correlation: turns read 98-99 % up to 6° per frame; ``pvo_pseudosensors.hydranet.flow``)."""
+    global shift by phase correlation: turns read 98-99 % up to 6° per frame; ``pvo_pseudosensors.hydranet.flow``);
+    depth: one more input channel, the inverse depth of the image the flow starts from by stereo matching (the
+    right image and calib.txt needed), so that the translation's flow, proportional to it, is told from the turn's
+    (beyond the thesis; stop 74's pilot)."""
 
     height: int = 64
     width: int = 208
@@ -52,6 +55,7 @@ class HydraNetConfig:
     texture: bool = False
     pitch: bool = False
     flow_prior: str = "none"
+    depth: bool = False
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths:
@@ -67,8 +71,8 @@ class HydraNetConfig:
 
     @property
     def channels(self) -> int:
-        """The network's input channels: the flow's two, the texture's and the pitch's."""
-        return 2 + int(self.texture) + int(self.pitch)
+        """The network's input channels: the flow's two, the texture's, the pitch's and the depth's."""
+        return 2 + int(self.texture) + int(self.pitch) + int(self.depth)
 
     @property
     def size(self) -> tuple[int, int]:
@@ -87,4 +91,5 @@ class HydraNetConfig:
         values.setdefault("texture", False)
         values.setdefault("pitch", False)
         values.setdefault("flow_prior", "none")
+        values.setdefault("depth", False)
         return cls(**values)

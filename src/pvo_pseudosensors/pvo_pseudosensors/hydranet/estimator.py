@@ -10,6 +10,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from ..learning.checkpoint import ModelFileError
 from ..learning.checkpoint import resolve_model as resolve_shipped
 from .config import SHIPPED, HydraNetConfig
 from .flow import dense_flow, network_input
@@ -89,6 +90,11 @@ class HydraNetSensor:
         self.model, self.card = load_hydranet(resolve_model(config.model))
         self.height, self.width = (int(v) for v in self.card.input["size"])
         network = HydraNetConfig.from_card(self.card)
+        if network.depth:  # it would need the right image and the stereo calibration with every left one
+            raise ModelFileError(
+                f"{resolve_model(config.model)}: a HydraNet with the depth input (stereo) is read by `pvo hydranet "
+                "predict` only; the sensor and the hydranet node read the left image alone"
+            )
         self.texture, self.flow_prior = network.texture, network.flow_prior
         self.pitch_deg = self.config.camera_pitch_deg if network.pitch else None
         self.mode = inference_mode(self.card)

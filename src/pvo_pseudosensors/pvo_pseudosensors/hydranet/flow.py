@@ -79,17 +79,83 @@ def texture_map(image: NDArray[np.uint8]) -> NDArray[np.float32]:
 
 
 def network_input(
-    source: NDArray[np.uint8], flow: NDArray[np.floating], texture: bool, pitch_deg: float | None = None
+    source: NDArray[np.uint8],
+    flow: NDArray[np.floating],
+    texture: bool,
+    pitch_deg: float | None = None,
+    inverse_depth: NDArray[np.floating] | None = None,
 ) -> NDArray[np.float32]:
-    """The network's input (2-4, H, W) float32: the flow (2, H, W) from grey ``source`` (H, W); with ``texture``
+    """The network's input (2-5, H, W) float32: the flow (2, H, W) from grey ``source`` (H, W); with ``texture``
     the source's :func:`texture_map` as a channel; with ``pitch_deg`` (the camera's pitch below the horizon, deg)
-    a constant channel of pitch_deg / 10."""
+    a constant channel of pitch_deg / 10; with ``inverse_depth`` (1, H, W) the source's
+    :func:`stereo_inverse_depth`."""
     channels = [np.asarray(flow, dtype=np.float32)]
     if texture:
         channels.append(texture_map(np.asarray(source))[None])
     if pitch_deg is not None:
         channels.append(np.full((1, *channels[0].shape[1:]), pitch_deg / 10.0, np.float32))
+    if inverse_depth is not None:
+        channels.append(np.asarray(inverse_depth, dtype=np.float32).reshape(1, *channels[0].shape[1:]))
     return channels[0] if len(channels) == 1 else np.concatenate(channels, axis=0)
+
+
+DEPTH_SCALE = 10.0  # the depth channel carries DEPTH_SCALE / Z: 5 at 2 m, 0.5 at 20 m, 0 where nothing matched
+DEPTH_REVISION = 1  # bump when the depth computation changes: the caches are rebuilt
+
+
+def stereo_inverse_depth(
+    left: NDArray[np.uint8], right: NDArray[np.uint8], focal_px: float, baseline_m: float, size: tuple[int, int]
+) -> NDArray[np.float32]:
+    """(H, W) float32 DEPTH_SCALE / Z of the left image's pixels (Z in m along the optical axis) at ``size``
+    (height, width), from semi-global block matching on the rectified grey pair ``left``, ``right`` at their own
+    size (``focal_px`` at that size), resized by averaging the matched pixels of each output pixel's area: where
+    nothing matched (flat regions, occlusions, the sky, the left border the matcher cannot search) 0, as at
+    infinity."""
+    import cv2
+
+    if left.shape != right.shape or left.ndim != 2:
+        raise ValueError(f"stereo depth needs two grey images of one size, got {left.shape} and {right.shape}")
+    disparities = 16 * max(1, -(-int(0.15 * left.shape[1]) // 16))  # nearest depth about f b / (0.15 width)
+    block = 7
+    matcher = cv2.StereoSGBM_create(
+        minDisparity=0, numDisparities=disparities, blockSize=block, P1=8 * block * block, P2=32 * block * block,
+        uniquenessRatio=10, speckleWindowSize=50, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    )  # fmt: skip
+    disparity = matcher.compute(left, right).astype(np.float32) / 16.0
+    matched = (disparity > 0.0).astype(np.float32)
+    inverse = (disparity * matched * (DEPTH_SCALE / (focal_px * baseline_m))).astype(np.float32)
+    shrink = lambda image: cv2.resize(image, (size[1], size[0]), interpolation=cv2.INTER_AREA)  # noqa: E731
+    share = shrink(matched)  # the mean over the matched pixels of each output pixel's area, not over the holes
+    return np.where(share > 0.0, shrink(inverse) / np.maximum(share, 1e-6), 0.0).astype(np.float32)
+
+
+def sequence_inverse_depths(
+    source: Source, size: tuple[int, int], cache_dir: Path | None, progress: Callable[[], None] | None = None
+) -> NDArray[np.float16]:
+    """(N, 1, H, W) float16 :func:`stereo_inverse_depth` of every frame of ``source`` (its grey pair and
+    calib.txt's P0, P1), from the cache when present."""
+    import cv2
+    from pvo_core.camera import StereoCamera
+    from pvo_core.readers import read_kitti_calibration
+
+    lefts, rights = source.images("left", False), source.images("right", False)
+    if len(lefts) != len(rights):
+        raise DataFormatError(source.root, f"{len(lefts)} left and {len(rights)} right images: the depth input needs pairs")
+    matrices = read_kitti_calibration(source.root / "calib.txt")
+    camera = StereoCamera.from_projection_matrices(matrices["P0"], matrices["P1"])
+
+    def item(i: int) -> NDArray[np.float32]:
+        left = cv2.imread(str(lefts[i]), cv2.IMREAD_GRAYSCALE)
+        right = cv2.imread(str(rights[i]), cv2.IMREAD_GRAYSCALE)
+        if left is None or right is None:
+            raise DataFormatError(lefts[i] if left is None else rights[i], "unreadable image")
+        return stereo_inverse_depth(left, right, camera.f, camera.baseline, size)[None]
+
+    if cache_dir is None:
+        return np.stack([item(i) for i in range(len(lefts))]).astype(np.float16)
+    key = f"{_images_key(lefts + rights, size)}:depth:{DEPTH_REVISION}:{DEPTH_SCALE}"
+    file = Path(cache_dir) / f"depth-{hashlib.sha256(key.encode()).hexdigest()[:24]}.npy"
+    return cached_array(file, (len(lefts), 1, *size), np.dtype(np.float16), item, progress)
 
 
 def camera_pitch(source: Source) -> float:
@@ -151,6 +217,7 @@ class _Pairs:
     rotations: NDArray[np.float64] | None
     images: NDArray[np.uint8]  # (N, 1, H, W) at the flow's size
     pitch_deg: float | None = None  # the camera's pitch with the pitch input
+    inverse_depths: NDArray[np.float16] | None = None  # (N, 1, H, W) with the depth input
 
 
 @dataclass
@@ -161,7 +228,8 @@ class FlowPairs(torch.utils.data.Dataset):
     ``reversed`` (0 or 1). targets: read each sequence's ``poses.txt`` for the rotations (False: flows only,
     for prediction on sequences without truth; samples then carry no ``rotation``); texture: ``flow`` carries
     the texture of the image it starts from as a third channel (:func:`network_input`); pitch: and the camera's
-    pitch as a constant channel: ``pitch_deg`` for every sequence, else each sequence's sim.yaml."""
+    pitch as a constant channel: ``pitch_deg`` for every sequence, else each sequence's sim.yaml; depth: and the
+    inverse depth of the image it starts from, by stereo matching (:func:`stereo_inverse_depth`)."""
 
     sources: Sequence[Source]
     size: tuple[int, int]
@@ -173,6 +241,7 @@ class FlowPairs(torch.utils.data.Dataset):
     pitch: bool = False
     pitch_deg: float | None = None
     flow_prior: str = "none"
+    depth: bool = False
     pairs: list[_Pairs] = field(init=False, default_factory=list)
     index: NDArray[np.int64] = field(init=False)
 
@@ -188,7 +257,8 @@ class FlowPairs(torch.utils.data.Dataset):
             forward = sequence_flows(images, self.cache_dir, key, False, self.progress, self.flow_prior)
             backward = sequence_flows(images, self.cache_dir, key, True, self.progress, self.flow_prior) if self.reverse else None
             pitch = (camera_pitch(source) if self.pitch_deg is None else self.pitch_deg) if self.pitch else None
-            self.pairs.append(_Pairs(source, forward, backward, rotations, images, pitch))
+            depths = sequence_inverse_depths(source, self.size, self.cache_dir, self.progress) if self.depth else None
+            self.pairs.append(_Pairs(source, forward, backward, rotations, images, pitch, depths))
             frames = np.arange(1, len(paths))
             rows.append(np.column_stack([np.full(len(frames), number), frames, np.zeros(len(frames), np.int64)]))
             if self.reverse:
@@ -215,9 +285,10 @@ class FlowPairs(torch.utils.data.Dataset):
         pairs = self.pairs[number]
         flows = pairs.backward if backwards else pairs.forward
         assert flows is not None
-        start = pairs.images[k if backwards else k - 1, 0]  # the image the flow starts from
+        first = k if backwards else k - 1  # the image the flow starts from
+        depth = None if pairs.inverse_depths is None else pairs.inverse_depths[first]
         sample = {
-            "flow": torch.from_numpy(network_input(start, flows[k - 1], self.texture, pairs.pitch_deg)),
+            "flow": torch.from_numpy(network_input(pairs.images[first, 0], flows[k - 1], self.texture, pairs.pitch_deg, depth)),
             "sequence": torch.tensor(number),
             "frame": torch.tensor(k),
             "reversed": torch.tensor(backwards),

@@ -77,14 +77,14 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
     return ensemble, card
 
 
-def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool, bool, str]:
+def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool, bool, str, bool]:
     """What a network reads: the flow's size (height, width), whether a texture and a pitch channel come with it,
-    and where its Farnebäck starts."""
-    return tuple(config.size), config.texture, config.pitch, config.flow_prior
+    where its Farnebäck starts, and whether a depth channel comes with it."""
+    return tuple(config.size), config.texture, config.pitch, config.flow_prior, config.depth
 
 
 def _describe_input(config: HydraNetConfig) -> str:
-    extra = [name for name, present in (("texture", config.texture), ("pitch", config.pitch)) if present]
+    extra = [name for name, present in (("texture", config.texture), ("pitch", config.pitch), ("depth", config.depth)) if present]
     prior = "" if config.flow_prior == "none" else " (Farnebäck started from the images' global shift)"
     return f"{config.size[0]}x{config.size[1]} flow{prior}" + (f" with {' and '.join(extra)}" if extra else "")
 
@@ -202,18 +202,25 @@ def sequence_inputs(
         pitch=config.pitch,
         pitch_deg=pitch_deg,
         flow_prior=config.flow_prior,
+        depth=config.depth,
     )
     pairs = data.pairs[0]
+    depths = pairs.inverse_depths
 
-    def inputs(flows: NDArray[np.floating], starts: NDArray[np.uint8]) -> torch.Tensor:
+    def inputs(flows: NDArray[np.floating], first: range) -> torch.Tensor:
         flows = np.asarray(flows, dtype=np.float32)
-        if config.texture or config.pitch:  # the texture of the image each flow starts from, the camera's pitch
-            pitch = pairs.pitch_deg
-            flows = np.stack([network_input(image[0], f, config.texture, pitch) for image, f in zip(starts, flows, strict=True)])
+        if config.texture or config.pitch or config.depth:  # what each flow's first image shows, the camera's pitch
+            flows = np.stack(
+                [
+                    network_input(pairs.images[k, 0], f, config.texture, pairs.pitch_deg, None if depths is None else depths[k])
+                    for k, f in zip(first, flows, strict=True)
+                ]
+            )
         return torch.from_numpy(flows)
 
-    forward = inputs(pairs.forward, pairs.images[:-1])
-    backward = inputs(pairs.backward, pairs.images[1:]) if reverse and pairs.backward is not None else None
+    count = len(pairs.images)
+    forward = inputs(pairs.forward, range(count - 1))
+    backward = inputs(pairs.backward, range(1, count)) if reverse and pairs.backward is not None else None
     return forward, backward
 
 
