@@ -80,6 +80,7 @@ def main() -> None:
     parser.add_argument(
         "--balance-bearing", action="store_true", help="frames repeated by the inverse density of their sun's bearing"
     )
+    parser.add_argument("--seed", type=int, default=0, help="the fine-tune's seed (default 0, the experiment's)")
     parser.add_argument("--out", "-o", type=Path, required=True, help="folds' models and crossval.json")
     parser.add_argument("--data", type=Path, help="data directory (default $PVO_DATA_DIR or ../shared/data)")
     args = parser.parse_args()
@@ -100,7 +101,7 @@ def main() -> None:
         f"--epochs {args.epochs} --synthetic {args.synthetic}{f' --corpus {args.corpus}' if args.corpus else ''}"
         f"{' --by-azimuth' if args.by_azimuth else ''}{f' --rotate {args.rotate:g}' if args.rotate is not None else ''}"
         f" --trainable {args.trainable}{' --balance-bearing' if args.balance_bearing else ''}"
-        f"{' --equalize' if args.equalize else ''}"
+        f"{' --equalize' if args.equalize else ''}{f' --seed {args.seed}' if args.seed else ''}"
         f" -o {args.out}"
     )
     rows, truths, results = [], [], []
@@ -113,7 +114,7 @@ def main() -> None:
             train_on_kitti(FineTune(SunTask(config), base, trainable), config.spec, train, validation, model_dir, args.epochs,
                            args.learning_rate, lambda line: None, {"train": command}, synthetic,
                            f"KITTI 07, {len(kept)} frames in {kept[0]}-{kept[-1]} ({len(held)} others to validate)",
-                           args.balance_bearing)  # fmt: skip
+                           args.balance_bearing, args.seed)  # fmt: skip
             (model_dir / "done").write_text("")
         model, card = load_sun_bcnn(model_dir)
         predictions = predict_sequence(model, card, validation, cache_dir=staged / ".cache")

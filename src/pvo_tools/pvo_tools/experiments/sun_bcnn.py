@@ -144,10 +144,11 @@ def train_on_kitti(
     synthetic: Any = None,
     frames: str = "KITTI 07 frames 0-127 (validation 128-159)",
     balance_bearing: bool = False,
+    seed: int = 0,
 ) -> Path:
     """Fine-tune (or train) ``task`` on the staged real frames ``train``, selecting on ``validation``; with
     ``synthetic`` (a dataset, :func:`synthetic_mix`) those images join every epoch; ``balance_bearing``: the real
-    frames repeated by :func:`bearing_balanced_indices`."""
+    frames repeated by :func:`bearing_balanced_indices`; seed: the training's (shuffles, dropout, augmentation)."""
     import torch
     from pvo_pseudosensors.learning import FrameDataset, Source, TrainConfig, fit
 
@@ -161,7 +162,7 @@ def train_on_kitti(
             raise ValueError(f"{train}: {len(suns)} suns for {len(train_set)} images")
         train_set = torch.utils.data.Subset(train_set, bearing_balanced_indices(suns))
     validation_set = FrameDataset([Source(validation, "07-validation", "validation")], spec, cache)
-    config = TrainConfig(epochs=epochs, batch_size=16, learning_rate=learning_rate, patience=6, seed=0)
+    config = TrainConfig(epochs=epochs, batch_size=16, learning_rate=learning_rate, patience=6, seed=seed)
     corpus: dict[str, Any] = {"path": frames}
     if balance_bearing:
         corpus["balanced"] = f"frames repeated by the inverse density of their sun's |azimuth| within {BEARING_WINDOW_DEG:g} deg"
