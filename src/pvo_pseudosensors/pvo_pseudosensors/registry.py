@@ -265,6 +265,8 @@ def _hydranet() -> ModelEntry:
             "depth": "one more input channel: the inverse depth of the image the flow starts from, by stereo matching "
             "(the right images and calib.txt needed; predict reads such a model, the node does not; stop 74's pilot: "
             "6 %% lower error, not adopted)",
+            "coordinates": "the network adds two channels of its own: each pixel's normalised image coordinates "
+            "(CoordConv), so its convolutions can read a turn's flow, a function of where the pixel is",
             "flow_prior": "where Farneback starts: none (zero, the thesis; loses turns beyond ~3 deg per frame at 64 px "
             "high) | shift (the images' global shift: 98-99 %% of a turn's flow up to 6 deg per frame)",
         },

@@ -631,3 +631,25 @@ def test_the_depth_channel_is_the_stereo_inverse_depth_of_the_image_the_flow_sta
         HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "deep-model")))
     with pytest.raises(DataFormatError, match="image directory not found"):
         FlowPairs(rotations["train"][:1], (48, 144), cache_dir=tmp_path, depth=True)  # no right camera
+
+
+def test_coordinate_channels_are_each_pixels_place_and_round_trip_through_the_card(tmp_path: Path) -> None:
+    """`coordinates`: the network appends (u - W/2) / W and (v - H/2) / H of every pixel centre to its input; the
+    data keeps its own channels; a card without the field is a model without them."""
+    from pvo_pseudosensors.hydranet.infer import load_hydranet
+
+    config = dataclasses.replace(TINY, coordinates=True)
+    assert config.channels == 2  # the data's channels: the network adds its own
+    model = HydraNet(config)
+    inputs = torch.randn(3, 2, 48, 144)
+    extended = model._with_coordinates(inputs)
+    assert extended.shape == (3, 4, 48, 144)
+    torch.testing.assert_close(extended[:, :2], inputs)
+    torch.testing.assert_close(extended[1, 2, 7], (torch.arange(144) + 0.5 - 72) / 144)  # u along the width
+    torch.testing.assert_close(extended[2, 3, :, 11], (torch.arange(48) + 0.5 - 24) / 48)  # v down the height
+    assert torch.equal(HydraNet(TINY)._with_coordinates(inputs), inputs)
+    save_model(tmp_path / "coord", model, HydraTask(config).card())
+    loaded, card = load_hydranet(tmp_path / "coord")
+    assert HydraNetConfig.from_card(card).coordinates and loaded(inputs)[0].shape == (3, 5, 4)
+    card.hyperparameters.pop("coordinates")
+    assert not HydraNetConfig.from_card(card).coordinates

@@ -39,7 +39,9 @@ class HydraNetConfig:
     global shift by phase correlation: turns read 98-99 % up to 6° per frame; ``pvo_pseudosensors.hydranet.flow``);
     depth: one more input channel, the inverse depth of the image the flow starts from by stereo matching (the
     right image and calib.txt needed), so that the translation's flow, proportional to it, is told from the turn's
-    (beyond the thesis; stop 74's pilot)."""
+    (beyond the thesis; stop 74's pilot); coordinates: the network adds two channels of its own, each pixel's
+    normalised image coordinates ((u - W/2) / W, (v - H/2) / H), so its convolutions can read a turn's flow, a
+    fixed function of where the pixel is ("CoordConv"; beyond the thesis; stop 74's pilot)."""
 
     height: int = 64
     width: int = 208
@@ -56,6 +58,7 @@ class HydraNetConfig:
     pitch: bool = False
     flow_prior: str = "none"
     depth: bool = False
+    coordinates: bool = False
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths:
@@ -92,4 +95,5 @@ class HydraNetConfig:
         values.setdefault("pitch", False)
         values.setdefault("flow_prior", "none")
         values.setdefault("depth", False)
+        values.setdefault("coordinates", False)
         return cls(**values)

@@ -33,7 +33,7 @@ class HydraNet(nn.Module):
         super().__init__()
         self.config = config
         layers: list[nn.Module] = []
-        channels = config.channels
+        channels = config.channels + (2 if config.coordinates else 0)
         for width in config.widths:
             layers += [
                 nn.Conv2d(channels, width, 3, stride=2, padding=1, bias=False),
@@ -43,7 +43,7 @@ class HydraNet(nn.Module):
             channels = width
         self.body = nn.Sequential(*layers)
         with torch.no_grad():
-            flat = self.body(torch.zeros(1, config.channels, *config.size)).numel()
+            flat = self.body(self._with_coordinates(torch.zeros(1, config.channels, *config.size))).numel()
         self.feature = nn.Sequential(nn.Flatten(), nn.Linear(flat, config.feature), nn.ReLU(inplace=True))
         self.heads = nn.ModuleList(
             nn.Sequential(
@@ -73,6 +73,16 @@ class HydraNet(nn.Module):
         """Quaternion heads a forward pass gives (H)."""
         return self.config.heads
 
+    def _with_coordinates(self, inputs: torch.Tensor) -> torch.Tensor:
+        """``inputs`` (B, C, H, W) and, with ``coordinates``, each pixel's (u - W/2) / W and (v - H/2) / H after them."""
+        if not self.config.coordinates:
+            return inputs
+        count, _, height, width = inputs.shape
+        u = (torch.arange(width, dtype=inputs.dtype) + 0.5 - width / 2) / width
+        v = (torch.arange(height, dtype=inputs.dtype) + 0.5 - height / 2) / height
+        grid = torch.stack(torch.meshgrid(u, v, indexing="xy"))  # (2, H, W): u along the width, v down the height
+        return torch.cat([inputs, grid.expand(count, -1, -1, -1)], dim=1)
+
     def forward(self, flow: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """flow (B, C, H, W): the flow in pixels (and the texture channel) -> the heads' unit quaternions
         (B, heads, 4) of C_k,k-1 (w >= 0) and the lower-triangular Cholesky factor L (B, 3, 3) of the aleatoric
@@ -82,7 +92,7 @@ class HydraNet(nn.Module):
 
     def forward_features(self, flow: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """:meth:`forward`'s heads and Cholesky factor, and the body's features (B, feature) the heads read."""
-        features = self.feature(self.body(flow))
+        features = self.feature(self.body(self._with_coordinates(flow)))
         heads = torch.stack([head(features) for head in self.heads], dim=1)
         heads = nn.functional.normalize(heads, dim=-1)
         heads = torch.where(heads[..., :1] < 0.0, -heads, heads)
