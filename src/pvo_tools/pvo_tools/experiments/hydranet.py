@@ -582,7 +582,13 @@ def real_images_section(
     if args.finetune_epochs:
         say(f"fine-tuning on KITTI 07 frames 0-127 for {args.finetune_epochs} epochs (validation 128-{count07 - 1}) ...")
         config = HydraNetConfig.from_card(card)
-        told = {"texture": config.texture, "pitch": config.pitch, "pitch_deg": KITTI_PITCH_DEG, "flow_prior": config.flow_prior}
+        told = {
+            "texture": config.texture,
+            "pitch": config.pitch,
+            "pitch_deg": KITTI_PITCH_DEG,
+            "flow_prior": config.flow_prior,
+            "depth": config.depth,  # a depth model's inputs need the clip's right images and calib.txt too
+        }
         train = FlowPairs([Source(train07, "07-train")], config.size, reverse=config.reverse, **told)
         validation = FlowPairs([Source(validation07, "07-validation")], config.size, **told)
         loop = TrainConfig(epochs=args.finetune_epochs, batch_size=16, learning_rate=1e-4, patience=0, threads=args.threads)
