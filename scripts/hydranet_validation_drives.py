@@ -39,7 +39,7 @@ from pvo_frontend.vo import VOConfig
 from pvo_frontend.vo import flatten as flatten_vo
 from pvo_frontend.vo import from_flat as from_flat_vo
 from pvo_pseudosensors.hydranet.evaluation import evaluate_rotations, rotation_errors, true_relative_rotations
-from pvo_pseudosensors.hydranet.infer import load_hydranet, predict_sequence
+from pvo_pseudosensors.hydranet.infer import chained, load_hydranet, predict_sequence
 from pvo_pseudosensors.learning.checkpoint import ModelFileError
 from pvo_tools.experiments.common import TRAJECTORY_METRICS, fusion_figures
 from pvo_tools.experiments.hydranet import FIRST_STAMP_NS, rotation_measurements, vo_rotation_errors
@@ -242,7 +242,7 @@ def main() -> None:
         alone = fusion_figures(truth, truth[0] @ vo_poses)
         line = f"{folder.parent.name}/{folder.name}: VO {alone['m_ate_trans']:.2f} m {alone['m_ate_rot_deg']:.2f} deg"
         for (path, model, card), (_, reading, label) in zip([m for m in models for _ in readings], labels, strict=True):
-            predictions = predict_sequence(model, card, folder, cache_dir=args.cache)
+            predictions = chained(predict_sequence(model, card, folder, cache_dir=args.cache))
             true = true_relative_rotations(truth, predictions.earlier, predictions.frames)
             seed = zlib.crc32(f"{folder.parent.name}/{folder.name}".encode())
             predictions = oracle_readings(predictions, true, reading, turn_gain, np.random.default_rng(seed))

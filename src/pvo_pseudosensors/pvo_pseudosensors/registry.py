@@ -158,6 +158,7 @@ def _hydranet() -> ModelEntry:
             pitch=config.pitch,
             flow_prior=config.flow_prior,
             depth=config.depth,
+            gap=config.gap,
         )
 
     def predict(model_dir, sequence, cache_dir=None, pitch_deg=None, **_mc):

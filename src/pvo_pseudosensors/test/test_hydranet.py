@@ -653,3 +653,46 @@ def test_coordinate_channels_are_each_pixels_place_and_round_trip_through_the_ca
     assert HydraNetConfig.from_card(card).coordinates and loaded(inputs)[0].shape == (3, 5, 4)
     card.hyperparameters.pop("coordinates")
     assert not HydraNetConfig.from_card(card).coordinates
+
+
+def test_pairs_a_gap_apart_carry_the_rotation_over_the_gap_and_chain_without_overlap(rotations, tmp_path: Path) -> None:
+    """`gap` g: a sample per frame k >= g with the flow from k - g to k and C_k,k-g (reversed pairs its inverse);
+    their flows are cached apart from the consecutive ones; prediction pairs the same frames, :func:`chained` keeps
+    0 -> g, g -> 2g, ...; the sensor refuses such a model with one line; a sequence shorter than the gap is named."""
+    from pvo_core.trajectory import read_kitti_poses
+    from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
+    from pvo_pseudosensors.hydranet.flow import dense_flow
+    from pvo_pseudosensors.hydranet.infer import chained, load_hydranet, predict_sequence
+
+    source = rotations["train"][1]
+    consecutive = FlowPairs([source], (48, 144), reverse=True, cache_dir=tmp_path)
+    apart = FlowPairs([source], (48, 144), reverse=True, cache_dir=tmp_path, gap=3)
+    assert len(apart) == 2 * 22 and len(list(tmp_path.glob("flow-*.npy"))) == 4
+    poses = read_kitti_poses(source.root / "poses.txt")
+    forward, backward = apart[5], apart[22 + 5]  # the pair 5 -> 8 and its reverse
+    assert int(forward["frame"]) == int(backward["frame"]) == 8
+    truth = poses[8, :3, :3].T @ poses[5, :3, :3]  # C_8,5
+    np.testing.assert_allclose(quaternion_to_rotation(forward["rotation"].numpy()), truth, atol=1e-6)
+    np.testing.assert_allclose(quaternion_to_rotation(backward["rotation"].numpy()), truth.T, atol=1e-6)
+    images = apart.pairs[0].images
+    expected = dense_flow(np.asarray(images[5, 0]), np.asarray(images[8, 0]))
+    np.testing.assert_allclose(forward["flow"].numpy(), expected, atol=2e-2)  # float16 in the cache
+    assert not torch.allclose(forward["flow"], consecutive[7]["flow"])  # not the pair 7 -> 8
+    assert HydraNetConfig(gap=3).spec.delta == 3
+    with pytest.raises(ValueError, match="gap must be >= 1"):
+        HydraNetConfig(gap=0)
+
+    config = dataclasses.replace(TINY, gap=3)
+    save_model(tmp_path / "gap-model", HydraNet(config), HydraTask(config).card())
+    model, card = load_hydranet(tmp_path / "gap-model")
+    predictions = predict_sequence(model, card, source.root, cache_dir=tmp_path)
+    np.testing.assert_array_equal(predictions.frames, np.arange(3, 25))
+    np.testing.assert_array_equal(predictions.frames - predictions.earlier, 3)
+    chain = chained(predictions)
+    np.testing.assert_array_equal(chain.earlier, [0, 3, 6, 9, 12, 15, 18, 21])
+    np.testing.assert_array_equal(chain.frames, chain.earlier + 3)
+    np.testing.assert_array_equal(chain.quaternions, predictions.quaternions[chain.earlier])
+    with pytest.raises(ModelFileError, match="3 frames apart is read by `pvo hydranet predict` only"):
+        HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "gap-model")))
+    with pytest.raises(DataFormatError, match="at least 26 images"):
+        FlowPairs([source], (48, 144), gap=25)

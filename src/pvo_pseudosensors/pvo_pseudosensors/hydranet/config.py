@@ -41,7 +41,9 @@ class HydraNetConfig:
     right image and calib.txt needed), so that the translation's flow, proportional to it, is told from the turn's
     (beyond the thesis; stop 74's pilot); coordinates: the network adds two channels of its own, each pixel's
     normalised image coordinates ((u - W/2) / W, (v - H/2) / H), so its convolutions can read a turn's flow, a
-    fixed function of where the pixel is ("CoordConv"; beyond the thesis; stop 74's pilot)."""
+    fixed function of where the pixel is ("CoordConv"; beyond the thesis; stop 74's pilot); gap: the frames between
+    the two images of a pair (1: consecutive, the thesis; g > 1 reads C_k,k-g, so that a chain of readings every g
+    frames drifts by g times fewer reading errors; beyond the thesis, stop 75's pilot)."""
 
     height: int = 64
     width: int = 208
@@ -59,6 +61,7 @@ class HydraNetConfig:
     flow_prior: str = "none"
     depth: bool = False
     coordinates: bool = False
+    gap: int = 1
 
     def __post_init__(self) -> None:
         if min(self.height, self.width) < 16 or not self.widths:
@@ -69,6 +72,8 @@ class HydraNetConfig:
             raise ValueError(f"head_dropout must be in [0, 1), got {self.head_dropout}")
         if self.flow_prior not in FLOW_PRIORS:
             raise ValueError(f"unknown flow_prior {self.flow_prior!r}: choose one of {', '.join(FLOW_PRIORS)}")
+        if self.gap < 1:
+            raise ValueError(f"gap must be >= 1 frame, got {self.gap}")
         if self.covariance not in COVARIANCES:
             raise ValueError(f"unknown covariance {self.covariance!r}: choose one of {', '.join(COVARIANCES)}")
 
@@ -83,7 +88,7 @@ class HydraNetConfig:
 
     @property
     def spec(self) -> DataSpec:
-        return DataSpec(self.size, delta=1)
+        return DataSpec(self.size, delta=self.gap)
 
     @classmethod
     def from_card(cls, card: Any) -> HydraNetConfig:
@@ -96,4 +101,5 @@ class HydraNetConfig:
         values.setdefault("flow_prior", "none")
         values.setdefault("depth", False)
         values.setdefault("coordinates", False)
+        values.setdefault("gap", 1)
         return cls(**values)

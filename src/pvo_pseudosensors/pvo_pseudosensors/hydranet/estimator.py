@@ -95,6 +95,11 @@ class HydraNetSensor:
                 f"{resolve_model(config.model)}: a HydraNet with the depth input (stereo) is read by `pvo hydranet "
                 "predict` only; the sensor and the hydranet node read the left image alone"
             )
+        if network.gap != 1:  # it would pair each image with the one `gap` frames before, every gap-th frame
+            raise ModelFileError(
+                f"{resolve_model(config.model)}: a HydraNet reading images {network.gap} frames apart is read by `pvo "
+                "hydranet predict` only; the sensor and the hydranet node pair consecutive images"
+            )
         self.texture, self.flow_prior = network.texture, network.flow_prior
         self.pitch_deg = self.config.camera_pitch_deg if network.pitch else None
         self.mode = inference_mode(self.card)

@@ -173,16 +173,17 @@ def camera_pitch(source: Source) -> float:
         raise DataFormatError(path, f"no readable config.pitch_deg ({error})") from None
 
 
-def relative_rotations(poses: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(N-1, 4) quaternions (w >= 0) of C_k,k-1 for camera-to-world poses (N, 4, 4): the rotation that maps
+def relative_rotations(poses: NDArray[np.float64], gap: int = 1) -> NDArray[np.float64]:
+    """(N-gap, 4) quaternions (w >= 0) of C_k,k-gap for camera-to-world poses (N, 4, 4): the rotation that maps
     directions in the earlier camera frame into the later one."""
-    relative = np.linalg.inv(poses[1:])[:, :3, :3] @ poses[:-1, :3, :3]
+    relative = np.linalg.inv(poses[gap:])[:, :3, :3] @ poses[:-gap, :3, :3]
     return np.stack([rotation_to_quaternion(r) for r in relative])
 
 
-def _flow_file(images_key: str, cache_dir: Path, reverse: bool, prior: str = "none") -> Path:
+def _flow_file(images_key: str, cache_dir: Path, reverse: bool, prior: str = "none", gap: int = 1) -> Path:
     prior_key = "" if prior == "none" else f":{prior}"  # the flows cached before the prior keep their files
-    digest = hashlib.sha256(f"{images_key}:{FARNEBACK}:{FLOW_REVISION}:{reverse}{prior_key}".encode()).hexdigest()[:24]
+    gap_key = "" if gap == 1 else f":gap{gap}"  # and those cached before the gap
+    digest = hashlib.sha256(f"{images_key}:{FARNEBACK}:{FLOW_REVISION}:{reverse}{prior_key}{gap_key}".encode()).hexdigest()[:24]
     return Path(cache_dir) / f"flow-{digest}.npy"
 
 
@@ -193,19 +194,21 @@ def sequence_flows(
     reverse: bool,
     progress: Callable[[], None] | None = None,
     prior: str = "none",
+    gap: int = 1,
 ) -> NDArray[np.float16]:
-    """(N-1, 2, H, W) float16 flows of consecutive images (N, 1, H, W): k-1 -> k, or k -> k-1 with
-    ``reverse``; from the cache when present (written under a temporary name and renamed)."""
-    count = len(images) - 1
+    """(N-gap, 2, H, W) float16 flows of the images (N, 1, H, W) ``gap`` frames apart: k-gap -> k, or k -> k-gap
+    with ``reverse`` (row i: the pair ending at frame i + gap); from the cache when present (written under a
+    temporary name and renamed)."""
+    count = len(images) - gap
     if cache_dir is None:
-        return np.stack([_pair_flow(images, k, reverse, prior) for k in range(1, count + 1)]).astype(np.float16)
+        return np.stack([_pair_flow(images, k, reverse, prior, gap) for k in range(gap, count + gap)]).astype(np.float16)
     shape = (count, 2, *images.shape[2:])
-    item = lambda i: _pair_flow(images, i + 1, reverse, prior)  # noqa: E731 - the pair ending at frame i + 1
-    return cached_array(_flow_file(key, cache_dir, reverse, prior), shape, np.dtype(np.float16), item, progress)
+    item = lambda i: _pair_flow(images, i + gap, reverse, prior, gap)  # noqa: E731 - the pair ending at frame i + gap
+    return cached_array(_flow_file(key, cache_dir, reverse, prior, gap), shape, np.dtype(np.float16), item, progress)
 
 
-def _pair_flow(images: NDArray[np.uint8], k: int, reverse: bool, prior: str) -> NDArray[np.float32]:
-    earlier, later = np.asarray(images[k - 1, 0]), np.asarray(images[k, 0])
+def _pair_flow(images: NDArray[np.uint8], k: int, reverse: bool, prior: str, gap: int = 1) -> NDArray[np.float32]:
+    earlier, later = np.asarray(images[k - gap, 0]), np.asarray(images[k, 0])
     return dense_flow(later, earlier, prior) if reverse else dense_flow(earlier, later, prior)
 
 
@@ -222,9 +225,9 @@ class _Pairs:
 
 @dataclass
 class FlowPairs(torch.utils.data.Dataset):
-    """Samples, one per consecutive pair of left images of every sequence (and one more per pair reversed
-    with ``reverse``), as dicts: ``flow`` (2, H, W) float32 pixels; ``rotation`` (4,) the unit quaternion
-    (w, x, y, z) of C_k,k-1 (C_k-1,k for a reversed pair); ``sequence``, ``frame`` (the later frame k),
+    """Samples, one per pair of left images ``gap`` frames apart (1: consecutive) of every sequence (and one more
+    per pair reversed with ``reverse``), as dicts: ``flow`` (2, H, W) float32 pixels; ``rotation`` (4,) the unit
+    quaternion (w, x, y, z) of C_k,k-gap (C_k-gap,k for a reversed pair); ``sequence``, ``frame`` (the later frame k),
     ``reversed`` (0 or 1). targets: read each sequence's ``poses.txt`` for the rotations (False: flows only,
     for prediction on sequences without truth; samples then carry no ``rotation``); texture: ``flow`` carries
     the texture of the image it starts from as a third channel (:func:`network_input`); pitch: and the camera's
@@ -242,6 +245,7 @@ class FlowPairs(torch.utils.data.Dataset):
     pitch_deg: float | None = None
     flow_prior: str = "none"
     depth: bool = False
+    gap: int = 1
     pairs: list[_Pairs] = field(init=False, default_factory=list)
     index: NDArray[np.int64] = field(init=False)
 
@@ -249,17 +253,22 @@ class FlowPairs(torch.utils.data.Dataset):
         rows = []
         for number, source in enumerate(self.sources):
             paths = source.images("left", False)
-            if len(paths) < 2:
-                raise DataFormatError(source.root, "HydraNet needs at least two images per sequence")
+            if len(paths) < self.gap + 1:
+                needed = "two images" if self.gap == 1 else f"{self.gap + 1} images (pairs {self.gap} frames apart)"
+                raise DataFormatError(source.root, f"HydraNet needs at least {needed} per sequence")
             rotations = self._rotations(source, len(paths)) if self.targets else None
             images = cached_images(paths, self.size, False, self.cache_dir, self.progress)
             key = _images_key(paths, self.size)
-            forward = sequence_flows(images, self.cache_dir, key, False, self.progress, self.flow_prior)
-            backward = sequence_flows(images, self.cache_dir, key, True, self.progress, self.flow_prior) if self.reverse else None
+            forward = sequence_flows(images, self.cache_dir, key, False, self.progress, self.flow_prior, self.gap)
+            backward = (
+                sequence_flows(images, self.cache_dir, key, True, self.progress, self.flow_prior, self.gap)
+                if self.reverse
+                else None
+            )
             pitch = (camera_pitch(source) if self.pitch_deg is None else self.pitch_deg) if self.pitch else None
             depths = sequence_inverse_depths(source, self.size, self.cache_dir, self.progress) if self.depth else None
             self.pairs.append(_Pairs(source, forward, backward, rotations, images, pitch, depths))
-            frames = np.arange(1, len(paths))
+            frames = np.arange(self.gap, len(paths))
             rows.append(np.column_stack([np.full(len(frames), number), frames, np.zeros(len(frames), np.int64)]))
             if self.reverse:
                 rows.append(np.column_stack([np.full(len(frames), number), frames, np.ones(len(frames), np.int64)]))
@@ -267,15 +276,14 @@ class FlowPairs(torch.utils.data.Dataset):
         if len(self.index) == 0:
             raise ValueError("the dataset holds no image pair")
 
-    @staticmethod
-    def _rotations(source: Source, images: int) -> NDArray[np.float64]:
+    def _rotations(self, source: Source, images: int) -> NDArray[np.float64]:
         poses_file = source.root / "poses.txt"
         if not poses_file.is_file():
             raise DataFormatError(poses_file, f"needed for HydraNet's targets but missing ({source.name})")
         poses = read_kitti_poses(poses_file)
         if len(poses) != images:
             raise DataFormatError(poses_file, f"{len(poses)} poses for {images} images")
-        return relative_rotations(poses)
+        return relative_rotations(poses, self.gap)
 
     def __len__(self) -> int:
         return len(self.index)
@@ -285,16 +293,17 @@ class FlowPairs(torch.utils.data.Dataset):
         pairs = self.pairs[number]
         flows = pairs.backward if backwards else pairs.forward
         assert flows is not None
-        first = k if backwards else k - 1  # the image the flow starts from
+        first = k if backwards else k - self.gap  # the image the flow starts from
         depth = None if pairs.inverse_depths is None else pairs.inverse_depths[first]
+        flow = flows[k - self.gap]
         sample = {
-            "flow": torch.from_numpy(network_input(pairs.images[first, 0], flows[k - 1], self.texture, pairs.pitch_deg, depth)),
+            "flow": torch.from_numpy(network_input(pairs.images[first, 0], flow, self.texture, pairs.pitch_deg, depth)),
             "sequence": torch.tensor(number),
             "frame": torch.tensor(k),
             "reversed": torch.tensor(backwards),
         }
         if pairs.rotations is not None:
-            rotation = pairs.rotations[k - 1] * (np.array([1.0, -1.0, -1.0, -1.0]) if backwards else 1.0)
+            rotation = pairs.rotations[k - self.gap] * (np.array([1.0, -1.0, -1.0, -1.0]) if backwards else 1.0)
             sample["rotation"] = torch.from_numpy(rotation.astype(np.float32))
         return sample
 

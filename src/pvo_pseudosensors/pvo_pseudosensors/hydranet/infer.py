@@ -77,16 +77,17 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
     return ensemble, card
 
 
-def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool, bool, str, bool]:
+def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool, bool, str, bool, int]:
     """What a network reads: the flow's size (height, width), whether a texture and a pitch channel come with it,
-    where its Farnebäck starts, and whether a depth channel comes with it."""
-    return tuple(config.size), config.texture, config.pitch, config.flow_prior, config.depth
+    where its Farnebäck starts, whether a depth channel comes with it, and how many frames apart its images are."""
+    return tuple(config.size), config.texture, config.pitch, config.flow_prior, config.depth, config.gap
 
 
 def _describe_input(config: HydraNetConfig) -> str:
     extra = [name for name, present in (("texture", config.texture), ("pitch", config.pitch), ("depth", config.depth)) if present]
     prior = "" if config.flow_prior == "none" else " (Farnebäck started from the images' global shift)"
-    return f"{config.size[0]}x{config.size[1]} flow{prior}" + (f" with {' and '.join(extra)}" if extra else "")
+    gap = "" if config.gap == 1 else f" over {config.gap} frames"
+    return f"{config.size[0]}x{config.size[1]} flow{gap}{prior}" + (f" with {' and '.join(extra)}" if extra else "")
 
 
 def _load_one(directory: Path) -> tuple[HydraNet, ModelCard]:
@@ -189,9 +190,9 @@ def predict_flows(
 def sequence_inputs(
     config: HydraNetConfig, sequence: Path, reverse: bool = False, cache_dir: Path | None = None, pitch_deg: float | None = None
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """The network inputs (N, C, H, W) of every consecutive pair of ``sequence``'s left images, forward, and
-    (``reverse``) from the later image to the earlier (else None). A model with the pitch input reads
-    ``pitch_deg`` (deg below the horizon), else the pitch the sequence's sim.yaml records."""
+    """The network inputs (N, C, H, W) of every pair of ``sequence``'s left images the card's ``gap`` apart
+    (consecutive: 1), forward, and (``reverse``) from the later image to the earlier (else None). A model with the
+    pitch input reads ``pitch_deg`` (deg below the horizon), else the pitch the sequence's sim.yaml records."""
     sequence = Path(sequence)
     data = FlowPairs(
         [Source(sequence, sequence.name)],
@@ -203,6 +204,7 @@ def sequence_inputs(
         pitch_deg=pitch_deg,
         flow_prior=config.flow_prior,
         depth=config.depth,
+        gap=config.gap,
     )
     pairs = data.pairs[0]
     depths = pairs.inverse_depths
@@ -219,8 +221,8 @@ def sequence_inputs(
         return torch.from_numpy(flows)
 
     count = len(pairs.images)
-    forward = inputs(pairs.forward, range(count - 1))
-    backward = inputs(pairs.backward, range(1, count)) if reverse and pairs.backward is not None else None
+    forward = inputs(pairs.forward, range(count - config.gap))
+    backward = inputs(pairs.backward, range(config.gap, count)) if reverse and pairs.backward is not None else None
     return forward, backward
 
 
@@ -247,13 +249,30 @@ def predict_sequence(
     cache_dir: Path | None = None,
     pitch_deg: float | None = None,
 ) -> RotationPredictions:
-    """Every consecutive pair of ``sequence``'s left images (KITTI layout; poses.txt not needed), run as the
-    card's ``calibration.mode`` says (plain, mirrored or reversed); ``pitch_deg``: see :func:`sequence_inputs`."""
+    """Every pair of ``sequence``'s left images the card's ``gap`` apart (consecutive: 1; KITTI layout; poses.txt
+    not needed), run as the card's ``calibration.mode`` says (plain, mirrored or reversed); ``pitch_deg``: see
+    :func:`sequence_inputs`. With a gap g > 1 the pairs overlap (k-g -> k for every k >= g): :func:`chained`
+    keeps the ones a fusion may take as independent."""
+    config = HydraNetConfig.from_card(card)
     mode = inference_mode(card)
-    forward, backward = sequence_inputs(HydraNetConfig.from_card(card), sequence, mode == "reversed", cache_dir, pitch_deg)
+    forward, backward = sequence_inputs(config, sequence, mode == "reversed", cache_dir, pitch_deg)
     quaternions, epistemic, aleatoric = predict_flows(model, forward, batch, mode == "mirrored", backward)
-    frames = np.arange(1, len(forward) + 1)
-    return RotationPredictions(frames - 1, frames, quaternions, epistemic, aleatoric)
+    frames = np.arange(config.gap, len(forward) + config.gap)
+    return RotationPredictions(frames - config.gap, frames, quaternions, epistemic, aleatoric)
+
+
+def chained(predictions: RotationPredictions) -> RotationPredictions:
+    """The pairs that chain without sharing an image's interval (0 -> g, g -> 2g, ...), as a fusion takes
+    them: two overlapping pairs share most of their flow and so their error. Consecutive pairs stay as they are."""
+    gap = predictions.frames - predictions.earlier
+    keep = predictions.earlier % np.maximum(gap, 1) == 0
+    return RotationPredictions(
+        predictions.earlier[keep],
+        predictions.frames[keep],
+        predictions.quaternions[keep],
+        predictions.epistemic[keep],
+        predictions.aleatoric[keep],
+    )
 
 
 #: A sequence directory and the flow cache its pairs are kept in (None: none).
@@ -320,11 +339,11 @@ def calibrate_density(
         for sequence, cache in sequences:
             forward, backward = sequence_inputs(config, sequence, mode == "reversed", cache)
             q, epistemic, aleatoric = predict_flows(model, forward, mirrored=mode == "mirrored", reversed_flows=backward)
-            frames = np.arange(1, len(forward) + 1)
+            frames = np.arange(config.gap, len(forward) + config.gap)
             features.append(body_features(model, forward))
             quaternions.append(q)
             covariances.append(epistemic + aleatoric)
-            truth.append(true_relative_rotations(read_kitti_poses(Path(sequence) / "poses.txt"), frames - 1, frames))
+            truth.append(true_relative_rotations(read_kitti_poses(Path(sequence) / "poses.txt"), frames - config.gap, frames))
         return torch.cat(features), np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth)
 
     say(f"features of {len(fitting)} fitting sequences")
@@ -408,11 +427,11 @@ def calibrate_widening(
         for sequence, cache in sequences:
             forward, backward = sequence_inputs(config, sequence, mode == "reversed", cache)
             q, e, a = predict_flows(model, forward, mirrored=mode == "mirrored", reversed_flows=backward)
-            frames = np.arange(1, len(forward) + 1)
+            frames = np.arange(config.gap, len(forward) + config.gap)
             quaternions.append(q)
             epistemic.append(e)
             aleatoric.append(a)
-            truth.append(true_relative_rotations(read_kitti_poses(Path(sequence) / "poses.txt"), frames - 1, frames))
+            truth.append(true_relative_rotations(read_kitti_poses(Path(sequence) / "poses.txt"), frames - config.gap, frames))
         return np.vstack(quaternions), np.concatenate(epistemic), np.concatenate(aleatoric), np.concatenate(truth)
 
     say(f"predictions of {len(validation)} validation sequences")

@@ -192,7 +192,7 @@ def validation_fusion(models: list[tuple[Any, Any]], manifest: Any, presets: set
     monocular corpus) are left out; an empty record per model when none is left."""
     from pvo_core.readers import KittiSequence
     from pvo_core.trajectory import read_kitti_poses
-    from pvo_pseudosensors.hydranet.infer import predict_sequence
+    from pvo_pseudosensors.hydranet.infer import chained, predict_sequence
 
     from pvo_fusion import CalibrationSequence, FusionGraph, calibrate_vo, ordered_events, run_offline, vo_measurements
     from pvo_fusion.config import from_flat
@@ -216,7 +216,7 @@ def validation_fusion(models: list[tuple[Any, Any]], manifest: Any, presets: set
         changes: dict[str, list[float]] = {"m_ate_trans": [], "m_ate_rot_deg": []}
         for item, truth, run, relative, stamps in prepared:
             vo = vo_measurements(stamps, relative["transforms"], relative["covariances"], calibration)
-            rotations = rotation_measurements(predict_sequence(model, card, item.root), stamps)
+            rotations = rotation_measurements(chained(predict_sequence(model, card, item.root)), stamps)
             graph = FusionGraph(config)
             graph.set_initial_pose(truth[0])
             fused = run_offline(graph, stamps, ordered_events(vo, [("rotation", m) for m in rotations]))
@@ -475,7 +475,7 @@ def fusion_section(
     from pvo_frontend.offline import run_sequence
     from pvo_frontend.vo import VOConfig
     from pvo_pseudosensors.hydranet.evaluation import true_relative_rotations
-    from pvo_pseudosensors.hydranet.infer import predict_sequence
+    from pvo_pseudosensors.hydranet.infer import chained, predict_sequence
 
     from pvo_fusion import (
         CalibrationSequence,
@@ -515,7 +515,7 @@ def fusion_section(
         run = run_sequence(sequence, VOConfig())
         relative = run.relative()
         vo = vo_measurements(stamps, relative["transforms"], relative["covariances"], calibration)
-        predictions = predict_sequence(model, card, folder)
+        predictions = chained(predict_sequence(model, card, folder))  # a gap model's pairs as the fusion takes them
         rotations = rotation_measurements(predictions, stamps)
         truths = true_relative_rotations(truth, predictions.earlier, predictions.frames)
         errorless = rotation_measurements(predictions, stamps, truths)
