@@ -696,3 +696,5 @@ def test_pairs_a_gap_apart_carry_the_rotation_over_the_gap_and_chain_without_ove
         HydraNetSensor(HydraNetSensorConfig(model=str(tmp_path / "gap-model")))
     with pytest.raises(DataFormatError, match="at least 26 images"):
         FlowPairs([source], (48, 144), gap=25)
+    with pytest.raises(ValueError, match="gap must be >= 1 frame, got 0"):
+        FlowPairs([source], (48, 144), gap=0)

@@ -250,6 +250,8 @@ class FlowPairs(torch.utils.data.Dataset):
     index: NDArray[np.int64] = field(init=False)
 
     def __post_init__(self) -> None:
+        if self.gap < 1:
+            raise ValueError(f"gap must be >= 1 frame, got {self.gap}")
         rows = []
         for number, source in enumerate(self.sources):
             paths = source.images("left", False)
