@@ -34,27 +34,33 @@ GRAVITY_ENU = np.array([0.0, 0.0, -9.80665])
 #: sequence only if it was rendered by the same revision.
 #: 7: KITTI drives levelled onto the flat ground (kitti_path); 8: where a camera's path moves under 2 cm in two
 #: frames (a stop, KITTI's jitter), its direction is the camera's heading (world.steady_directions: the moving
-#: vehicles that replay the path, the road beyond its ends).
-RENDERER_REVISION = 8
-#: what revision 8 draws exactly as revision 7 did keeps 7 (renderer_revision), and with it its content hash
+#: vehicles that replay the path, the road beyond its ends); 9: the sun's shadows cast from its side of the camera
+#: too (SUN_LIGHT_DISTANCE, RangeCuller) — every sequence with sunshine; an overcast one casts no shadow.
+RENDERER_REVISION = 9
+#: what revision 9 draws exactly as revision 8 did (no sunshine) keeps 8 where revision 8 changed it (steadied)...
+STEADIED_REVISION = 8
+#: ... and 7 where neither did, with it its content hash
 UNCHANGED_SINCE_REVISION = 7
 
 
-def renderer_revision(poses: Array, moving_vehicles: int) -> int:
+def renderer_revision(poses: Array, moving_vehicles: int, overcast: bool = False) -> int:
     """The revision a sequence of camera poses T_world,cam (N, 4, 4) is recorded with: RENDERER_REVISION where
-    that revision draws its world differently from the one before (world.steadied), else the revision since
-    which it is drawn the same — so a corpus rendered before keeps every sequence the change does not touch."""
-    return RENDERER_REVISION if steadied(poses[:, :2, 3], moving_vehicles) else UNCHANGED_SINCE_REVISION
+    that revision draws it differently from the one before (sunshine casts shadows), else the latest revision that
+    did (revision 8 where world.steadied changes its world, else 7) — so a corpus rendered before keeps every
+    sequence a change does not touch."""
+    if not overcast:
+        return RENDERER_REVISION
+    return STEADIED_REVISION if steadied(poses[:, :2, 3], moving_vehicles) else UNCHANGED_SINCE_REVISION
 
 
 def planned_revision(config: SimConfig) -> int:
-    """The revision ``simulate(config)`` records (renderer_revision of its camera path)."""
-    return renderer_revision(camera_trajectory(config), config.degradations.moving_vehicles)
+    """The revision ``simulate(config)`` records (renderer_revision of its camera path and sky)."""
+    return renderer_revision(camera_trajectory(config), config.degradations.moving_vehicles, config.overcast)
 
 
 def rendered_by_this_renderer(folder: Path) -> bool:
     """Whether ``folder`` holds a complete `pvo sim` sequence that this renderer would draw the same: its sim.yaml
-    records the revision renderer_revision gives its own camera path (world_T_cam0 times poses.txt)."""
+    records the revision renderer_revision gives its own camera path (world_T_cam0 times poses.txt) and sky."""
     import yaml
 
     meta_file = folder / "sim.yaml"
@@ -65,11 +71,12 @@ def rendered_by_this_renderer(folder: Path) -> bool:
         relative = np.loadtxt(folder / "poses.txt", ndmin=2).reshape(-1, 3, 4)
         first = np.asarray(meta["world_T_cam0"], dtype=float)
         moving = int(meta["config"]["degradations"]["moving_vehicles"])
-    except (KeyError, TypeError, ValueError):
+        overcast = bool(meta["config"].get("overcast", False))
+    except (KeyError, TypeError, ValueError, AttributeError):
         return False
     poses = np.tile(np.eye(4), (len(relative), 1, 1))
     poses[:, :3, :] = relative
-    return meta.get("renderer_revision") == renderer_revision(first @ poses, moving)
+    return meta.get("renderer_revision") == renderer_revision(first @ poses, moving, overcast)
 
 
 KITTI_FOCAL_PER_PIXEL_WIDTH = 718.856 / 1241.0  # KITTI's focal length scales with the image width
@@ -251,10 +258,22 @@ def mocap_quaternion(rotation_world_optical: Array) -> Array:
     return rotation_to_quaternion(body)
 
 
-def place_sun(model, light: int, sun_world: Array, near: Array) -> None:
-    """Point the directional light along the sun (ENU unit vector towards the sun): light travels along -s."""
-    model.light_dir[light] = -np.asarray(sun_world, dtype=float)
-    model.light_pos[light] = near
+#: How far up-sun of the camera the directional sun light sits (m). MuJoCo draws a directional light's shadow map
+#: as an orthographic view from the light's position along its direction, and whatever lies behind that position
+#: casts no shadow; a light at the camera (revisions up to 8) dropped every caster on the sun's side of the camera
+#: — the buildings across the street from the sun, trees, vehicles, rocks ahead of a low sun. From here every
+#: geom the culler keeps (RangeCuller.radius) is in front of it; the map still covers the same 60 m about the line
+#: through the camera, and the world's far plane (3 x its extent, at least 370 m) reaches past the ground there.
+SUN_LIGHT_DISTANCE = 200.0
+
+
+def place_sun(model, light: int, sun_world: Array, near: Array, distance: float = SUN_LIGHT_DISTANCE) -> None:
+    """Point the directional light along the sun (ENU unit vector towards the sun): light travels along -s. It is
+    placed ``distance`` m up-sun of ``near`` (the camera), so that casters between the sun and the camera cast
+    their shadows too (SUN_LIGHT_DISTANCE)."""
+    sun = np.asarray(sun_world, dtype=float)
+    model.light_dir[light] = -sun
+    model.light_pos[light] = np.asarray(near, dtype=float) + distance * sun
 
 
 def place_rig(data, rig: int, pose: Array) -> None:
@@ -269,7 +288,8 @@ HIDDEN_GROUP = 5
 class RangeCuller:
     """MuJoCo draws every geom of a model (no frustum culling), so a long world would cost every frame in
     proportion to its length. Per frame, geoms farther than ``radius`` m from the camera, or behind it and
-    farther than ``behind`` m (nearer ones may still cast a shadow into view), move to a hidden group.
+    farther than ``behind`` m (nearer ones may still cast a shadow into view) unless they stand up-sun of the
+    camera, where they may cast one into view from anywhere in range, move to a hidden group.
 
     (Coarse twins of far terrain tiles — levels of detail, switched at 20-70 m — were tried: planetary frames
     10-15 % faster, but a tile changing level between frames changes what the VO tracks: the seed-1 planetary
@@ -285,11 +305,14 @@ class RangeCuller:
         self.option = mujoco.MjvOption()
         self.option.geomgroup[HIDDEN_GROUP] = 0
 
-    def __call__(self, data, pose: Array):
-        """Hide what the camera at ``pose`` (T_world,cam) cannot see; the scene option to render with."""
+    def __call__(self, data, pose: Array, sun_world: Array | None = None):
+        """Hide what the camera at ``pose`` (T_world,cam) cannot see and what casts no shadow into its view from
+        the sun ``sun_world`` (ENU unit vector; None: no shadows); the scene option to render with."""
         offset = data.geom_xpos - pose[:3, 3]
         reach = np.linalg.norm(offset, axis=1) - self.model.geom_rbound
         behind = offset @ pose[:3, 2] < -self.model.geom_rbound
+        if sun_world is not None:
+            behind &= offset @ np.asarray(sun_world, dtype=float) < -self.model.geom_rbound
         hide = ((reach > self.radius) | (behind & (reach > self.behind))) & ~self.always
         self.model.geom_group[:] = np.where(hide, HIDDEN_GROUP, self.groups)
         return self.option
@@ -405,7 +428,7 @@ def _render(
             place_sun(model, light, sun_world[k], poses[k, :3, 3])
             mujoco.mj_kinematics(model, data)
             mujoco.mj_camlight(model, data)
-            option = cull(data, poses[k])
+            option = cull(data, poses[k], None if config.overcast else sun_world[k])
             # the sky at infinity, the same for both cameras (one rotation); up: the world's z in the optical
             # frame, row 2 of R_world,cam
             sky = None if rays is None else sky_values(rays, poses[k, 2, :3], sun_camera[k], config.overcast, colour=True)
@@ -496,7 +519,7 @@ def _write_sidecars(
     )
     meta = {
         "generator": "pvo sim",
-        "renderer_revision": renderer_revision(poses, config.degradations.moving_vehicles),
+        "renderer_revision": renderer_revision(poses, config.degradations.moving_vehicles, config.overcast),
         "config": recorded_config(config),
         "epoch_unix_s": float(times[0]),
         "world_T_cam0": poses[0].tolist(),

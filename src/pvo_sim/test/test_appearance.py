@@ -119,11 +119,13 @@ def test_overcast_has_no_cast_shadows_and_sunny_does(tmp_path: Path) -> None:
         image = cv2.imread(str(folder / "image_0" / "000001.png"), cv2.IMREAD_GRAYSCALE).astype(float)
         depth = cv2.imread(str(folder / "depth_0" / "000001.png"), cv2.IMREAD_UNCHANGED)
         ground = image[depth > 0]
-        return float(np.mean(ground < 0.5 * np.median(ground)))
+        # against the sunlit surfaces (the brightest 1 %): a low sun puts most of a street in shadow (renderer
+        # revision 9), so the median is no reference for "lit"
+        return float(np.mean(ground < 0.4 * np.percentile(ground, 99)))
 
     _render(tmp_path / "sunny", camera=CameraModel.linear(), start_time="2011-09-30T15:30:00Z")
     _render(tmp_path / "overcast", camera=CameraModel.linear(), start_time="2011-09-30T15:30:00Z", overcast=True)
-    assert dark_fraction(tmp_path / "overcast") < dark_fraction(tmp_path / "sunny")
+    assert dark_fraction(tmp_path / "overcast") + 0.3 < dark_fraction(tmp_path / "sunny")
 
 
 def test_supersampling_keeps_every_pixel_where_it_was(tmp_path: Path) -> None:

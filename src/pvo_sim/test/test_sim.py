@@ -247,6 +247,94 @@ def test_a_pole_casts_its_shadow_away_from_the_sun_azimuth() -> None:
     assert abs(difference) < 3.0, (shadow_azimuth, sun_azimuth)
 
 
+def test_a_wall_between_the_sun_and_the_camera_shades_the_ground_the_camera_sees() -> None:
+    """Revision 9: MuJoCo culls a directional light's shadow casters behind the light's position, so a sun light
+    placed at the camera (revisions up to 8) let nothing on the sun's side of the camera cast a shadow. A 12 m wall
+    5 m to the east of a camera looking north, the sun in the east 30 deg up: the ground ahead lies in the wall's
+    shadow (it reaches 21 m west of the wall) and renders dark; with the light at the camera it rendered lit."""
+    import os
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    mujoco = pytest.importorskip("mujoco")
+    from pvo_sim.render import open_renderer, place_rig, place_sun
+
+    xml = """<mujoco><visual><global offwidth="160" offheight="120"/><quality shadowsize="2048"/>
+      <map znear="0.005" zfar="10" shadowclip="1.5"/></visual>
+      <statistic extent="40" center="0 0 0"/>
+      <worldbody>
+        <light name="sun" directional="true" castshadow="true" dir="0 0 -1" ambient="0.2 0.2 0.2" diffuse="0.8 0.8 0.8"/>
+        <geom type="plane" size="100 100 0.1" rgba="0.8 0.8 0.8 1"/>
+        <geom name="wall" type="box" pos="5.25 20 6" size="0.25 20 6" rgba="0.8 0.8 0.8 1"/>
+        <body name="rig" mocap="true"><camera name="left" fovy="60"/></body>
+      </worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    sun = np.array([np.cos(np.radians(30.0)), 0.0, np.sin(np.radians(30.0))])  # east, 30 deg up
+    pose = np.eye(4)  # optical x east, y down, z north
+    pose[:3, :3] = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    pose[:3, 3] = [0.0, 0.0, 1.65]
+    place_rig(data, model.body("rig").mocapid[0], pose)
+    try:
+        renderer = open_renderer(model, 120, 160)
+    except ValueError as exc:
+        pytest.skip(str(exc))
+
+    def ground_ahead(light_at_camera: bool, wall: bool) -> float:
+        place_sun(model, model.light("sun").id, sun, pose[:3, 3], **({"distance": 0.0} if light_at_camera else {}))
+        model.geom_rgba[model.geom("wall").id, 3] = 1.0
+        model.geom_group[model.geom("wall").id] = 0 if wall else 5
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_camlight(model, data)
+        option = mujoco.MjvOption()
+        option.geomgroup[5] = 0
+        renderer.update_scene(data, camera="left", scene_option=option)
+        grey = renderer.render().mean(axis=2)
+        return float(np.median(grey[90:120, 50:110]))  # the ground 2-6 m ahead, left of the wall
+
+    try:
+        open_ground = ground_ahead(False, wall=False)
+        shaded, cut = ground_ahead(False, wall=True), ground_ahead(True, wall=True)
+    finally:
+        renderer.close()
+    print(f"ground ahead: no wall {open_ground:.1f}, wall {shaded:.1f}, wall with the light at the camera {cut:.1f}")
+    assert shaded < 0.5 * open_ground  # sunlight gone: only the ambient term is left
+    assert cut > 0.9 * open_ground  # what revisions up to 8 drew
+
+
+def test_the_culler_keeps_what_may_shade_the_view_from_behind() -> None:
+    """RangeCuller hides geoms out of range, and those behind the camera beyond 25 m — unless they stand up-sun of
+    it (revision 9), where a low sun throws their shadows forward into view."""
+    mujoco = pytest.importorskip("mujoco")
+    from pvo_sim.render import HIDDEN_GROUP, RangeCuller
+
+    xml = """<mujoco><worldbody>
+        <geom type="plane" size="100 100 0.1"/>
+        <geom name="ahead" type="box" pos="0 40 2" size="1 1 2"/>
+        <geom name="near_behind" type="box" pos="0 -10 2" size="1 1 2"/>
+        <geom name="behind_east" type="box" pos="20 -40 2" size="1 1 2"/>
+        <geom name="behind_west" type="box" pos="-20 -40 2" size="1 1 2"/>
+        <geom name="far" type="box" pos="0 300 2" size="1 1 2"/>
+      </worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    pose = np.eye(4)  # at the origin looking north (optical z)
+    pose[:3, :3] = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    pose[:3, 3] = [0.0, 0.0, 1.65]
+    cull = RangeCuller(model)
+    names = ("ahead", "near_behind", "behind_east", "behind_west", "far")
+
+    def hidden() -> dict[str, bool]:
+        return {name: bool(model.geom_group[model.geom(name).id] == HIDDEN_GROUP) for name in names}
+
+    cull(data, pose)  # overcast: no shadows to keep
+    assert hidden() == {"ahead": False, "near_behind": False, "behind_east": True, "behind_west": True, "far": True}
+    low_sun_behind_east = np.array([0.95, -0.1, 0.3])
+    cull(data, pose, low_sun_behind_east / np.linalg.norm(low_sun_behind_east))
+    assert hidden() == {"ahead": False, "near_behind": False, "behind_east": False, "behind_west": True, "far": True}
+    assert model.geom_group[0] != HIDDEN_GROUP  # the unbounded ground plane always drawn
+
+
 def test_rig_and_light_placement_match_the_truth() -> None:
     import os
 
@@ -333,7 +421,13 @@ def test_a_stopped_cameras_jitter_steers_neither_the_vehicles_nor_the_road(tmp_p
     revision 8 they circled the stopped camera 3.5 m away; the road beyond its end runs on the way the camera faces.
     A path that never stops keeps np.gradient's directions to the bit (its worlds are revision 7's, recorded so)."""
     import yaml
-    from pvo_sim.render import RENDERER_REVISION, UNCHANGED_SINCE_REVISION, rendered_by_this_renderer, renderer_revision
+    from pvo_sim.render import (
+        RENDERER_REVISION,
+        STEADIED_REVISION,
+        UNCHANGED_SINCE_REVISION,
+        rendered_by_this_renderer,
+        renderer_revision,
+    )
     from pvo_sim.world import WorldSpec, build_world, end_direction, horizontal_headings, steady_directions
 
     stopped, moving = _driven_then_stopped(True), _driven_then_stopped(False)
@@ -354,21 +448,32 @@ def test_a_stopped_cameras_jitter_steers_neither_the_vehicles_nor_the_road(tmp_p
     gradient = np.gradient(moving[:, :2, 3], axis=0)
     expected = gradient / np.maximum(np.linalg.norm(gradient, axis=1, keepdims=True), 1e-9)
     assert np.array_equal(steady_directions(moving[:, :2, 3], horizontal_headings(moving)), expected)
-    assert renderer_revision(stopped, 4) == RENDERER_REVISION == 8
-    assert renderer_revision(stopped, 0) == RENDERER_REVISION  # the road beyond a stopped end, vehicles or none
-    assert renderer_revision(moving, 4) == UNCHANGED_SINCE_REVISION == 7
+    # revision 9 (shadows from the sun's side of the camera) changes every sequence with sunshine; without it
+    # (overcast) a sequence keeps the revision that last changed it
+    assert renderer_revision(stopped, 4) == renderer_revision(moving, 0) == RENDERER_REVISION == 9
+    assert renderer_revision(stopped, 4, overcast=True) == STEADIED_REVISION == 8
+    assert renderer_revision(stopped, 0, overcast=True) == 8  # the road beyond a stopped end, vehicles or none
+    assert renderer_revision(moving, 4, overcast=True) == UNCHANGED_SINCE_REVISION == 7
     middle = np.concatenate([stopped[:30], moving[30:] + np.array([[0, 0, 0, -5.0]] + [[0, 0, 0, 0]] * 3)])
-    assert renderer_revision(middle, 0) == 7 and renderer_revision(middle, 2) == 8  # only vehicles replay a stop
-    # a folder is this renderer's when it records the revision its own path gives
-    for name, poses, revision, expected_current in (("a", stopped, 7, False), ("b", stopped, 8, True), ("c", moving, 7, True)):
+    assert renderer_revision(middle, 0, True) == 7 and renderer_revision(middle, 2, True) == 8  # only vehicles replay a stop
+    # a folder is this renderer's when it records the revision its own path and sky give
+    cases = (
+        ("a", stopped, 7, True, False),
+        ("b", stopped, 8, True, True),
+        ("c", moving, 7, True, True),
+        ("d", moving, 7, False, False),  # sunshine rendered before revision 9: its shadows were cut
+        ("e", moving, 9, False, True),
+    )
+    for name, poses, revision, overcast, expected_current in cases:
         folder = tmp_path / name
         folder.mkdir()
         first = poses[0].copy()
         relative = np.linalg.inv(first) @ poses
         np.savetxt(folder / "poses.txt", relative[:, :3, :].reshape(-1, 12))
-        meta = {"renderer_revision": revision, "world_T_cam0": first.tolist(), "config": {"degradations": {"moving_vehicles": 3}}}
+        config = {"overcast": overcast, "degradations": {"moving_vehicles": 3}}
+        meta = {"renderer_revision": revision, "world_T_cam0": first.tolist(), "config": config}
         (folder / "sim.yaml").write_text(yaml.safe_dump(meta))
-        assert rendered_by_this_renderer(folder) is expected_current
+        assert rendered_by_this_renderer(folder) is expected_current, name
     assert not rendered_by_this_renderer(tmp_path / "missing")
 
 

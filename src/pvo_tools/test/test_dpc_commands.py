@@ -650,10 +650,10 @@ def _fake_sequence(folder: Path, frames: int = 3, width: int = 40, height: int =
     poses[:, 3], poses[:, 11] = 0.2 * np.arange(frames), np.arange(frames)
     np.savetxt(folder / "poses.txt", poses)
     (folder / "times.txt").write_text("".join(f"{0.1 * k:e}\n" for k in range(frames)))
-    from pvo_sim.render import UNCHANGED_SINCE_REVISION
+    from pvo_sim.render import RENDERER_REVISION
 
-    meta = {  # a moving camera and no vehicles: drawn as the revision since which such a drive is drawn the same
-        "renderer_revision": UNCHANGED_SINCE_REVISION,
+    meta = {  # a sunny drive (the default sky): drawn by this renderer's revision
+        "renderer_revision": RENDERER_REVISION,
         "world_T_cam0": np.eye(4).tolist(),
         "config": {"baseline": 0.54, "degradations": {"moving_vehicles": 0}},
     }
