@@ -263,7 +263,7 @@ def mocap_quaternion(rotation_world_optical: Array) -> Array:
 #: casts no shadow; a light at the camera (revisions up to 8) dropped every caster on the sun's side of the camera
 #: — the buildings across the street from the sun, trees, vehicles, rocks ahead of a low sun. From here every
 #: geom the culler keeps (RangeCuller.radius) is in front of it; the map still covers the same 60 m about the line
-#: through the camera, and the world's far plane (3 x its extent, at least 370 m) reaches past the ground there.
+#: through the camera, and the world's far plane (3 x its extent, at least 369 m) reaches past the ground there.
 SUN_LIGHT_DISTANCE = 200.0
 
 
