@@ -7,6 +7,8 @@ and the overcast ones — the comparison behind choosing a model to ship.
 Prints one line per model: images, median and mean vector error, zenith and azimuth median (deg), the
 uncalibrated ANEES (tau infinite: the covariance the MC passes and the aleatoric output give), and the
 sunny / overcast medians. ``--decode-radius 4 6 inf`` evaluates a classifying model at other decode radii.
+``--split train`` reads training sequences instead: how well a network fits what it learned from, beside how well it
+reads new ones.
 """
 
 from __future__ import annotations
@@ -30,7 +32,14 @@ def main() -> None:
     parser.add_argument("--corpus", type=Path, default=Path("data/corpus-sun"))
     parser.add_argument("--mode", default=DEFAULT_MODE, choices=MODES, help=f"MC mode (default {DEFAULT_MODE})")
     parser.add_argument("--samples", type=int, default=25, help="MC passes per image (default 25, the node's)")
-    parser.add_argument("--max-sequences", type=int, help="the first N validation sequences only")
+    parser.add_argument("--max-sequences", type=int, help="the first N sequences of the split only")
+    parser.add_argument(
+        "--split",
+        default="validation",
+        choices=("validation", "train"),
+        help="the corpus split read (default validation; train shows how well the network fits what it learned from; "
+        "the test split is read by `pvo experiment sun-bcnn` only)",
+    )
     parser.add_argument(
         "--decode-radius",
         type=float,
@@ -40,12 +49,12 @@ def main() -> None:
     args = parser.parse_args()
 
     torch.set_num_threads(1)
-    sequences = read_corpus_manifest(args.corpus).split("validation")[: args.max_sequences or None]
+    sequences = read_corpus_manifest(args.corpus).split(args.split)[: args.max_sequences or None]
     if not sequences:
-        raise SystemExit(f"{args.corpus}: no validation sequences")
+        raise SystemExit(f"{args.corpus}: no {args.split} sequences")
     cloudy_sequences = sum("overcast" in s.conditions for s in sequences)
     print(
-        f"{args.corpus}: {len(sequences)} validation sequences ({cloudy_sequences} overcast); mode {args.mode}, "
+        f"{args.corpus}: {len(sequences)} {args.split} sequences ({cloudy_sequences} overcast); mode {args.mode}, "
         f"{args.samples} passes, tau infinite"
     )
     runs = [(name, radius) for name in args.models for radius in (args.decode_radius or [None])]
