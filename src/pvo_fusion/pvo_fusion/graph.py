@@ -167,6 +167,7 @@ class FusionGraph:
         self._first_stamp: int | None = None
         self._last_motion: tuple[Array, Array] | None = None
         self._last_velocity: tuple[Array, Array, float] | None = None  # T_k,k-1, its covariance, its interval (s)
+        self._bridged_since: int | None = None  # the newest measured motion's stamp while bridges follow it (ns)
         self._sun_bias: deque[tuple[int, int]] = deque()  # live sun offset states (key, stamp), oldest first
         self._next_bias = 0
         self._rotation_bias: deque[tuple[int, int]] = deque()  # live rotation offset states (key, first stamp)
@@ -306,21 +307,28 @@ class FusionGraph:
         motion_covariance = self._vo_covariance(transform, np.asarray(m.covariance, dtype=float))
         covariance = motion_covariance
         reference_key = self._find(m.reference_stamp)
-        if reference_key is None or reference_key != self._keys[newest]:
-            # A gap (frames missing, a VO restarted, a reference outside the window): bridge from the newest
-            # state with the constant-velocity motion over the gap and a covariance sized to it, so the
-            # estimate stays continuous and recovers as VO resumes.
-            self._count("vo", "gap")
+        lost = float(np.max(np.diag(m.covariance))) >= self.config.inputs.vo.lost_variance
+        gap = reference_key is None or reference_key != self._keys[newest]
+        if gap or lost:
+            # A gap (frames missing, a VO restarted, a reference outside the window) or a frame the VO lost (its
+            # motion carries no information): bridge from the newest state with the constant-velocity motion and a
+            # covariance sized to the time since the last measured motion, so the estimate stays continuous and
+            # recovers as VO resumes. A lost frame is not linked by its own huge covariance: hundreds of rad of
+            # rotation variance is no distribution on SO(3), and with sun readings on both sides such a link let
+            # the smoother turn the window about the sun axis without bound (stop 78's drive 03bm: 1e10 m).
+            self._count("vo", "gap" if gap else "lost")
             reference_key = self._keys[newest]
             transform, covariance = self._bridge(newest, m.stamp)
             transform, covariance = self._bridge_with_rotations(newest, m.stamp, transform, covariance)
-        elif float(np.max(np.diag(covariance))) >= self.config.inputs.vo.lost_variance:
-            self._count("vo", "lost")
+            if self._bridged_since is None:
+                self._bridged_since = newest
         elif not self._vo_motion_consistent(m.transform, covariance):
             return self._count("vo", "gated")
-        if m.stamp - m.reference_stamp > 0 and float(np.max(np.diag(m.covariance))) < self.config.inputs.vo.lost_variance:
+        else:
+            self._bridged_since = None
+        if m.stamp - m.reference_stamp > 0 and not lost:
             # the velocity a later gap is bridged with: this message's own motion over its own interval
-            self._last_velocity = (np.asarray(m.transform, dtype=float), covariance, (m.stamp - m.reference_stamp) * 1e-9)
+            self._last_velocity = (np.asarray(m.transform, dtype=float), motion_covariance, (m.stamp - m.reference_stamp) * 1e-9)
         self._last_motion = (transform, motion_covariance)
         measured, cov = between_measurement(transform, covariance)
         key = X(self._next_index)
@@ -361,15 +369,21 @@ class FusionGraph:
 
     def _bridge(self, newest: int, stamp: int) -> tuple[Array, Array]:
         """T_stamp,newest under constant velocity over a gap of T seconds (n frame intervals), with covariance
-        diag((T gap_sigma)^2) + n^2 Sigma_v; without a velocity yet, the identity with ``lost_variance``."""
+        diag((T gap_sigma)^2) + n^2 Sigma_v; without a velocity yet, the identity with ``lost_variance``.
+
+        Bridges in a row (frame after lost frame) share one growth: T and n count from the newest measured motion,
+        and each link gets the increment diag(gap_sigma^2) (T^2 - T_0^2) + (n^2 - n_0^2) Sigma_v over its
+        predecessors' T_0, n_0, so a VO lost frame by frame is as uncertain as the same outage bridged at once."""
         vo = self.config.inputs.vo
         if self._last_velocity is None:
             return np.eye(4), np.eye(6) * vo.lost_variance
         motion, motion_cov, seconds = self._last_velocity
         gap = (stamp - newest) * 1e-9
-        n = gap / seconds
-        sigma = np.asarray(vo.gap_sigma, dtype=float) * gap
-        return se3_exp(n * se3_log(motion)), np.diag(sigma**2) + n * n * motion_cov
+        before = 0.0 if self._bridged_since is None else (newest - self._bridged_since) * 1e-9
+        total = before + gap
+        growth = total**2 - before**2
+        sigma2 = np.asarray(vo.gap_sigma, dtype=float) ** 2 * growth
+        return se3_exp(gap / seconds * se3_log(motion)), np.diag(sigma2) + growth / seconds**2 * motion_cov
 
     def _rotation_chain(self, start: int, end: int) -> list[_Pending] | None:
         """The buffered rotations C_k,j that link ``start`` towards ``end`` (ns) pair by pair, in order, as far as
@@ -724,19 +738,27 @@ class FusionGraph:
         self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, timestamps: gtsam.FixedLagSmootherKeyTimestampMap
     ) -> None:
         start = time.perf_counter()
+        failure = ""
         try:
             self._smoother.update(factors, values, timestamps)
             if self.config.solver.smoother == "incremental":
                 for _ in range(self.config.solver.iterations - 1):
                     self._smoother.update()
-        except RuntimeError as exc:
-            # Keep running: restart the window at the last estimate with no information (a lost state).
-            self.counts["solver.failure"] += 1
+            estimate = self._smoother.calculateEstimate()
+            diverged = self._divergence(estimate)
+            if diverged:
+                failure = "diverged"
+                self.last_rejection = f"solver: diverged ({diverged})"
+        except RuntimeError as exc:  # GTSAM's exceptions (an indeterminate system ...) arrive as RuntimeError
+            failure = "failure"
             self.last_rejection = f"solver: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+        if failure:
+            # Keep running: restart the window at the last good estimate with no information (a lost state); the
+            # states that leave keep their estimates from before this update, never the failed ones.
+            self.counts[f"solver.{failure}"] += 1
             self._restart_lost()
             self.last_update_seconds = time.perf_counter() - start
             return
-        estimate = self._smoother.calculateEstimate()
         # States marginalised by this update keep their estimate from before it: their final one.
         while self._stamps and not estimate.exists(self._keys[self._stamps[0]]):
             stamp = self._stamps.pop(0)
@@ -749,18 +771,36 @@ class FusionGraph:
         self._estimates.refresh(estimate)
         self.last_update_seconds = time.perf_counter() - start
 
+    def _divergence(self, estimate: gtsam.Values) -> str:
+        """Why the smoother's new estimate cannot be the vehicle's, or "": a non-finite pose, or the newest state moved
+        by this update further than the vehicle could travel over the whole window at ``inputs.vo.max_speed``. A last
+        line of defence (no run of the experiments reaches it): an ill-conditioned window must give a lost state, never
+        a published path of NaN or 1e10 m."""
+        poses = gtsam.utilities.extractPose3(estimate)
+        if not np.all(np.isfinite(poses)):
+            return "a non-finite pose"
+        key = self._keys[self._stamps[-1]]
+        before = self._estimates.get(key)
+        if before is None or not estimate.exists(key):
+            return ""
+        moved = float(np.linalg.norm(estimate.atPose3(key).translation() - before.translation()))
+        reach = self.config.inputs.vo.max_speed * ((self._stamps[-1] - self._stamps[0]) * 1e-9 + 1.0)
+        return f"the newest state moved {moved:.3g} m in one update, more than {reach:.3g} m" if moved > reach else ""
+
     def _restart_lost(self) -> None:
         stamp = self._stamps[-1]
         last = self._estimates[self._keys[stamp]]
-        for s in self._stamps:
-            self._finished.append(FusedPose(s, self._estimates[self._keys[s]].matrix()))
+        # the window's states leave with their last good estimates (the newest one lives on as the new first state)
+        finished = self._finished + [FusedPose(s, self._estimates[self._keys[s]].matrix()) for s in self._stamps[:-1]]
+        kept = self._last_velocity, self._pending
         indices = self._next_index, self._next_bias, self._next_rotation_bias
         self._reset_smoother()
         self._next_index, self._next_bias, self._next_rotation_bias = indices
+        self._last_velocity, self._pending = kept
         self._initial_pose = last.matrix()
         self._initial_covariance = np.eye(6) * self.config.inputs.vo.lost_variance
         self._start(stamp)
-        self._finished = [p for p in self._finished if p.stamp != stamp]
+        self._finished = finished + self._finished
 
     # ------------------------------------------------------------------ outputs
     def pose(self, stamp: int | None = None) -> Array:
@@ -784,7 +824,13 @@ class FusionGraph:
                 return np.block([[joint.at(row, col) for col in keys] for row in keys])
             except RuntimeError:
                 pass  # an indeterminate tree: the dense QR below still answers
-        return self._dense_joint_covariance(keys)
+        try:
+            return self._dense_joint_covariance(keys)
+        except (RuntimeError, np.linalg.LinAlgError):
+            # a singular window: report the states as lost (the gate lets a reading in, the published covariance says so)
+            self.counts["solver.singular_covariance"] += 1
+            size = sum({ord("b"): 2, ord("o"): 3}.get(gtsam.Symbol(k).chr(), 6) for k in keys)
+            return np.eye(size) * self.config.inputs.vo.lost_variance
 
     def _dense_joint_covariance(self, keys: list[int]) -> Array:
         """Joint marginal covariance of live states (poses: 6, sun offsets: 2, rotation offsets: 3) by dense QR of the
@@ -847,6 +893,12 @@ class _Estimates:
     def __getitem__(self, key: int) -> gtsam.Pose3:
         pose = self._added.get(key)
         return pose if pose is not None else self._values.atPose3(key)
+
+    def get(self, key: int) -> gtsam.Pose3 | None:
+        pose = self._added.get(key)
+        if pose is None and self._values.exists(key):
+            pose = self._values.atPose3(key)
+        return pose
 
     def __setitem__(self, key: int, pose: gtsam.Pose3) -> None:
         self._added[key] = pose

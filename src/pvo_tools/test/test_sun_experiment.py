@@ -22,6 +22,15 @@ def test_simulated_sun_every_tenth_frame_and_seeded(pvo_data: Path) -> None:
     assert not np.array_equal(sun[0].direction, other[0].direction)
 
 
+def test_sun_seeds_keep_numbered_sequences_and_take_any_drive_name() -> None:
+    # the numbered sequences keep the seeds every earlier GT-Sun figure was drawn with
+    assert sun_seed(0, "04", 10.0) == 4100 and sun_seed(2, "0014", 20.0) == 214_200
+    # a validation drive's name (stop 78: `int("03b")` stopped the GT-Sun rows on them) gets its own stable seed
+    named = {name: sun_seed(0, name, 10.0) for name in ("03b", "03bm", "10am", "04")}
+    assert len(set(named.values())) == 4 and named["03bm"] == sun_seed(0, "03bm", 10.0)
+    assert sun_seed(1, "03bm", 10.0) != named["03bm"]
+
+
 def test_cli_runs_one_sequence_and_writes_the_run_record(pvo_data: Path, tmp_path: Path) -> None:
     out = tmp_path / "sun"
     command = ["pvo", "experiment", "sun-sim", "--data", str(pvo_data), "--sequences", "04", "--levels", "0", "30"]
