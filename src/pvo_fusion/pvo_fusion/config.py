@@ -71,7 +71,8 @@ class VOInputConfig:
     ``interval_too_long``). A gap (missing frames, a restarted VO) is bridged from the newest state with the
     last motion extrapolated over it (constant velocity) and the covariance of a velocity that may have
     changed by ``gap_sigma`` (m/s and rad/s, ROS order, per second of gap) plus the last motion's own
-    covariance scaled to the gap.
+    covariance scaled to the gap. A motion with a variance of ``lost_variance`` or more is a frame the VO lost: bridged
+    the same way, its motion not used (bridges in a row grow as one outage of their summed length).
 
     ``gain_sigma`` = (translation, rotation), dimensionless: errors that grow with the motion. A calibration error
     (focal length, baseline, lens) makes a stereo VO read distances and turns a few per cent long or short, which
