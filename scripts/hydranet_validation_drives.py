@@ -123,6 +123,15 @@ def main() -> None:
         action="store_true",
         help="fuse the VO's covariances as it reports them instead of scaled by the corpus's calibration (span 0)",
     )
+    parser.add_argument(
+        "--fusion-param",
+        "-f",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a fusion setting (FusionConfig's dotted name, a YAML value) for every fused graph, e.g. "
+        "-f inputs.vo.lost_sigma_scale=3",
+    )
     parser.add_argument("--part", default="1/1", help="K/N: every N-th drive from the K-th (default 1/1: all)")
     parser.add_argument("--json", type=Path, help="write the per-drive changes here (for --merge)")
     parser.add_argument("--merge", nargs="+", type=Path, help="only average the per-drive changes of these --json files")
@@ -154,6 +163,16 @@ def main() -> None:
         vo_settings[name] = yaml.safe_load(text)
     try:
         vo_config = from_flat_vo(vo_settings)
+    except ValueError as error:
+        parser.error(str(error))
+    fusion_params = {}
+    for item in args.fusion_param:
+        name, sep, text = item.partition("=")
+        if not sep:
+            parser.error(f"-f {item!r}: expected NAME=VALUE")
+        fusion_params[name] = yaml.safe_load(text)
+    try:
+        from_flat({"prior.source": "given", **fusion_params})
     except ValueError as error:
         parser.error(str(error))
 
@@ -266,6 +285,7 @@ def main() -> None:
                     "inputs.rotation.vo_bias_windows": vo_bias,
                     "inputs.rotation.vo_rotation_scale_windows": 1000.0 if turn else 0.0,
                     "inputs.rotation.vo_rotation_scale_gain": turn or 1.0,
+                    **fusion_params,
                 }
                 graph = FusionGraph(from_flat(flat))
                 graph.set_initial_pose(truth[0])

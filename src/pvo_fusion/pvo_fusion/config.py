@@ -72,7 +72,9 @@ class VOInputConfig:
     last motion extrapolated over it (constant velocity) and the covariance of a velocity that may have
     changed by ``gap_sigma`` (m/s and rad/s, ROS order, per second of gap) plus the last motion's own
     covariance scaled to the gap. A motion with a variance of ``lost_variance`` or more is a frame the VO lost: bridged
-    the same way, its motion not used (bridges in a row grow as one outage of their summed length).
+    the same way, its motion not used (bridges in a row grow as one outage of their summed length), with ``gap_sigma``
+    times ``lost_sigma_scale``: the VO often loses its frames where the vehicle's motion changes, and its last measured
+    motion before them may be wrong already.
 
     ``gain_sigma`` = (translation, rotation), dimensionless: errors that grow with the motion. A calibration error
     (focal length, baseline, lens) makes a stereo VO read distances and turns a few per cent long or short, which
@@ -90,6 +92,7 @@ class VOInputConfig:
     max_angular_rate: float = 10.0
     max_interval: float = 10.0
     gap_sigma: tuple[float, ...] = (1.0, 1.0, 2.0, 0.05, 0.1, 0.05)
+    lost_sigma_scale: float = 1.0
     gain_sigma: tuple[float, ...] = (0.0, 0.0)
 
 
@@ -260,6 +263,7 @@ def validate(config: FusionConfig) -> None:
             "inputs.vo.covariance_scale needs 6 positive values",
         ),
         (config.inputs.vo.lost_variance > 0.0, "inputs.vo.lost_variance must be positive"),
+        (config.inputs.vo.lost_sigma_scale > 0.0, "inputs.vo.lost_sigma_scale must be positive"),
         (config.inputs.vo.max_speed > 0.0, "inputs.vo.max_speed must be positive (m/s)"),
         (config.inputs.vo.max_angular_rate > 0.0, "inputs.vo.max_angular_rate must be positive (rad/s)"),
         (config.inputs.vo.max_interval > 0.0, "inputs.vo.max_interval must be positive (s)"),

@@ -318,7 +318,7 @@ class FusionGraph:
             # the smoother turn the window about the sun axis without bound (stop 78's drive 03bm: 1e10 m).
             self._count("vo", "gap" if gap else "lost")
             reference_key = self._keys[newest]
-            transform, covariance = self._bridge(newest, m.stamp)
+            transform, covariance = self._bridge(newest, m.stamp, 1.0 if gap else self.config.inputs.vo.lost_sigma_scale)
             transform, covariance = self._bridge_with_rotations(newest, m.stamp, transform, covariance)
             if self._bridged_since is None:
                 self._bridged_since = newest
@@ -367,9 +367,9 @@ class FusionGraph:
         gained[3:, 3:] += self._vo_gain[1] ** 2 * np.outer(rotation, rotation)
         return gained
 
-    def _bridge(self, newest: int, stamp: int) -> tuple[Array, Array]:
+    def _bridge(self, newest: int, stamp: int, sigma_scale: float = 1.0) -> tuple[Array, Array]:
         """T_stamp,newest under constant velocity over a gap of T seconds (n frame intervals), with covariance
-        diag((T gap_sigma)^2) + n^2 Sigma_v; without a velocity yet, the identity with ``lost_variance``.
+        diag((T sigma_scale gap_sigma)^2) + n^2 Sigma_v; without a velocity yet, the identity with ``lost_variance``.
 
         Bridges in a row (frame after lost frame) share one growth: T and n count from the newest measured motion,
         and each link gets the increment diag(gap_sigma^2) (T^2 - T_0^2) + (n^2 - n_0^2) Sigma_v over its
@@ -382,7 +382,7 @@ class FusionGraph:
         before = 0.0 if self._bridged_since is None else (newest - self._bridged_since) * 1e-9
         total = before + gap
         growth = total**2 - before**2
-        sigma2 = np.asarray(vo.gap_sigma, dtype=float) ** 2 * growth
+        sigma2 = (sigma_scale * np.asarray(vo.gap_sigma, dtype=float)) ** 2 * growth
         return se3_exp(gap / seconds * se3_log(motion)), np.diag(sigma2) + growth / seconds**2 * motion_cov
 
     def _rotation_chain(self, start: int, end: int) -> list[_Pending] | None:

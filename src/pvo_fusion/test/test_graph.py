@@ -411,6 +411,28 @@ def test_vo_gaps_and_lost_frames_are_bridged_by_the_motion_model() -> None:
     np.testing.assert_allclose(graph.pose()[:3, 3], truth[59][:3, 3], atol=1.0)
 
 
+@pytest.mark.parametrize("scale", [1.0, 4.0])
+def test_a_lost_frame_bridge_is_loosened_by_lost_sigma_scale_and_a_gap_is_not(scale: float) -> None:
+    truth = truth_trajectory(30)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph(from_flat({"inputs.vo.lost_sigma_scale": scale}))
+    for m in vo[:10]:
+        graph.add_vo(m)
+    before = graph.covariance()
+    graph.add_vo(RelativeMeasurement(vo[10].stamp, vo[10].reference_stamp, vo[10].transform, np.eye(6) * 9999.0))
+    lost_growth = np.diag(graph.covariance() - before)[3:]
+    gap_sigma = np.array(graph.config.inputs.vo.gap_sigma)
+    np.testing.assert_allclose(lost_growth, (scale * gap_sigma[3:] * 0.1) ** 2 + np.diag(VO_COV)[3:], rtol=0.05)
+    for m in vo[11:20]:
+        graph.add_vo(m)
+    before = graph.covariance()
+    graph.add_vo(vo[21])  # frame 21 refers to frame 20, never seen: a gap of 0.2 s, bridged at gap_sigma itself
+    gap_growth = np.diag(graph.covariance() - before)[3:]
+    np.testing.assert_allclose(gap_growth, (gap_sigma[3:] * 0.2) ** 2 + 4.0 * np.diag(VO_COV)[3:], rtol=0.05)
+    with pytest.raises(ValueError, match="lost_sigma_scale must be positive"):
+        from_flat({"inputs.vo.lost_sigma_scale": 0.0})
+
+
 FIXTURES = Path(__file__).parent / "fixtures"
 
 
