@@ -155,23 +155,10 @@ def main() -> None:
     torch.set_num_threads(1)
     if not args.models:
         parser.error("--models is required (unless --merge)")
-    vo_settings = {}
-    for item in args.vo_param:
-        name, sep, text = item.partition("=")
-        if not sep:
-            parser.error(f"-p {item!r}: expected NAME=VALUE")
-        vo_settings[name] = yaml.safe_load(text)
+    vo_settings = named_values(parser, "-p", args.vo_param)
+    fusion_params = named_values(parser, "-f", args.fusion_param)
     try:
         vo_config = from_flat_vo(vo_settings)
-    except ValueError as error:
-        parser.error(str(error))
-    fusion_params = {}
-    for item in args.fusion_param:
-        name, sep, text = item.partition("=")
-        if not sep:
-            parser.error(f"-f {item!r}: expected NAME=VALUE")
-        fusion_params[name] = yaml.safe_load(text)
-    try:
         from_flat({"prior.source": "given", **fusion_params})
     except ValueError as error:
         parser.error(str(error))
@@ -304,6 +291,17 @@ def main() -> None:
     if args.json:
         args.json.write_text(json.dumps(named, indent=1))
     print_means(named)
+
+
+def named_values(parser: argparse.ArgumentParser, flag: str, items: list[str]) -> dict[str, Any]:
+    """``NAME=VALUE`` options as a dict of YAML values; a malformed one stops the command naming it."""
+    values = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep:
+            parser.error(f"{flag} {item!r}: expected NAME=VALUE")
+        values[name] = yaml.safe_load(text)
+    return values
 
 
 READINGS = ("as-read", "debiased", "true", "sampled", "turn-scaled")

@@ -375,12 +375,18 @@ def test_sun_without_a_gps_origin_is_rejected_not_fused() -> None:
     assert graph.factor_counts["sun"] == 0
 
 
-def test_vo_gaps_and_lost_frames_are_bridged_by_the_motion_model() -> None:
-    truth = truth_trajectory(60)
+def fed_graph(frames: int, fed: int, config: FusionConfig | None = None) -> tuple[np.ndarray, list, FusionGraph]:
+    """A noiseless drive of ``frames`` frames and a graph fed its first ``fed`` VO motions."""
+    truth = truth_trajectory(frames)
     vo = vo_stream(truth, None)
-    graph = FusionGraph()
-    for m in vo[:10]:
+    graph = FusionGraph(config)
+    for m in vo[:fed]:
         graph.add_vo(m)
+    return truth, vo, graph
+
+
+def test_vo_gaps_and_lost_frames_are_bridged_by_the_motion_model() -> None:
+    truth, vo, graph = fed_graph(60, 10)
     before = graph.covariance()
     # frame 11 never arrives: frame 12 refers to it, a gap of two frame intervals
     assert graph.add_vo(vo[11]) == "accepted"
@@ -413,11 +419,7 @@ def test_vo_gaps_and_lost_frames_are_bridged_by_the_motion_model() -> None:
 
 @pytest.mark.parametrize("scale", [1.0, 4.0])
 def test_a_lost_frame_bridge_is_loosened_by_lost_sigma_scale_and_a_gap_is_not(scale: float) -> None:
-    truth = truth_trajectory(30)
-    vo = vo_stream(truth, None)
-    graph = FusionGraph(from_flat({"inputs.vo.lost_sigma_scale": scale}))
-    for m in vo[:10]:
-        graph.add_vo(m)
+    _, vo, graph = fed_graph(30, 10, from_flat({"inputs.vo.lost_sigma_scale": scale}))
     before = graph.covariance()
     graph.add_vo(RelativeMeasurement(vo[10].stamp, vo[10].reference_stamp, vo[10].transform, np.eye(6) * 9999.0))
     lost_growth = np.diag(graph.covariance() - before)[3:]
@@ -497,11 +499,7 @@ class _Diverging:
 
 @pytest.mark.parametrize("translation", [np.array([np.nan, 0.0, 0.0]), np.array([1e12, 0.0, 0.0])])
 def test_a_diverged_solution_restarts_a_lost_state_at_the_last_good_estimate(translation: np.ndarray) -> None:
-    truth = truth_trajectory(40)
-    vo = vo_stream(truth, None)
-    graph = FusionGraph()
-    for m in vo[:20]:
-        graph.add_vo(m)
+    truth, vo, graph = fed_graph(40, 20)
     good = graph.pose()
     healthy = graph._smoother
     new_key = gtsam.symbol_shorthand.X(graph._next_index)
