@@ -369,16 +369,21 @@ class FusionGraph:
 
     def _bridge(self, newest: int, stamp: int, sigma_scale: float = 1.0) -> tuple[Array, Array]:
         """T_stamp,newest under constant velocity over a gap of T seconds (n frame intervals), with covariance
-        diag((T sigma_scale gap_sigma)^2) + n^2 Sigma_v; without a velocity yet, the identity with ``lost_variance``.
+        diag((T sigma_scale gap_sigma)^2) + n^2 Sigma_v; without a velocity yet, the identity with σ max_speed T (m)
+        and min(max_angular_rate T, 1) (rad).
 
         Bridges in a row (frame after lost frame) share one growth: T and n count from the newest measured motion,
         and each link gets the increment diag(gap_sigma^2) (T^2 - T_0^2) + (n^2 - n_0^2) Sigma_v over its
         predecessors' T_0, n_0, so a VO lost frame by frame is as uncertain as the same outage bridged at once."""
         vo = self.config.inputs.vo
-        if self._last_velocity is None:
-            return np.eye(4), np.eye(6) * vo.lost_variance
-        motion, motion_cov, seconds = self._last_velocity
         gap = (stamp - newest) * 1e-9
+        if self._last_velocity is None:
+            # no motion measured yet: standing still, as far as a vehicle can move in the interval (max_speed,
+            # max_angular_rate); the rotation's σ capped at 1 rad, a distribution on SO(3) still (lost_variance·I's
+            # 31 rad is none)
+            sigma = np.array([vo.max_speed * gap] * 3 + [min(vo.max_angular_rate * gap, 1.0)] * 3)
+            return np.eye(4), np.diag(sigma**2)
+        motion, motion_cov, seconds = self._last_velocity
         before = 0.0 if self._bridged_since is None else (newest - self._bridged_since) * 1e-9
         total = before + gap
         growth = total**2 - before**2

@@ -435,6 +435,26 @@ def test_a_lost_frame_bridge_is_loosened_by_lost_sigma_scale_and_a_gap_is_not(sc
         from_flat({"inputs.vo.lost_sigma_scale": 0.0})
 
 
+def test_a_vo_lost_on_its_first_motion_is_bridged_within_what_a_vehicle_can_do() -> None:
+    """No motion measured yet, so no velocity to bridge with: standing still, with the covariance of the plausibility
+    bounds over the interval (not lost_variance·I, whose 31 rad of rotation σ is no distribution on SO(3))."""
+    truth = truth_trajectory(20)
+    vo = vo_stream(truth, None)
+    graph = FusionGraph()
+    first = vo[0]
+    assert (
+        graph.add_vo(RelativeMeasurement(first.stamp, first.reference_stamp, first.transform, np.eye(6) * 9999.0)) == "accepted"
+    )
+    assert graph.counts["vo.lost"] == 1
+    np.testing.assert_allclose(graph.pose(), np.eye(4), atol=1e-9)
+    vo_config = graph.config.inputs.vo
+    sigma = np.array([vo_config.max_speed * 0.1] * 3 + [min(vo_config.max_angular_rate * 0.1, 1.0)] * 3)
+    np.testing.assert_allclose(np.diag(graph.covariance()), sigma**2, rtol=0.05)  # plus the first state's tight prior
+    for m in vo[1:]:
+        assert graph.add_vo(m) == "accepted"
+    assert np.all(np.isfinite(graph.pose()))
+
+
 FIXTURES = Path(__file__).parent / "fixtures"
 
 
