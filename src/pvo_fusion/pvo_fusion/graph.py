@@ -803,7 +803,11 @@ class FusionGraph:
         self._next_index, self._next_bias, self._next_rotation_bias = indices
         self._last_velocity, self._pending = kept
         self._initial_pose = last.matrix()
-        self._initial_covariance = np.eye(6) * self.config.inputs.vo.lost_variance
+        # lost: the position by lost_variance per axis, the orientation by at most 1 rad of σ per axis, as the
+        # first-motion bridge does (lost_variance·I's 31 rad is no distribution on SO(3): sun readings could turn the
+        # restarted window through any angle)
+        lost_variance = self.config.inputs.vo.lost_variance
+        self._initial_covariance = np.diag([lost_variance] * 3 + [min(lost_variance, 1.0)] * 3)
         self._start(stamp)
         self._finished = finished + self._finished
 
