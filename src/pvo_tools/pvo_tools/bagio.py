@@ -114,6 +114,31 @@ class SafeBagWriter:
         self.counts[topic] = 0
         return connection
 
+    def add_recorded_topic(
+        self,
+        topic: str,
+        type_name: str,
+        definition: str,
+        type_hash: str,
+        qos: list[Any],
+        serialization_format: str = "cdr",
+    ) -> Connection:
+        """Register a topic with the definition and type hash a recording carried, so types no package here defines
+        keep theirs (`pvo bag recover`)."""
+        if topic in self._connections:
+            return self._connections[topic]
+        connection = self._writer.add_connection(
+            topic,
+            type_name,
+            msgdef=definition,
+            rihs01=type_hash,
+            serialization_format=serialization_format,
+            offered_qos_profiles=qos,
+        )
+        self._connections[topic] = connection
+        self.counts[topic] = 0
+        return connection
+
     def write(self, topic: str, stamp_ns: int, message: Any) -> None:
         """Serialise a rosbags message object to CDR and write it."""
         connection = self._connections[topic]
@@ -170,12 +195,14 @@ def open_bag(path: str | Path) -> Iterator[Reader]:
     if path.is_file():
         raise BagError(f"{path}: a rosbag2 bag is a directory with metadata.yaml; got a file")
     if not (path / "metadata.yaml").is_file():
+        if any(path.glob("*.mcap")):
+            raise BagError(f"{path}: no metadata.yaml beside its .mcap (a recording cut off?){_recover_hint(path)}")
         raise BagError(f"{path}: not a rosbag2 bag (no metadata.yaml)")
     reader = Reader(path)
     try:
         reader.open()
     except Exception as error:  # noqa: BLE001 - rosbags raises several types for broken bags
-        raise BagError(f"{path}: cannot open bag: {_one_line(error)}") from None
+        raise BagError(f"{path}: cannot open bag: {_one_line(error)}{_recover_hint(path)}") from None
     try:
         yield reader
     finally:
@@ -193,9 +220,15 @@ def iter_messages(reader: Reader, connections: list[Connection] | None = None, s
         raise
     except Exception as error:  # noqa: BLE001
         bad = [line for mcap in Path(reader.path).glob("*.mcap") for line in verify_chunks(mcap)[2]]
+        hint = _recover_hint(Path(reader.path))
         if bad:
-            raise BagError(bad[0] + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "")) from None
-        raise BagError(f"{reader.path}: corrupt or truncated bag: {_one_line(error)}") from None
+            raise BagError(bad[0] + (f" (and {len(bad) - 1} more)" if len(bad) > 1 else "") + hint) from None
+        raise BagError(f"{reader.path}: corrupt or truncated bag: {_one_line(error)}{hint}") from None
+
+
+def _recover_hint(path: Path) -> str:
+    """What to do about a damaged MCAP bag, for its error line ("" for other storages)."""
+    return f" (`pvo bag recover {path} -o NEW` saves what can be read)" if any(path.glob("*.mcap")) else ""
 
 
 def _one_line(error: BaseException) -> str:

@@ -1,4 +1,4 @@
-"""`pvo bag info|play|record|trajectory`: rosbag2 bags without a ROS 2 install."""
+"""`pvo bag info|play|record|trajectory|recover`: rosbag2 bags without a ROS 2 install."""
 
 from __future__ import annotations
 
@@ -43,6 +43,18 @@ def register(sub: Any) -> None:
     rec.add_argument("--stamp", choices=["receive", "header"], default="receive", help="bag time: receive time or header.stamp")
     rec.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     rec.add_argument("--overwrite", action="store_true", help="replace an existing output")
+
+    recover = verbs.add_parser(
+        "recover",
+        help="save what can be read of a truncated or corrupted MCAP recording into a new bag",
+        description="Read every MCAP file of BAG (a bag directory, with or without metadata.yaml, or one .mcap file) "
+        "in file order and write every message that can still be read into a new bag: whole chunks that pass their "
+        "checksum, and the complete messages at the head of a chunk cut off. Each loss is named; BAG is not changed.",
+    )
+    recover.add_argument("bag", type=Path)
+    recover.add_argument("--output", "-o", type=Path, required=True, help="the new bag directory")
+    recover.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    recover.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
 
     traj = verbs.add_parser("trajectory", help="summary (and export) of a pose topic, e.g. the ground truth")
     traj.add_argument("bag", type=Path)
@@ -89,6 +101,11 @@ def run(args: argparse.Namespace) -> int:
             ),
         )
         print(f"recorded {sum(counts.values())} messages on {len(counts)} topics to {args.output}", file=sys.stderr)
+    elif args.verb == "recover":
+        from ..bagrecover import recover_bag
+
+        recovery = recover_bag(args.bag, args.output, overwrite=args.overwrite, storage=args.storage)
+        print("\n".join(recovery.lines()))
     elif args.verb == "trajectory":
         from pvo_core.trajectory import write_kitti_poses, write_tum_trajectory
 
