@@ -8,6 +8,7 @@ bytes and stamps and /clock advancing; play -> record -> the recorded bag equals
 from __future__ import annotations
 
 import itertools
+import shutil
 import subprocess
 import time
 from collections.abc import Iterator
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pvo_core.readers import KittiSequence
+from pvo_tools.bagrecover import recover_bag
 from pvo_tools.convert import convert_kitti
 from pvo_tools.player import BagPlayer, PlayOptions
 from pvo_tools.recorder import BagRecorder, RecordOptions
@@ -236,3 +238,40 @@ def test_loop_restamps_each_pass_so_stamps_keep_increasing(ros_context, tmp_path
     expected = [1_000_000_000 + k * 100_000_000 for k in range(15)]  # each pass one frame interval after the last
     assert stamps == expected
     assert all(b > a for a, b in itertools.pairwise(clocks))
+
+
+def test_a_recording_cut_off_is_kept_named_and_recovered(
+    ros_context, nodes, kitti06_bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """What a recorder killed mid-recording (SIGKILL, power lost) leaves on disk — its hidden partial bag, no footer,
+    no metadata.yaml — is kept by the next recording to that path, named with the command that saves it, and
+    `pvo bag recover` gives back the messages it holds byte for byte."""
+    topics = [*IMAGE_TOPICS, "/stereo/left/camera_info", "/stereo/right/camera_info"]
+    recorder_node = Node("recorder", context=ros_context)
+    player_node = Node("player", context=ros_context)
+    nodes += [recorder_node, player_node]
+    recorder = BagRecorder(recorder_node, tmp_path / "recorded", RecordOptions(topics=topics, stamp="header"))
+    player = BagPlayer(player_node, kitti06_bag, PlayOptions(rate=4.0, wait_for_subscribers=1, clock=False))
+    with Spinner(ros_context, recorder_node):
+        player.play()
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and sum(recorder.writer.counts.values()) < 4 * 51:
+            time.sleep(0.05)
+        # the disk as a kill would leave it: the writer still open, its footer and metadata.yaml never written
+        (live,) = tmp_path.glob(".recorded.partial-*")
+        killed = tmp_path / ".again.partial-999999999-deadbeef"  # a pid that cannot exist: a dead recorder's
+        shutil.copytree(live / "recorded", killed / "again")
+        recorder.close()
+    assert not (killed / "again" / "metadata.yaml").exists()
+    capsys.readouterr()
+    BagRecorder(recorder_node, tmp_path / "again", RecordOptions(topics=topics)).close()
+    left = killed / "again"
+    assert f"`pvo bag recover {left} -o NEW` saves what it holds" in capsys.readouterr().err
+    assert left.is_dir()  # kept: a recording cannot be made again
+    recovery = recover_bag(left, tmp_path / "saved")
+    assert recovery.chunks_read >= 1 and recovery.problems  # the cut is named
+    source = bag_messages(kitti06_bag, set(topics))
+    saved = bag_messages(tmp_path / "saved", set(topics))
+    assert sum(len(v) for v in saved.values()) == sum(recovery.messages.values()) > 0
+    for topic in topics:
+        assert saved[topic] == source[topic][: len(saved[topic])], topic

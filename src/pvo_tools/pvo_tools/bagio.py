@@ -45,17 +45,16 @@ def check_output_path(path: Path, overwrite: bool) -> None:
 PARTIAL = ".{name}.partial-"
 
 
-def remove_stale_partials(path: Path) -> list[Path]:
-    """Remove the hidden ``.<name>.partial-<pid>-*`` directories that earlier runs for ``path`` left when they
-    were killed (their process is gone); returns what was removed."""
-    removed = []
-    for candidate in path.parent.glob(PARTIAL.format(name=path.name) + "*"):
+def stale_partials(path: Path) -> list[Path]:
+    """The hidden ``.<name>.partial-<pid>-*`` directories that earlier runs for ``path`` left when they were killed
+    (their process is gone)."""
+    stale = []
+    for candidate in sorted(path.parent.glob(PARTIAL.format(name=path.name) + "*")):
         pid_text = candidate.name.rsplit(".partial-", 1)[1].split("-", 1)[0]
         alive = pid_text.isdigit() and _process_alive(int(pid_text))
         if candidate.is_dir() and not alive:
-            shutil.rmtree(candidate, ignore_errors=True)
-            removed.append(candidate)
-    return removed
+            stale.append(candidate)
+    return stale
 
 
 def _process_alive(pid: int) -> bool:
@@ -76,17 +75,35 @@ class SafeBagWriter:
         storage: ``mcap`` (zstd-compressed chunks) or ``sqlite3``.
         overwrite: replace an existing ``path``.
         compress: zstd chunk compression (MCAP) / per-storage compression.
+        keep_interrupted: what a killed earlier run for ``path`` left is kept and named, not removed: a recording
+            cannot be made again (a conversion can), and `pvo bag recover` saves what it holds.
     """
 
-    def __init__(self, path: str | Path, storage: str = "mcap", overwrite: bool = False, compress: bool = True):
+    def __init__(
+        self,
+        path: str | Path,
+        storage: str = "mcap",
+        overwrite: bool = False,
+        compress: bool = True,
+        keep_interrupted: bool = False,
+    ):
         self.path = Path(path)
         if storage not in STORAGES:
             raise BagError(f"unknown storage '{storage}'; use one of {sorted(STORAGES)}")
         check_output_path(self.path, overwrite)
         self.overwrite = overwrite
         self.typestore = project_typestore()
-        for stale in remove_stale_partials(self.path):
-            print(f"pvo: removed {stale}, left by an interrupted earlier run", file=sys.stderr)
+        for stale in stale_partials(self.path):
+            if keep_interrupted:
+                left = stale / self.path.name
+                print(
+                    f"pvo: an earlier recording to {self.path} was cut off and left {left}: "
+                    f"`pvo bag recover {left} -o NEW` saves what it holds",
+                    file=sys.stderr,
+                )
+            else:
+                shutil.rmtree(stale, ignore_errors=True)
+                print(f"pvo: removed {stale}, left by an interrupted earlier run", file=sys.stderr)
         # The bag is written as <hidden dir>/<name> so its storage file gets its final name; the pid in the
         # name tells a later run whether the writer is still alive.
         self._tmp_parent = self.path.parent / (PARTIAL.format(name=self.path.name) + f"{os.getpid()}-{uuid.uuid4().hex[:8]}")

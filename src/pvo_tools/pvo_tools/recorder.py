@@ -67,7 +67,7 @@ class BagRecorder:
             raise ValueError(f"--stamp must be 'receive' or 'header', got {options.stamp!r}")
         self.node = node
         self.options = options
-        self.writer = SafeBagWriter(out, storage=options.storage, overwrite=options.overwrite)
+        self.writer = SafeBagWriter(out, storage=options.storage, overwrite=options.overwrite, keep_interrupted=True)
         self._lock = threading.Lock()
         self._subscribed: dict[str, object] = {}
         self._header_topics: set[str] = set()
