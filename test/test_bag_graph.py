@@ -86,6 +86,24 @@ def test_play_delivers_every_stereo_pair_unchanged(ros_context, nodes, kitti06_b
     assert clock[0] == expected[IMAGE_TOPICS[0]][0][0]
 
 
+def play_into_recorder(
+    ros_context, nodes: list[Node], bag: Path, out: Path, topics: list[str], expected: int
+) -> tuple[BagRecorder, Node]:
+    """``bag`` played at 4x into a recorder of ``topics`` (header stamps) writing ``out``, until it holds ``expected``
+    messages (10 s at most); the recorder is left open."""
+    recorder_node = Node("recorder", context=ros_context)
+    player_node = Node("player", context=ros_context)
+    nodes += [recorder_node, player_node]
+    recorder = BagRecorder(recorder_node, out, RecordOptions(topics=topics, stamp="header"))
+    player = BagPlayer(player_node, bag, PlayOptions(rate=4.0, wait_for_subscribers=1, clock=False))
+    with Spinner(ros_context, recorder_node):
+        player.play()
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and sum(recorder.writer.counts.values()) < expected:
+            time.sleep(0.05)
+    return recorder, recorder_node
+
+
 def test_play_then_record_reproduces_the_bag(ros_context, nodes, kitti06_bag: Path, tmp_path: Path) -> None:
     topics = [
         *IMAGE_TOPICS,
@@ -94,17 +112,8 @@ def test_play_then_record_reproduces_the_bag(ros_context, nodes, kitti06_bag: Pa
         "/ground_truth/odometry",
         "/ground_truth/sun_direction",
     ]
-    recorder_node = Node("recorder", context=ros_context)
-    player_node = Node("player", context=ros_context)
-    nodes += [recorder_node, player_node]
-    recorder = BagRecorder(recorder_node, tmp_path / "recorded", RecordOptions(topics=topics, stamp="header"))
-    player = BagPlayer(player_node, kitti06_bag, PlayOptions(rate=4.0, wait_for_subscribers=1, clock=False))
-    with Spinner(ros_context, recorder_node):
-        player.play()
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and sum(recorder.writer.counts.values()) < 306:
-            time.sleep(0.05)
-        counts = recorder.close()
+    recorder, _ = play_into_recorder(ros_context, nodes, kitti06_bag, tmp_path / "recorded", topics, 306)
+    counts = recorder.close()
     assert counts == dict.fromkeys(topics, 51)
     source = bag_messages(kitti06_bag, set(topics))
     recorded = bag_messages(tmp_path / "recorded", set(topics))
@@ -247,21 +256,12 @@ def test_a_recording_cut_off_is_kept_named_and_recovered(
     no metadata.yaml — is kept by the next recording to that path, named with the command that saves it, and
     `pvo bag recover` gives back the messages it holds byte for byte."""
     topics = [*IMAGE_TOPICS, "/stereo/left/camera_info", "/stereo/right/camera_info"]
-    recorder_node = Node("recorder", context=ros_context)
-    player_node = Node("player", context=ros_context)
-    nodes += [recorder_node, player_node]
-    recorder = BagRecorder(recorder_node, tmp_path / "recorded", RecordOptions(topics=topics, stamp="header"))
-    player = BagPlayer(player_node, kitti06_bag, PlayOptions(rate=4.0, wait_for_subscribers=1, clock=False))
-    with Spinner(ros_context, recorder_node):
-        player.play()
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and sum(recorder.writer.counts.values()) < 4 * 51:
-            time.sleep(0.05)
-        # the disk as a kill would leave it: the writer still open, its footer and metadata.yaml never written
-        (live,) = tmp_path.glob(".recorded.partial-*")
-        killed = tmp_path / ".again.partial-999999999-deadbeef"  # a pid that cannot exist: a dead recorder's
-        shutil.copytree(live / "recorded", killed / "again")
-        recorder.close()
+    recorder, recorder_node = play_into_recorder(ros_context, nodes, kitti06_bag, tmp_path / "recorded", topics, 4 * 51)
+    # the disk as a kill would leave it: the writer still open, its footer and metadata.yaml never written
+    (live,) = tmp_path.glob(".recorded.partial-*")
+    killed = tmp_path / ".again.partial-999999999-deadbeef"  # a pid that cannot exist: a dead recorder's
+    shutil.copytree(live / "recorded", killed / "again")
+    recorder.close()
     assert not (killed / "again" / "metadata.yaml").exists()
     capsys.readouterr()
     BagRecorder(recorder_node, tmp_path / "again", RecordOptions(topics=topics)).close()

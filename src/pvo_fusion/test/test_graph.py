@@ -458,9 +458,9 @@ def test_a_vo_lost_on_its_first_motion_is_bridged_within_what_a_vehicle_can_do()
 FIXTURES = Path(__file__).parent / "fixtures"
 
 
-def replay_fixture(name: str, sun: bool) -> tuple[FusionGraph, np.ndarray, np.ndarray, np.ndarray]:
+def replay_fixture(name: str, sun: bool, diverge_at: int | None = None) -> tuple[FusionGraph, np.ndarray, np.ndarray, np.ndarray]:
     """A recorded drive through the graph as the sun experiment runs it; the online pose after each VO, the smoothed
-    path, and the truth at each of them."""
+    path, and the truth at each of them. ``diverge_at``: the update of that VO frame's state diverges (one NaN pose)."""
     z = np.load(FIXTURES / name)
     stamps = [int(s) for s in z["stamps"]]
     config = from_flat(
@@ -473,8 +473,14 @@ def replay_fixture(name: str, sun: bool) -> tuple[FusionGraph, np.ndarray, np.nd
         for s, d, c in zip(z["sun_stamps"], z["sun_directions"], z["sun_covariances"], strict=True)
     }
     online = []
-    for (reference, stamp), transform, covariance in zip(z["vo_stamps"], z["vo_transforms"], z["vo_covariances"], strict=True):
+    for frame, ((reference, stamp), transform, covariance) in enumerate(
+        zip(z["vo_stamps"], z["vo_transforms"], z["vo_covariances"], strict=True)
+    ):
+        if frame == diverge_at:
+            key = gtsam.symbol_shorthand.X(graph._next_index)
+            graph._smoother = _Diverging(graph._smoother, key, np.array([np.nan, 0.0, 0.0]))
         graph.add_vo(RelativeMeasurement(int(stamp), int(reference), transform, covariance))
+        assert not isinstance(graph._smoother, _Diverging)  # the restart made a fresh smoother: one diverged update
         if int(stamp) in suns:
             graph.add_sun(suns[int(stamp)])
         online.append(graph.pose())
@@ -546,30 +552,9 @@ def test_a_restart_with_sun_readings_keeps_the_orientation_within_what_was_known
     state's orientation prior was lost_variance·I (31 rad of σ): the sun readings then turned the window through
     84-105° (57-70 m of online error; the VO alone errs 11.0 m and 10.1° at most). At 1 rad of σ per axis it stays
     within 6.7° and 11.9 m (measured)."""
-    z = np.load(FIXTURES / "lost_vo_with_sun_03bm.npz")
-    stamps = [int(s) for s in z["stamps"]]
-    config = from_flat({"prior.source": "given", "inputs.sun.reference": "table", "inputs.vo.max_speed": 1000.0})
-    graph = FusionGraph(config, TabulatedSunReference(stamps, z["sun_map"]))
-    graph.set_initial_pose(z["ground_truth"][0])
-    suns = {
-        int(s): SunMeasurement(int(s), d, c)
-        for s, d, c in zip(z["sun_stamps"], z["sun_directions"], z["sun_covariances"], strict=True)
-    }
-    online = []
-    for frame, ((reference, stamp), transform, covariance) in enumerate(
-        zip(z["vo_stamps"], z["vo_transforms"], z["vo_covariances"], strict=True)
-    ):
-        if frame == restart_at:
-            key = gtsam.symbol_shorthand.X(graph._next_index)
-            graph._smoother = _Diverging(graph._smoother, key, np.array([np.nan, 0.0, 0.0]))
-        graph.add_vo(RelativeMeasurement(int(stamp), int(reference), transform, covariance))
-        assert not isinstance(graph._smoother, _Diverging)  # the restart made a fresh smoother: one diverged update
-        if int(stamp) in suns:
-            graph.add_sun(suns[int(stamp)])
-        online.append(graph.pose())
+    graph, online, _, truth = replay_fixture("lost_vo_with_sun_03bm.npz", sun=True, diverge_at=restart_at)
     assert graph.counts["solver.diverged"] == 1
-    truth = z["ground_truth"][1:]
-    online = np.array(online)
+    truth = truth[1:]
     rotation_error = [np.degrees(np.linalg.norm(so3_log(o[:3, :3].T @ t[:3, :3]))) for o, t in zip(online, truth, strict=True)]
     assert max(rotation_error) < 10.0, max(rotation_error)
     assert np.linalg.norm(online[:, :3, 3] - truth[:, :3, 3], axis=1).max() < 16.0
