@@ -500,7 +500,7 @@ def test_a_lost_vo_stretch_between_sun_readings_does_not_make_the_fusion_diverge
     assert np.all(np.isfinite(online)) and np.all(np.isfinite(smoothed)) and len(smoothed) == len(truth)
     error = np.linalg.norm(online[:, :3, 3] - truth[1:, :3, 3], axis=1)
     vo_error = np.linalg.norm(vo_online[:, :3, 3] - truth[1:, :3, 3], axis=1)
-    # measured: VO alone at most 20.6 m, fused 9.9 m (online)
+    # measured: the VO fused alone at most 11.0 m, with the sun readings 9.9 m (online)
     assert error.max() < vo_error.max(), (error.max(), vo_error.max())
     smoothed_error = np.linalg.norm(smoothed[:, :3, 3] - truth[:, :3, 3], axis=1)
     assert smoothed_error.max() < vo_error.max(), (smoothed_error.max(), vo_error.max())
