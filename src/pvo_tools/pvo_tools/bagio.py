@@ -96,11 +96,12 @@ class SafeBagWriter:
         for stale in stale_partials(self.path):
             if keep_interrupted:
                 left = stale / self.path.name
-                print(
-                    f"pvo: an earlier recording to {self.path} was cut off and left {left}: "
-                    f"`pvo bag recover {left} -o NEW` saves what it holds",
-                    file=sys.stderr,
+                saves = (
+                    f"`pvo bag recover {left} -o NEW` saves what it holds"
+                    if any(left.glob("*.mcap"))
+                    else "its storage file holds what was written"
                 )
+                print(f"pvo: an earlier recording to {self.path} was cut off and left {left}: {saves}", file=sys.stderr)
             else:
                 shutil.rmtree(stale, ignore_errors=True)
                 print(f"pvo: removed {stale}, left by an interrupted earlier run", file=sys.stderr)
