@@ -37,11 +37,21 @@ def rotation_message(estimate: RotationEstimate, header: Any) -> RelativePose:
 def widening_words(calibration: dict[str, Any]) -> str:
     """What the start-up line says of a card's covariance widening (the user should know the covariance is not the
     network's alone)."""
+    words = ""
     spread = calibration.get("spread_widening")
-    if not isinstance(spread, dict):
-        return ""
-    gamma = float(spread.get("gamma", 0.0))
-    return f", Sigma_a widened by 1 + {gamma:g} max(0, r - 1), r the heads' spread over its reference (card: spread_widening)"
+    if isinstance(spread, dict):
+        gamma = float(spread.get("gamma", 0.0))
+        words += (
+            f", Sigma_a widened by 1 + {gamma:g} max(0, r - 1), r the heads' spread over its reference (card: spread_widening)"
+        )
+    shortfall = calibration.get("flow_shortfall_widening")
+    if isinstance(shortfall, dict):
+        gamma = float(shortfall.get("gamma", 0.0))
+        words += (
+            f", and by 1 + {gamma:.4g} max(0, d - 1), d the flow's shortfall against the images' shift over its reference "
+            "(card: flow_shortfall_widening)"
+        )
+    return words
 
 
 class HydraNetNode(PvoNode[HydraNetSensorConfig, None]):

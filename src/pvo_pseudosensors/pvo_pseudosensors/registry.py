@@ -211,6 +211,7 @@ def _hydranet() -> ModelEntry:
         figures = evaluate_rotations(np.vstack(quaternions), np.concatenate(covariances), np.concatenate(truth))
         members = (card.calibration or {}).get("members")  # an ensemble stays one
         density = (card.calibration or {}).get("feature_density")  # `pvo hydranet density`'s, kept
+        shortfall = (card.calibration or {}).get("flow_shortfall_widening")  # `pvo hydranet shortfall`'s, kept
         card.calibration = {
             **figures,
             "sequences": float(len(sequences)),
@@ -218,6 +219,7 @@ def _hydranet() -> ModelEntry:
             **({"members": members} if members else {}),
             **({"feature_density": density} if density else {}),
             **({"spread_widening": widening} if widening else {}),
+            **({"flow_shortfall_widening": shortfall} if shortfall else {}),
         }
         write_card(model_dir, card)
         return {**figures, "spread_widening_dropped": 1.0} if dropped else figures

@@ -406,3 +406,25 @@ def test_fusion_drives_go_through_other_worlds_on_request(pvo_data: Path, tmp_pa
     assert seed(own) == 700
     with pytest.raises(ValueError, match="--fusion-world must be >= 0, got -1"):
         render_fusion_sequences(pvo_data, 1, 3, tmp_path / "x", lambda _: None, world=-1)
+
+
+def test_shortfall_writes_its_card_entry_and_prints_its_figures(corpus: Path, tmp_path: Path, capsys) -> None:
+    import torch
+    from pvo_pseudosensors.hydranet.config import HydraNetConfig
+    from pvo_pseudosensors.hydranet.model import HydraNet, HydraTask
+    from pvo_pseudosensors.learning.checkpoint import save_model
+
+    torch.manual_seed(0)
+    small = HydraNetConfig(height=48, width=144, widths=(8, 16), feature=8, heads=4, head_hidden=8)
+    model = save_model(tmp_path / "model", HydraNet(small), HydraTask(small).card())
+    args = ["hydranet", "shortfall", "--model", str(model), "--corpus", str(corpus), "--shift-corpus", str(corpus)]
+    assert main(args) == 0
+    captured = capsys.readouterr()
+    assert "predictions of 1 shift sequences ..." in captured.err
+    assert "Sigma_a widened by 1 + " in captured.out and "the flow's shortfall" in captured.out
+    assert "validation 11 pairs" in captured.out and "shift      11 pairs" in captured.out
+    entry = yaml.safe_load((model / "model.yaml").read_text())["calibration"]["flow_shortfall_widening"]
+    assert entry["reference"] > 0.0 and entry["gamma"] >= 0.0 and entry["reference_quantile"] == 0.99
+    assert entry["min_response"] == 0.2 and "shift_anees" in entry
+    assert main([*args, "--reference-quantile", "0"]) == 2
+    assert "reference quantile must lie in (0, 1), got 0.0" in capsys.readouterr().err

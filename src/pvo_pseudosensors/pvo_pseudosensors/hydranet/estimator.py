@@ -16,6 +16,7 @@ from .config import SHIPPED, HydraNetConfig
 from .flow import dense_flow, network_input
 from .infer import load_hydranet
 from .model import inference_mode, predict_rotations
+from .shortfall import flow_shortfall
 
 Array = NDArray[np.float64]
 UNMEASURED = 9999.0  # variance of a RelativePose's translation block: HydraNet says nothing about it
@@ -126,19 +127,17 @@ class HydraNetSensor:
             return None
         if shape != previous_shape:
             raise ValueError(f"image size changed from {previous_shape} to {shape}: this image starts a new pair")
-        flow = torch.from_numpy(
-            network_input(previous, dense_flow(previous, resized, self.flow_prior), self.texture, self.pitch_deg)
-        )[None]
+        forward = dense_flow(previous, resized, self.flow_prior)
+        flow = torch.from_numpy(network_input(previous, forward, self.texture, self.pitch_deg))[None]
         backward = None
         if self.mode == "reversed":
             backward = torch.from_numpy(
                 network_input(resized, dense_flow(resized, previous, self.flow_prior), self.texture, self.pitch_deg)
             )[None]
         output = predict_rotations(self.model, flow, self.mode == "mirrored", backward)
-        return RotationEstimate(
-            previous_stamp,
-            stamp,
-            output.quaternion[0].numpy(),
-            output.epistemic[0].numpy(),
-            output.aleatoric[0].numpy(),
-        )
+        epistemic, aleatoric = output.epistemic[0].numpy(), output.aleatoric[0].numpy()
+        shortfall = getattr(self.model, "shortfall_widening", None)
+        if shortfall is not None:  # where the flow did not follow the image: Sigma_a widened, counted in Sigma_e
+            d = flow_shortfall(previous, resized, forward, shortfall.min_response)
+            epistemic = shortfall.widen(epistemic[None], aleatoric[None], [d])[0]
+        return RotationEstimate(previous_stamp, stamp, output.quaternion[0].numpy(), epistemic, aleatoric)

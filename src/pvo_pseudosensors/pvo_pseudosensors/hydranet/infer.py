@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -20,6 +21,7 @@ from .config import ARCHITECTURE, HydraNetConfig
 from .density import QUANTILE, SHRINKAGE, FeatureDensity, fit_density, fit_gamma, normalised_errors
 from .flow import FlowPairs, network_input
 from .model import HydraEnsemble, HydraNet, RotationNetwork, inference_mode, predict_rotations
+from .shortfall import REFERENCE_QUANTILE, ShortfallWidening, fit_shortfall_widening, sequence_shortfalls
 from .widening import MAX_GAMMA, SpreadWidening, fit_widening, gamma_grid
 
 Array = NDArray[np.float64]
@@ -51,9 +53,16 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
             widening = SpreadWidening.from_entry(widening_entry)
         except ValueError as error:
             raise ModelFileError(f"{directory / CARD}: {error}") from None
+    shortfall = None
+    if (shortfall_entry := (card.calibration or {}).get("flow_shortfall_widening")) is not None:
+        try:
+            shortfall = ShortfallWidening.from_entry(shortfall_entry)
+        except ValueError as error:
+            raise ModelFileError(f"{directory / CARD}: {error}") from None
     if not members:
         if widening is not None:
             model.widening = widening
+        model.shortfall_widening = shortfall
         return model, card
     if not isinstance(members, list) or not all(isinstance(m, str) for m in members):
         raise ModelFileError(f"{directory / CARD}: calibration.members must be a list of directories, got {members!r}")
@@ -74,6 +83,7 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
     ensemble.eval()
     if widening is not None:
         ensemble.widening = widening
+    ensemble.shortfall_widening = shortfall
     return ensemble, card
 
 
@@ -193,6 +203,13 @@ def sequence_inputs(
     """The network inputs (N, C, H, W) of every pair of ``sequence``'s left images the card's ``gap`` apart
     (consecutive: 1), forward, and (``reverse``) from the later image to the earlier (else None). A model with the
     pitch input reads ``pitch_deg`` (deg below the horizon), else the pitch the sequence's sim.yaml records."""
+    return pair_inputs(config, sequence_pairs(config, sequence, reverse, cache_dir, pitch_deg), reverse)
+
+
+def sequence_pairs(
+    config: HydraNetConfig, sequence: Path, reverse: bool = False, cache_dir: Path | None = None, pitch_deg: float | None = None
+) -> Any:
+    """The resized images and flows of ``sequence`` as the card reads them (see :func:`sequence_inputs`)."""
     sequence = Path(sequence)
     data = FlowPairs(
         [Source(sequence, sequence.name)],
@@ -206,7 +223,11 @@ def sequence_inputs(
         depth=config.depth,
         gap=config.gap,
     )
-    pairs = data.pairs[0]
+    return data.pairs[0]
+
+
+def pair_inputs(config: HydraNetConfig, pairs: Any, reverse: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The network inputs of :func:`sequence_pairs`' pairs, forward and (``reverse``) backward."""
     depths = pairs.inverse_depths
 
     def inputs(flows: NDArray[np.floating], first: range) -> torch.Tensor:
@@ -255,8 +276,13 @@ def predict_sequence(
     keeps the ones a fusion may take as independent."""
     config = HydraNetConfig.from_card(card)
     mode = inference_mode(card)
-    forward, backward = sequence_inputs(config, sequence, mode == "reversed", cache_dir, pitch_deg)
+    pairs = sequence_pairs(config, sequence, mode == "reversed", cache_dir, pitch_deg)
+    forward, backward = pair_inputs(config, pairs, mode == "reversed")
     quaternions, epistemic, aleatoric = predict_flows(model, forward, batch, mode == "mirrored", backward)
+    shortfall = getattr(model, "shortfall_widening", None)
+    if shortfall is not None:  # where the flow did not follow the image: Sigma_a widened, counted in Sigma_e
+        shortfalls = sequence_shortfalls(pairs.images, pairs.forward, config.gap, shortfall.min_response)
+        epistemic = shortfall.widen(epistemic, aleatoric, shortfalls)
     frames = np.arange(config.gap, len(forward) + config.gap)
     return RotationPredictions(frames - config.gap, frames, quaternions, epistemic, aleatoric)
 
@@ -459,6 +485,85 @@ def calibrate_widening(
             "reference_quantile": float(reference_quantile),
             "max_gamma": float(max_gamma),
             "mode": mode,  # the spread is the mode's own: mirrored and reversed inference pool more readings
+            "validation_anees": calibration.validation_after["anees"],
+            "shift_anees_before": calibration.shift_before["anees"],
+            "shift_anees": calibration.shift_after["anees"],
+        },
+    }
+    write_card(directory, card)
+    return calibration
+
+
+@dataclass(frozen=True)
+class ShortfallCalibration:
+    """What :func:`calibrate_shortfall` fitted and measured: the widening and the figures (``evaluate_rotations``'
+    dicts) of the in-distribution and shift pairs before and after it."""
+
+    validation_before: dict[str, float]
+    validation_after: dict[str, float]
+    shift_before: dict[str, float]
+    shift_after: dict[str, float]
+    widening: ShortfallWidening
+
+
+def calibrate_shortfall(
+    directory: Path,
+    validation: list[CachedSequence],
+    shift: list[CachedSequence],
+    say: Callable[[str], None] = lambda _: None,
+    reference_quantile: float = REFERENCE_QUANTILE,
+) -> ShortfallCalibration:
+    """Fit a :class:`~.shortfall.ShortfallWidening` for the model in ``directory`` (its card's other widenings
+    applied, as the model ships): its reference the ``reference_quantile`` of the flow shortfall over the
+    in-distribution ``validation`` sequences' pairs, its γ by maximum likelihood on the ``shift`` sequences' pairs
+    (validation pairs of a faster-driven shift); written into the card (``calibration.flow_shortfall_widening``).
+    Every sequence needs its poses.txt; ``say`` hears each stage as it starts."""
+    from ..learning.checkpoint import write_card
+    from .evaluation import evaluate_rotations, rotation_errors, true_relative_rotations
+
+    if not (validation and shift):
+        raise ValueError("a shortfall widening needs validation and shift sequences, each at least one")
+    directory = Path(directory)
+    model, card = load_hydranet(directory)
+    model.shortfall_widening = None  # figures "before" are the card's without it
+    config = HydraNetConfig.from_card(card)
+
+    def measured(sequences: list[CachedSequence]) -> tuple[Array, Array, Array, Array, Array]:
+        quaternions, epistemic, aleatoric, truth, shortfalls = [], [], [], [], []
+        for sequence, cache in sequences:
+            predictions = predict_sequence(model, card, sequence, cache_dir=cache)
+            pairs = sequence_pairs(config, sequence, cache_dir=cache)
+            quaternions.append(predictions.quaternions)
+            epistemic.append(predictions.epistemic)
+            aleatoric.append(predictions.aleatoric)
+            poses = read_kitti_poses(Path(sequence) / "poses.txt")
+            truth.append(true_relative_rotations(poses, predictions.earlier, predictions.frames))
+            shortfalls.append(sequence_shortfalls(pairs.images, pairs.forward, config.gap))
+        joined = (np.vstack(quaternions), *(np.concatenate(v) for v in (epistemic, aleatoric, truth, shortfalls)))
+        return joined  # type: ignore[return-value]
+
+    say(f"predictions of {len(validation)} validation sequences")
+    validation_q, validation_e, validation_a, validation_truth, validation_d = measured(validation)
+    say(f"predictions of {len(shift)} shift sequences")
+    shift_q, shift_e, shift_a, shift_truth, shift_d = measured(shift)
+    errors = rotation_errors(np.stack([quat_to_matrix(q) for q in shift_q]), shift_truth)
+    widening = fit_shortfall_widening(validation_d, errors, shift_e, shift_a, shift_d, reference_quantile)
+
+    def figures(q: Array, e: Array, a: Array, truth: Array, d: Array, widened: bool) -> dict[str, float]:
+        return evaluate_rotations(q, (widening.widen(e, a, d) if widened else e) + a, truth)
+
+    calibration = ShortfallCalibration(
+        validation_before=figures(validation_q, validation_e, validation_a, validation_truth, validation_d, False),
+        validation_after=figures(validation_q, validation_e, validation_a, validation_truth, validation_d, True),
+        shift_before=figures(shift_q, shift_e, shift_a, shift_truth, shift_d, False),
+        shift_after=figures(shift_q, shift_e, shift_a, shift_truth, shift_d, True),
+        widening=widening,
+    )
+    card.calibration = {
+        **(card.calibration or {}),
+        "flow_shortfall_widening": {
+            **widening.entry(),
+            "reference_quantile": float(reference_quantile),
             "validation_anees": calibration.validation_after["anees"],
             "shift_anees_before": calibration.shift_before["anees"],
             "shift_anees": calibration.shift_after["anees"],

@@ -1,7 +1,8 @@
 """`pvo hydranet ensemble`: independently trained HydraNets made one model directory (the generated train /
 predict / eval / calibrate of :mod:`.models` take it like any other); `pvo hydranet density`: the feature density
 that widens the covariance of pairs unlike the model's data (:mod:`pvo_pseudosensors.hydranet.density`); `pvo
-hydranet widen`: Sigma_a widened by the heads' spread (:mod:`pvo_pseudosensors.hydranet.widening`)."""
+hydranet widen`: Sigma_a widened by the heads' spread (:mod:`pvo_pseudosensors.hydranet.widening`); `pvo hydranet
+shortfall`: Sigma_a widened where the flow did not follow the image (:mod:`pvo_pseudosensors.hydranet.shortfall`)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ def register_actions(actions: Any, entry: Any) -> None:
     ensemble.add_argument("--out", "-o", type=Path, required=True, help="new model directory (copies of the weights)")
     register_density(actions)
     register_widening(actions)
+    register_shortfall(actions)
 
 
 def _shift_arguments(parser: Any, corpus_help: str, shift_help: str) -> None:
@@ -117,6 +119,48 @@ def register_widening(actions: Any) -> None:
         default=3.0,
         help="the largest power the fit tries (default 3; a fit at this bound says so: the shift wants more)",
     )
+
+
+def register_shortfall(actions: Any) -> None:
+    shortfall = actions.add_parser(
+        "shortfall",
+        help="fit how much Sigma_a widens where the flow did not follow the image (the images' phase-correlation "
+        "shift against the flow's median): the reference from a corpus's in-distribution validation pairs, the power "
+        "so that a faster-driven shift reads most likely; written into the model's card "
+        "(calibration.flow_shortfall_widening)",
+    )
+    shortfall.set_defaults(handler=run_shortfall)
+    _shift_arguments(
+        shortfall,
+        "in-distribution corpus: its validation split",
+        "a corpus of faster drives than the model was trained on: its validation split",
+    )
+    shortfall.add_argument("--shift-preset", help="only this preset of the shift corpus (default all)")
+    shortfall.add_argument(
+        "--reference-quantile",
+        type=float,
+        default=0.99,
+        help="the quantile of the validation pairs' shortfalls below which no pair is widened (default 0.99)",
+    )
+
+
+def run_shortfall(args: argparse.Namespace) -> int:
+    from pvo_pseudosensors.hydranet.infer import calibrate_shortfall
+
+    calibration = calibrate_shortfall(
+        args.model,
+        _corpus_sequences(args.corpus, "validation", args.preset),
+        _corpus_sequences(args.shift_corpus, "validation", args.shift_preset),
+        say=lambda stage: print(f"pvo hydranet shortfall: {stage} ...", file=sys.stderr, flush=True),
+        reference_quantile=args.reference_quantile,
+    )
+    widening = calibration.widening
+    print(
+        f"{args.model}: Sigma_a widened by 1 + {widening.gamma:.4g} (d / {widening.reference:.3f} px - 1) above it, "
+        f"d the flow's shortfall (phase-correlation peaks below {widening.min_response:g} measure none)"
+    )
+    _print_shift_figures(calibration)
+    return 0
 
 
 def _corpus_sequences(corpus: Path, split: str, preset: str | None) -> list[tuple[Path, Path]]:

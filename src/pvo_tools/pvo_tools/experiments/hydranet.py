@@ -95,10 +95,12 @@ def evaluate_sequence(
 
 
 def heads_spread(model: Any, card: Any, sequences: list[Any], presets: tuple[str, ...], cache: Path | None) -> dict[str, float]:
-    """Mean tr Sigma_e (rad²) of the heads alone — no spread widening — over the pairs of ``sequences`` of each preset."""
+    """Mean tr Sigma_e (rad²) of the heads alone — no spread or shortfall widening — over the pairs of ``sequences`` of
+    each preset."""
     from pvo_pseudosensors.hydranet.infer import predict_sequence
 
     widening, model.widening = getattr(model, "widening", None), None
+    shortfall, model.shortfall_widening = getattr(model, "shortfall_widening", None), None
     try:
         return {
             preset: float(
@@ -113,7 +115,7 @@ def heads_spread(model: Any, card: Any, sequences: list[Any], presets: tuple[str
             for preset in presets
         }
     finally:
-        model.widening = widening
+        model.widening, model.shortfall_widening = widening, shortfall
 
 
 def pooled(label: str, parts: list[tuple[Any, Array]]) -> Evaluated:
