@@ -143,6 +143,11 @@ def test_the_widening_goes_into_the_card_and_prediction_and_the_sensor_read_it(t
     for k, estimate in enumerate(estimates[1:]):
         np.testing.assert_allclose(estimate.epistemic + estimate.aleatoric, widened.covariance[k], rtol=2e-3, atol=1e-9)
     assert "flow_shortfall_widening" in widening_words(read_card(directory).calibration)
+    # `pvo hydranet calibrate` (the inference mode chosen again) keeps it
+    from pvo_pseudosensors.registry import models
+
+    models()["hydranet"].calibrate(directory, [tmp_path / "validation"], mode="mirrored")
+    assert read_card(directory).calibration["flow_shortfall_widening"] == entry
     # a broken entry is one line naming the card
     card.calibration["flow_shortfall_widening"] = {"reference": -1.0, "gamma": 0.5}
     write_card(directory, card)
