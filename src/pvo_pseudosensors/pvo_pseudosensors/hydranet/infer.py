@@ -494,15 +494,10 @@ def calibrate_widening(
     return calibration
 
 
-@dataclass(frozen=True)
-class ShortfallCalibration:
-    """What :func:`calibrate_shortfall` fitted and measured: the widening and the figures (``evaluate_rotations``'
-    dicts) of the in-distribution and shift pairs before and after it."""
+@dataclass
+class ShortfallCalibration(ShiftFigures):
+    """What :func:`calibrate_shortfall` fitted and measured: the widening, and the figures."""
 
-    validation_before: dict[str, float]
-    validation_after: dict[str, float]
-    shift_before: dict[str, float]
-    shift_after: dict[str, float]
     widening: ShortfallWidening
 
 
