@@ -252,6 +252,7 @@ def bench_hydranet(args: argparse.Namespace) -> int:
     from pvo_pseudosensors.hydranet.estimator import HydraNetSensor, HydraNetSensorConfig
     from pvo_pseudosensors.hydranet.flow import dense_flow, network_input
     from pvo_pseudosensors.hydranet.model import predict_rotations
+    from pvo_pseudosensors.hydranet.shortfall import flow_shortfall
 
     from ..paths import data_directory
 
@@ -278,8 +279,12 @@ def bench_hydranet(args: argparse.Namespace) -> int:
             reversed_flow is not None and dense_flow(small[k], small[k - 1], sensor.flow_prior),
         ),
         f"network ({heads} heads, Sigma)": lambda k: predict_rotations(sensor.model, flow, mirrored, reversed_flow),
-        "sensor total": lambda k: sensor.estimate(images[k], (k + 1) * 100_000_000),
     }
+    shortfall = getattr(sensor.model, "shortfall_widening", None)
+    if shortfall is not None:  # the card's flow-shortfall widening: a phase correlation per pair
+        moved = dense_flow(small[0], small[1], sensor.flow_prior)
+        stages["flow shortfall"] = lambda k: flow_shortfall(small[k - 1], small[k], moved, shortfall.min_response)
+    stages["sensor total"] = lambda k: sensor.estimate(images[k], (k + 1) * 100_000_000)
     print(
         f"pvo bench hydranet: {sensor.height}x{sensor.width} flow from {images[0].shape[1]}x{images[0].shape[0]} images, "
         f"{len(images) - 1} pairs of the KITTI 06 clip, one core, {sensor.mode} inference"
