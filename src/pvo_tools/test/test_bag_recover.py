@@ -120,3 +120,26 @@ def test_the_command_recovers_and_reports(sample_bag: Path, tmp_path: Path) -> N
     assert info.returncode == 0 and "chunks verified" in info.stdout
     again = subprocess.run(["pvo", "bag", "recover", str(truncated), "-o", str(out)], capture_output=True, text=True, timeout=60)
     assert again.returncode == 2 and "output exists" in again.stderr
+
+
+def test_a_type_no_package_here_defines_keeps_its_definition_and_hash(tmp_path: Path) -> None:
+    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2.enums import StoragePlugin
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    definition = "float64 x\nstring label\n"
+    store = get_typestore(Stores.EMPTY)
+    store.register(get_types_from_msg(definition, "elsewhere_msgs/msg/Thing"))
+    type_hash = store.hash_rihs01("elsewhere_msgs/msg/Thing")
+    bag = tmp_path / "foreign"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = writer.add_connection("/thing", "elsewhere_msgs/msg/Thing", msgdef=definition, rihs01=type_hash)
+        message = store.types["elsewhere_msgs/msg/Thing"](x=1.5, label="a")
+        for k in range(5):
+            writer.write(connection, 1_000 + k, store.serialize_cdr(message, "elsewhere_msgs/msg/Thing"))
+    recovery = recover_bag(bag, tmp_path / "recovered")
+    assert recovery.messages == {"/thing": 5} and not recovery.problems
+    with Reader(tmp_path / "recovered") as reader:
+        (connection,) = reader.connections
+        assert connection.msgtype == "elsewhere_msgs/msg/Thing" and connection.digest == type_hash
+        assert [store.deserialize_cdr(raw, connection.msgtype).x for _, _, raw in reader.messages()] == [1.5] * 5
