@@ -116,6 +116,9 @@ def test_fusion_applies_path_period_at_run_time_and_validates_it(ros_context) ->
         ("pvo_pseudosensors", "hydranet", "max_gap:=0.0", "max_gap must be > 0 s, got 0.0"),
         ("pvo_pseudosensors", "hydranet", "camera_pitch_deg:=95.0", "camera_pitch_deg must be in [-90, 90] deg, got 95.0"),
         ("pvo_pseudosensors", "dpc_net", "threads:=0", "threads must be >= 1, got 0"),
+        ("pvo_fusion", "fusion", "inputs.vo.lost_variance:=abc", "parameter inputs.vo.lost_variance must be a number, got 'abc'"),
+        ("pvo_frontend", "stereo_vo", "max_pending_frames:=2.5", "parameter max_pending_frames must be an integer, got 2.5"),
+        ("pvo_pseudosensors", "hydranet", "max_gap:=[1.0]", "parameter max_gap must be a number, got [1.0]"),
     ],
 )
 def test_a_wrong_parameter_is_one_clear_line_and_exit_2(ros_env, package: str, node: str, parameter: str, message: str) -> None:
@@ -125,3 +128,53 @@ def test_a_wrong_parameter_is_one_clear_line_and_exit_2(ros_env, package: str, n
     assert result.returncode == 2
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"{node}: error: {message}"), lines
+
+
+def test_an_integer_for_a_float_parameter_is_the_number_meant(ros_context) -> None:
+    """`-p inputs.vo.lost_variance:=1000` (no decimal point) used to stop the node with rclpy's type error."""
+    from pvo_fusion.fusion_node import FusionNode
+    from rclpy.parameter import Parameter
+
+    overrides = [
+        Parameter("inputs.vo.lost_variance", value=1000),
+        Parameter("inputs.vo.covariance_scale", value=[1, 1, 1, 2, 2, 2]),
+    ]
+    node = FusionNode(context=ros_context, parameter_overrides=overrides)
+    try:
+        assert node.get_parameter("inputs.vo.lost_variance").value == 1000.0
+        assert node.config.inputs.vo.lost_variance == 1000.0 and isinstance(node.config.inputs.vo.lost_variance, float)
+        assert list(node.config.inputs.vo.covariance_scale) == [1.0, 1.0, 1.0, 2.0, 2.0, 2.0]
+    finally:
+        node.destroy_node()
+
+
+def test_arguments_rcl_cannot_parse_are_one_error_line_and_exit_2(ros_env) -> None:
+    result = subprocess.run(
+        ["pvo", "run", "pvo_fusion", "fusion", "--ros-args", "-p", "inputs.vo.covariance_scale:=[1,1,x]"],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    (line,) = [line for line in result.stderr.splitlines() if line.startswith("fusion: error: ")]
+    assert "Couldn't parse parameter override rule: '-p inputs.vo.covariance_scale:=[1,1,x]'" in line and "/project/" not in line
+
+
+def test_a_misspelt_parameter_is_named_with_the_one_meant(ros_env) -> None:
+    """ROS ignores a start-up value no parameter takes; the node says so, with the closest name it has."""
+    import signal
+    import time
+
+    proc = subprocess.Popen(
+        ["pvo", "run", "pvo_frontend", "stereo_vo", "--ros-args", "-p", "solver.los:=huber", "-p", "nosuch:=1"],
+        env=ros_env,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(4.0)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 0
+    assert "parameter solver.los is not one of stereo_vo's and is ignored; did you mean solver.loss?" in stderr
+    assert "parameter nosuch is not one of stereo_vo's and is ignored\n" in stderr

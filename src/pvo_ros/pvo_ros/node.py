@@ -10,7 +10,7 @@ from typing import Any, Generic, TypeVar
 from rclpy.node import Node
 
 from .diagnostics import ProblemLog, status_array
-from .parameters import ConfigParameters, ParameterPolicy
+from .parameters import ConfigParameters, ParameterPolicy, unknown_parameter_lines
 from .qos import reliable
 
 CoreConfig = TypeVar("CoreConfig")
@@ -42,6 +42,8 @@ class PvoNode(Node, Generic[CoreConfig, NodeConfig]):
         bindings = [b for b in (self._core, self._node_parameters) if b is not None]
         ParameterPolicy(self, bindings, runtime=dict(runtime or {}))
         self.problem = ProblemLog(self.get_logger())
+        for line in unknown_parameter_lines(self):
+            self.get_logger().warning(line)
         self.callback_errors: Counter[str] = Counter()
         from diagnostic_msgs.msg import DiagnosticArray
 

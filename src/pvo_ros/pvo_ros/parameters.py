@@ -23,22 +23,67 @@ C = TypeVar("C")
 
 
 class ConfigParameters(Generic[C]):
-    """The typed config a node runs with, bound to its declared parameters."""
+    """The typed config a node runs with, bound to its declared parameters.
+
+    A start-up value of another type than its field's is one ``ValueError`` line naming the parameter, not
+    rclpy's traceback; an integer given for a float field (``-p inputs.vo.lost_variance:=1000``) is the number
+    meant and is taken as a float, as are integer lists for lists of floats."""
 
     def __init__(self, node: Any, defaults: C, what: str) -> None:
+        from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+
         self._node = node
         self.what = what
         self.names = list(flatten(defaults))
+        # rclpy keeps the start-up values (--ros-args -p, parameter files) by name until each is declared
+        overrides: dict[str, Any] = getattr(node, "_parameter_overrides", {})
         for name, value in flatten(defaults).items():
             if node.has_parameter(name):
                 raise ValueError(f"{what}: parameter {name} is declared by two configs")
-            node.declare_parameter(name, value)
+            given = overrides.get(name)
+            if given is not None:
+                overrides[name] = _as_field_type(given, value)
+            try:
+                node.declare_parameter(name, value)
+            except (InvalidParameterTypeException, InvalidParameterValueException):
+                shown = given.value if given is not None else None
+                raise ValueError(f"parameter {name} must be {_kind(value)}, got {shown!r}") from None
         values = {name: node.get_parameter(name).value for name in self.names}
         self.value: C = from_flat(values, defaults, what=what)
 
     def replaced(self, changes: dict[str, Any]) -> C:
         """The current config with ``changes`` (dotted names) applied and validated."""
         return from_flat({**flatten(self.value), **changes}, self.value, what=self.what)
+
+
+def _as_field_type(given: Any, default: Any) -> Any:
+    """An integer start-up value (or integer list) for a float field (or float list) as the float it means; any
+    other value as given (a wrong type is then refused by the declaration)."""
+    from rclpy.parameter import Parameter
+
+    if isinstance(default, float) and not isinstance(default, bool) and given.type_ == Parameter.Type.INTEGER:
+        return Parameter(given.name, Parameter.Type.DOUBLE, float(given.value))
+    floats = isinstance(default, list | tuple) and default and all(isinstance(v, float) for v in default)
+    if floats and given.type_ == Parameter.Type.INTEGER_ARRAY:
+        return Parameter(given.name, Parameter.Type.DOUBLE_ARRAY, [float(v) for v in given.value])
+    return given
+
+
+def _kind(default: Any) -> str:
+    """What a parameter with this default takes, in words."""
+    if isinstance(default, bool):
+        return "true or false"
+    if isinstance(default, int):
+        return "an integer"
+    if isinstance(default, float):
+        return "a number"
+    if isinstance(default, str):
+        return "a string"
+    if isinstance(default, list | tuple):
+        words = {float: "numbers", int: "integers", str: "strings", bool: "booleans"}
+        kinds = {type(v) for v in default}
+        return f"a list of {words.get(next(iter(kinds)), 'values') if len(kinds) == 1 else 'values'}"
+    return f"a {type(default).__name__}"
 
 
 def declare_config(node: Any, defaults: C, what: str | None = None) -> C:
@@ -109,3 +154,18 @@ def config_fields(*configs: Any) -> set[str]:
             raise TypeError(f"{config!r} is not a config dataclass")
         names |= set(flatten(instance))
     return names
+
+
+def unknown_parameter_lines(node: Any) -> list[str]:
+    """One line per start-up value (--ros-args -p, a parameter file) that names no parameter of ``node``: ROS
+    ignores such a value, so a misspelt name would otherwise leave the default in force unseen."""
+    import difflib
+
+    declared = declared_parameter_names(node)
+    given = set(getattr(node, "_parameter_overrides", {})) - declared - RCLPY_PARAMETERS
+    lines = []
+    for name in sorted(n for n in given if not n.startswith("qos_overrides.")):
+        close = difflib.get_close_matches(name, sorted(declared), n=1)
+        hint = f"; did you mean {close[0]}?" if close else ""
+        lines.append(f"parameter {name} is not one of {node.get_name()}'s and is ignored{hint}")
+    return lines

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import faulthandler
+import re
 import signal
 import sys
 from collections.abc import Callable
@@ -62,7 +63,11 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
     # did not stop on SIGINT, before it escalates, so that a hang leaves its place behind
     faulthandler.register(signal.SIGUSR1, all_threads=True, chain=False)
     stop = StopRequest()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except RuntimeError as exc:  # rcl's RCLError: --ros-args it cannot parse (a malformed -p rule, a bad file)
+        print(f"{name}: error: {_rcl_reason(exc)}", file=sys.stderr)
+        sys.exit(EXIT_BAD_PARAMETER)
     try:
         node = factory()
     except ValueError as exc:
@@ -91,3 +96,8 @@ def run_node(factory: Callable[[], Any], name: str, args: list[str] | None = Non
         rclpy.try_shutdown()
         faulthandler.cancel_dump_traceback_later()
     return 0
+
+
+def _rcl_reason(error: BaseException) -> str:
+    """rcl's message without the C source locations it appends (", at /project/src/parse.c:435")."""
+    return re.sub(r",? at /\S+:\d+", "", str(error).splitlines()[0] if str(error) else type(error).__name__).strip()
