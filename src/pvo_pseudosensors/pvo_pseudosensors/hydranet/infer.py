@@ -47,18 +47,8 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
                 f"{directory / CARD}: the feature density is over {model.density.features} units, the network gives "
                 f"{model.config.feature}"
             )
-    widening = None
-    if (widening_entry := (card.calibration or {}).get("spread_widening")) is not None:
-        try:
-            widening = SpreadWidening.from_entry(widening_entry)
-        except ValueError as error:
-            raise ModelFileError(f"{directory / CARD}: {error}") from None
-    shortfall = None
-    if (shortfall_entry := (card.calibration or {}).get("flow_shortfall_widening")) is not None:
-        try:
-            shortfall = ShortfallWidening.from_entry(shortfall_entry)
-        except ValueError as error:
-            raise ModelFileError(f"{directory / CARD}: {error}") from None
+    widening = _card_widening(directory, card, "spread_widening", SpreadWidening.from_entry)
+    shortfall = _card_widening(directory, card, "flow_shortfall_widening", ShortfallWidening.from_entry)
     if not members:
         if widening is not None:
             model.widening = widening
@@ -85,6 +75,17 @@ def load_hydranet(directory: Path) -> tuple[RotationNetwork, ModelCard]:
         ensemble.widening = widening
     ensemble.shortfall_widening = shortfall
     return ensemble, card
+
+
+def _card_widening(directory: Path, card: ModelCard, key: str, parse: Callable[[Any], Any]) -> Any:
+    """The card's ``calibration.<key>`` parsed (None without one); a bad entry is one line naming the card."""
+    entry = (card.calibration or {}).get(key)
+    if entry is None:
+        return None
+    try:
+        return parse(entry)
+    except ValueError as error:
+        raise ModelFileError(f"{directory / CARD}: {error}") from None
 
 
 def _network_input(config: HydraNetConfig) -> tuple[tuple[int, ...], bool, bool, str, bool, int]:
