@@ -17,12 +17,13 @@ from __future__ import annotations
 import mmap
 import re
 import struct
-from collections.abc import Callable, Iterator
+from binascii import crc32
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import BagError
-from .mcapcheck import MAGIC, OP_CHUNK, OP_FOOTER
+from .mcapcheck import MAGIC, OP_CHUNK, OP_FOOTER, chunk_at, decompress
 
 OP_SCHEMA = 0x03
 OP_CHANNEL = 0x04
@@ -113,23 +114,6 @@ def _records(buffer: bytes | memoryview, start: int = 0) -> Iterator[tuple[int, 
         raise ValueError(f"{len(buffer) - pos} stray bytes at byte {pos}")
 
 
-def _decompressor(compression: str) -> Callable[[bytes], bytes]:
-    """A function giving as much of the uncompressed chunk as the bytes at hand hold (all of a whole chunk)."""
-    if compression == "":
-        return bytes
-    if compression == "zstd":
-        try:
-            from compression import zstd  # type: ignore[import-not-found]
-        except ImportError:
-            from backports import zstd  # type: ignore[no-redef]
-        return lambda raw: zstd.ZstdDecompressor().decompress(raw)
-    if compression == "lz4":
-        import lz4.frame  # type: ignore[import-not-found]
-
-        return lambda raw: lz4.frame.LZ4FrameDecompressor().decompress(raw)
-    raise ValueError(f"unsupported compression {compression!r}")
-
-
 def _data_records(buffer: bytes | memoryview, scan: McapScan, where: str, partial: bool) -> Iterator[Message]:
     """Schema, Channel and Message records of a chunk's records (or the file's unchunked ones); ``partial``: the
     buffer is the head of a chunk cut off, so a record running past its end is the cut, not damage."""
@@ -165,8 +149,6 @@ def scan_mcap(path: Path) -> tuple[McapScan, Iterator[Message]]:
 
 
 def _scan_messages(path: Path, scan: McapScan) -> Iterator[Message]:
-    from binascii import crc32
-
     with path.open("rb") as handle:
         size = path.stat().st_size
         if size < len(MAGIC):
@@ -189,7 +171,7 @@ def _scan_messages(path: Path, scan: McapScan) -> Iterator[Message]:
                     ended = True
                 elif op == OP_CHUNK:
                     chunk_index += 1
-                    yield from _chunk_messages(path, data, scan, chunk_index, pos, cut, crc32)
+                    yield from _chunk_messages(path, data, scan, chunk_index, pos, cut)
                 elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE) and not cut:
                     yield from _data_records(data[pos : content + length], scan, f"{path}: byte {pos}", partial=False)
                 if cut:
@@ -206,21 +188,16 @@ def _scan_messages(path: Path, scan: McapScan) -> Iterator[Message]:
             data.close()
 
 
-def _chunk_messages(
-    path: Path, data: mmap.mmap, scan: McapScan, index: int, pos: int, cut: bool, crc32: Callable[[bytes], int]
-) -> Iterator[Message]:
-    fields = _Reader(data, pos + RECORD_HEADER)
+def _chunk_messages(path: Path, data: mmap.mmap, scan: McapScan, index: int, pos: int, cut: bool) -> Iterator[Message]:
     try:
-        start, end, uncompressed_size, crc = (fields.uint(f) for f in ("<Q", "<Q", "<Q", "<I"))
-        compression = fields.string()
-        compressed_size = fields.uint("<Q")
-    except (ValueError, UnicodeDecodeError):
+        chunk = chunk_at(data, pos, index)
+    except (struct.error, UnicodeDecodeError):
         scan.problems.append(f"{path}: chunk {index} at byte {pos}: its header is cut off")
         return
-    where = f"{path}: chunk {index} (byte {pos}, messages {start * 1e-9:.3f}-{end * 1e-9:.3f} s)"
-    raw = bytes(data[fields.pos : fields.pos + compressed_size])
+    where = f"{path}: chunk {index} (byte {pos}, messages {chunk.start_ns * 1e-9:.3f}-{chunk.end_ns * 1e-9:.3f} s)"
+    raw = bytes(data[chunk.data_offset : chunk.data_offset + chunk.compressed_size])
     try:
-        records = _decompressor(compression)(raw)
+        records = decompress(chunk.compression, raw, partial=cut)
     except Exception as error:  # noqa: BLE001 - every decoder error means a chunk that cannot be read
         scan.problems.append(f"{where}: does not decompress ({type(error).__name__}); its messages are dropped")
         return
@@ -228,10 +205,10 @@ def _chunk_messages(
         scan.chunks_partial += 1
         yield from _data_records(records, scan, where, partial=True)
         return
-    if len(records) != uncompressed_size:
-        scan.problems.append(f"{where}: {len(records)} bytes decompressed, {uncompressed_size} recorded; dropped")
+    if len(records) != chunk.uncompressed_size:
+        scan.problems.append(f"{where}: {len(records)} bytes decompressed, {chunk.uncompressed_size} recorded; dropped")
         return
-    if crc and crc32(records) != crc:
+    if chunk.crc and crc32(records) != chunk.crc:
         scan.problems.append(f"{where}: checksum mismatch (corrupted); its messages are dropped")
         return
     scan.chunks_read += 1

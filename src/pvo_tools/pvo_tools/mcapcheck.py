@@ -8,6 +8,7 @@ rosbags' reader then verifies it, and :func:`verify_chunks` names the chunk that
 
 from __future__ import annotations
 
+import mmap
 import struct
 from binascii import crc32
 from collections.abc import Iterator
@@ -44,33 +45,47 @@ def _chunks(data: bytes) -> Iterator[Chunk]:
         if content + length > len(data):
             raise ValueError(f"record at byte {pos} runs past the end of the file (truncated)")
         if op == OP_CHUNK:
-            start, end, size, crc = struct.unpack_from("<QQQI", data, content)
-            (name_length,) = struct.unpack_from("<I", data, content + 28)
-            compression = data[content + 32 : content + 32 + name_length].decode()
-            (compressed_size,) = struct.unpack_from("<Q", data, content + 32 + name_length)
-            data_offset = content + 40 + name_length
-            yield Chunk(index, pos, start, end, size, crc, compression, data_offset, compressed_size)
+            yield chunk_at(data, pos, index)
             index += 1
         elif op == OP_FOOTER:
             return
         pos = content + length
 
 
-def _uncompressed(data: bytes, chunk: Chunk) -> bytes:
-    raw = data[chunk.data_offset : chunk.data_offset + chunk.compressed_size]
-    if chunk.compression == "":
-        return raw
-    if chunk.compression == "zstd":
+def chunk_at(data: bytes | mmap.mmap, pos: int, index: int) -> Chunk:
+    """The header of the Chunk record at byte ``pos`` (the ``index``-th chunk); struct.error or
+    UnicodeDecodeError where the header itself is cut off or garbled."""
+    content = pos + 9
+    start, end, size, crc = struct.unpack_from("<QQQI", data, content)
+    (name_length,) = struct.unpack_from("<I", data, content + 28)
+    compression = bytes(data[content + 32 : content + 32 + name_length]).decode()
+    (compressed_size,) = struct.unpack_from("<Q", data, content + 32 + name_length)
+    return Chunk(index, pos, start, end, size, crc, compression, content + 40 + name_length, compressed_size)
+
+
+def decompress(compression: str, raw: bytes, partial: bool = False) -> bytes:
+    """A chunk's records from its compressed bytes; ``partial``: ``raw`` is the head of a chunk cut off, and what
+    its whole blocks hold is returned (zstd, lz4 frames) instead of an error."""
+    if compression == "":
+        return bytes(raw)
+    if compression == "zstd":
         try:
             from compression import zstd  # type: ignore[import-not-found]
         except ImportError:
             from backports import zstd  # type: ignore[no-redef]
-        return zstd.decompress(raw)
-    if chunk.compression == "lz4":
+        return zstd.ZstdDecompressor().decompress(raw) if partial else zstd.decompress(raw)
+    if compression == "lz4":
         import lz4.frame  # type: ignore[import-not-found]
 
-        return lz4.frame.decompress(raw)
-    raise ValueError(f"chunk {chunk.index}: unsupported compression {chunk.compression!r}")
+        return lz4.frame.LZ4FrameDecompressor().decompress(raw) if partial else lz4.frame.decompress(raw)
+    raise ValueError(f"unsupported compression {compression!r}")
+
+
+def _uncompressed(data: bytes, chunk: Chunk) -> bytes:
+    try:
+        return decompress(chunk.compression, data[chunk.data_offset : chunk.data_offset + chunk.compressed_size])
+    except ValueError as error:
+        raise ValueError(f"chunk {chunk.index}: {error}") from None
 
 
 def add_chunk_crcs(path: Path) -> int:
