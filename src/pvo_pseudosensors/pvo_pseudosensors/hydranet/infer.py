@@ -523,17 +523,21 @@ def calibrate_shortfall(
     model, card = load_hydranet(directory)
     model.shortfall_widening = None  # figures "before" are the card's without it
     config = HydraNetConfig.from_card(card)
+    mode = inference_mode(card)
 
     def measured(sequences: list[CachedSequence]) -> tuple[Array, Array, Array, Array, Array]:
         quaternions, epistemic, aleatoric, truth, shortfalls = [], [], [], [], []
         for sequence, cache in sequences:
-            predictions = predict_sequence(model, card, sequence, cache_dir=cache)
-            pairs = sequence_pairs(config, sequence, cache_dir=cache)
-            quaternions.append(predictions.quaternions)
-            epistemic.append(predictions.epistemic)
-            aleatoric.append(predictions.aleatoric)
+            # predict_sequence's steps without the widening being fitted, the pairs read once for both
+            pairs = sequence_pairs(config, sequence, mode == "reversed", cache)
+            forward, backward = pair_inputs(config, pairs, mode == "reversed")
+            q, e, a = predict_flows(model, forward, mirrored=mode == "mirrored", reversed_flows=backward)
+            frames = np.arange(config.gap, len(forward) + config.gap)
+            quaternions.append(q)
+            epistemic.append(e)
+            aleatoric.append(a)
             poses = read_kitti_poses(Path(sequence) / "poses.txt")
-            truth.append(true_relative_rotations(poses, predictions.earlier, predictions.frames))
+            truth.append(true_relative_rotations(poses, frames - config.gap, frames))
             shortfalls.append(sequence_shortfalls(pairs.images, pairs.forward, config.gap))
         joined = (np.vstack(quaternions), *(np.concatenate(v) for v in (epistemic, aleatoric, truth, shortfalls)))
         return joined  # type: ignore[return-value]
